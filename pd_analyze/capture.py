@@ -1,0 +1,281 @@
+"""Capture files, streamed one frame at a time.
+
+pcap (microsecond and nanosecond magic, both byte orders) is read with dpkt's reader; pcapng is
+walked block by block here because it carries several interfaces with their own link types and
+timestamp resolutions, and Simple Packet Blocks, which dpkt's pcapng reader does not handle (dpkt's
+block classes still parse the interface and packet blocks). Either may be gzip-compressed; the
+format is found by magic, never by file name.
+
+A damaged file raises CaptureError naming the byte offset, after every frame before the damage has
+been yielded. No length field read from a file is trusted for an allocation: every record is
+bounded by MAX_CAPLEN before it is read.
+"""
+
+from __future__ import annotations
+
+import gzip
+import io
+import os
+import struct
+import sys
+import zlib
+from collections.abc import Iterator
+from typing import BinaryIO, NamedTuple
+
+import dpkt
+import dpkt.pcap
+import dpkt.pcapng
+
+MAX_CAPLEN = 262_144  # the largest snaplen tools write (tcpdump, Wireshark)
+_PCAPNG_MAX_BLOCK = MAX_CAPLEN + 65_536  # a packet block plus generous room for options
+_GZIP_MAGIC = b"\x1f\x8b"
+_PCAPNG_SHB = 0x0A0D0D0A
+_PCAPNG_BOM = 0x1A2B3C4D
+_PCAP_MAGICS = {
+    b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4",  # microseconds, LE / BE
+    b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d",  # nanoseconds, LE / BE
+}
+
+
+class CaptureError(Exception):
+    """A capture cannot be read (further); `offset` is the byte offset of the damage, if known."""
+
+    def __init__(self, path: str, message: str, offset: int | None = None) -> None:
+        self.path = path
+        self.offset = offset
+        self.reason = message
+        where = f"byte {offset}: " if offset is not None else ""
+        super().__init__(f"{path}: {where}{message}")
+
+
+class RawFrame(NamedTuple):
+    number: int
+    ts: float
+    linktype: int
+    data: bytes
+    iface: int = 0
+
+
+class CaptureInfo:
+    """What the reader learnt about the file: format, compression, interfaces."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self.format = ""
+        self.compressed = False
+        self.linktypes: list[int] = []
+
+
+def frames(path: str, info: CaptureInfo | None = None) -> Iterator[RawFrame]:
+    """Every frame of a capture file (`-` = standard input), numbered from 1."""
+    info = info or CaptureInfo(path)
+    stream = _open(path)
+    try:
+        head = _peek(stream, 4)
+        if head[:2] == _GZIP_MAGIC:
+            info.compressed = True
+            stream = gzip.GzipFile(fileobj=stream, mode="rb")  # type: ignore[assignment]
+            try:
+                head = _peek(stream, 4)
+            except (OSError, EOFError, zlib.error) as exc:
+                raise CaptureError(path, f"gzip data unreadable ({exc})", 0) from None
+        reader = _reader_for(path, head, info)
+        yield from reader(path, stream, info)
+    finally:
+        stream.close()
+
+
+def _open(path: str) -> BinaryIO:
+    if path == "-":
+        return sys.stdin.buffer
+    if os.path.isdir(path):
+        raise CaptureError(path, "is a directory, not a capture file")
+    try:
+        return open(path, "rb")
+    except FileNotFoundError:
+        raise CaptureError(path, "no such file") from None
+    except PermissionError:
+        raise CaptureError(path, "permission denied (check the file's read rights)") from None
+    except OSError as exc:
+        raise CaptureError(path, f"cannot open ({exc.strerror})") from None
+
+
+def _peek(stream: BinaryIO, size: int) -> bytes:
+    peek = getattr(stream, "peek", None)
+    data = peek(size)[:size] if peek else b""
+    return data
+
+
+def _reader_for(path: str, head: bytes, info: CaptureInfo):  # noqa: ANN202
+    if len(head) == 0:
+        raise CaptureError(path, "empty file: no capture header", 0)
+    if len(head) >= 4 and head in _PCAP_MAGICS:
+        info.format = "pcap"
+        return _pcap_frames
+    if len(head) >= 4 and struct.unpack("<I", head)[0] == _PCAPNG_SHB:
+        info.format = "pcapng"
+        return _pcapng_frames
+    raise CaptureError(path, f"not a pcap or pcapng file (magic {head.hex()}; "
+                             "convert other formats with editcap first)", 0)
+
+
+class _Guard(io.RawIOBase):
+    """File wrapper for dpkt: counts bytes and refuses reads a hostile length would make huge."""
+
+    def __init__(self, path: str, stream: BinaryIO) -> None:
+        super().__init__()
+        self.path = path
+        self.stream = stream
+        self.pos = 0
+        self.short = False
+        self.name = path
+
+    def read(self, size: int = -1) -> bytes:  # type: ignore[override]
+        if size > MAX_CAPLEN:
+            raise CaptureError(self.path, f"record length {size} exceeds {MAX_CAPLEN} bytes "
+                                          "(corrupt record header)", self.pos - 16)
+        try:
+            data = self.stream.read(size)
+        except (OSError, EOFError, zlib.error) as exc:
+            raise CaptureError(self.path, f"read failed ({_gzip_reason(exc)})", self.pos) from None
+        self.pos += len(data)
+        self.short = 0 <= size != len(data)
+        return data
+
+
+def _gzip_reason(exc: BaseException) -> str:
+    text = str(exc) or exc.__class__.__name__
+    if isinstance(exc, EOFError):
+        return f"compressed data ends early: {text}"
+    return f"corrupt compressed data: {text}" if "CRC" in text or isinstance(exc, zlib.error) else text
+
+
+def _pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[RawFrame]:
+    guard = _Guard(path, stream)
+    try:
+        reader = dpkt.pcap.Reader(guard)
+    except (ValueError, dpkt.NeedData, dpkt.UnpackError):
+        raise CaptureError(path, "pcap file header truncated or invalid", 0) from None
+    linktype = reader.datalink()
+    info.linktypes = [linktype]
+    number = 0
+    start = guard.pos
+    records = iter(reader)
+    while True:
+        try:
+            ts, data = next(records)
+        except StopIteration:
+            return
+        except (dpkt.NeedData, dpkt.UnpackError):
+            raise CaptureError(path, "record header truncated", start) from None
+        if guard.short:
+            raise CaptureError(path, f"record data truncated ({len(data)} bytes present)", start)
+        number += 1
+        start = guard.pos
+        yield RawFrame(number, float(ts), linktype, data)
+
+
+class _Interface(NamedTuple):
+    linktype: int
+    divisor: float
+    offset: int
+    snaplen: int
+
+
+def _pcapng_frames(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[RawFrame]:
+    pos = 0
+    little = True
+    ifaces: list[_Interface] = []
+    number = 0
+    last_ts = 0.0
+    while True:
+        head = _read_exact(path, stream, 8, pos, allow_eof=True)
+        if not head:
+            return
+        if struct.unpack("<I", head[:4])[0] == _PCAPNG_SHB:
+            little = _shb_little(path, stream, pos)
+            ifaces = []
+        order = "<" if little else ">"
+        btype, blen = struct.unpack(order + "II", head)
+        if blen < 12 or blen % 4 or blen > _PCAPNG_MAX_BLOCK:
+            raise CaptureError(path, f"pcapng block of type {btype:#x} has invalid length {blen}", pos)
+        body = _read_exact(path, stream, blen - 8, pos)
+        if struct.unpack(order + "I", body[-4:])[0] != blen:
+            raise CaptureError(path, f"pcapng block of type {btype:#x}: trailing length differs "
+                                     f"from {blen}", pos)
+        block = head + body
+        if btype == dpkt.pcapng.PCAPNG_BT_SHB:
+            pass
+        elif btype == dpkt.pcapng.PCAPNG_BT_IDB:
+            ifaces.append(_interface(path, block, little, pos))
+            info.linktypes.append(ifaces[-1].linktype)
+        elif btype in (dpkt.pcapng.PCAPNG_BT_EPB, dpkt.pcapng.PCAPNG_BT_PB):
+            iface_id, ts_high, ts_low, caplen = _packet_header(order, btype, block)
+            if iface_id >= len(ifaces):
+                raise CaptureError(path, f"packet block names interface {iface_id}, "
+                                         f"only {len(ifaces)} described", pos)
+            if caplen > blen - 28 - 4:
+                raise CaptureError(path, f"packet block caplen {caplen} exceeds its block", pos)
+            iface = ifaces[iface_id]
+            number += 1
+            last_ts = iface.offset + ((ts_high << 32) | ts_low) / iface.divisor
+            yield RawFrame(number, last_ts, iface.linktype, block[28:28 + caplen], iface_id)
+        elif btype == dpkt.pcapng.PCAPNG_BT_SPB:
+            if not ifaces:
+                raise CaptureError(path, "simple packet block before any interface", pos)
+            orig_len = struct.unpack(order + "I", block[8:12])[0]
+            iface = ifaces[0]
+            caplen = min(orig_len, blen - 16, iface.snaplen or MAX_CAPLEN)
+            number += 1
+            # An SPB carries no timestamp: Wireshark shows none; we keep the previous one so
+            # capture-time timeouts stay monotonic.
+            yield RawFrame(number, last_ts, iface.linktype, block[12:12 + caplen], 0)
+        # every other block type (name resolution, statistics, custom, ...) is skipped
+        pos += blen
+
+
+def _read_exact(path: str, stream: BinaryIO, size: int, pos: int, allow_eof: bool = False) -> bytes:
+    try:
+        data = stream.read(size)
+    except (OSError, EOFError, zlib.error) as exc:
+        raise CaptureError(path, f"read failed ({_gzip_reason(exc)})", pos) from None
+    if allow_eof and not data:
+        return b""
+    if len(data) != size:
+        raise CaptureError(path, f"block truncated ({len(data)} of {size} bytes present)", pos)
+    return data
+
+
+def _shb_little(path: str, stream: BinaryIO, pos: int) -> bool:
+    bom = _peek(stream, 4)
+    if len(bom) < 4:
+        raise CaptureError(path, "section header block truncated", pos)
+    if struct.unpack("<I", bom)[0] == _PCAPNG_BOM:
+        return True
+    if struct.unpack(">I", bom)[0] == _PCAPNG_BOM:
+        return False
+    raise CaptureError(path, "section header block has no valid byte-order magic", pos)
+
+
+def _interface(path: str, block: bytes, little: bool, pos: int) -> _Interface:
+    try:
+        idb = (dpkt.pcapng.InterfaceDescriptionBlockLE if little
+               else dpkt.pcapng.InterfaceDescriptionBlock)(block)
+    except (dpkt.NeedData, dpkt.UnpackError, struct.error) as exc:
+        raise CaptureError(path, f"interface description block invalid ({exc})", pos) from None
+    divisor, offset = 1e6, 0
+    for opt in idb.opts:
+        if opt.code == dpkt.pcapng.PCAPNG_OPT_IF_TSRESOL and opt.data:
+            resol = opt.data[0]
+            divisor = float(2 ** (resol & 0x7F) if resol & 0x80 else 10 ** (resol & 0x7F))
+        elif opt.code == dpkt.pcapng.PCAPNG_OPT_IF_TSOFFSET and len(opt.data) == 8:
+            offset = struct.unpack("<q" if little else ">q", opt.data)[0]
+    return _Interface(idb.linktype, divisor, offset, idb.snaplen)
+
+
+def _packet_header(order: str, btype: int, block: bytes) -> tuple[int, int, int, int]:
+    if btype == dpkt.pcapng.PCAPNG_BT_EPB:
+        return struct.unpack_from(order + "IIII", block, 8)
+    # obsolete Packet Block: interface id and drops count are 16-bit each
+    iface_id, _drops, ts_high, ts_low, caplen = struct.unpack_from(order + "HHIII", block, 8)
+    return iface_id, ts_high, ts_low, caplen

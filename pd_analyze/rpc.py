@@ -1,0 +1,264 @@
+"""Connectionless DCE/RPC v4: header, PNIO recognition, CL fragment reassembly, call pairing.
+
+Calls are keyed by activity UUID + sequence number only, never by UDP ports (devices answer from
+other ports). Activity UUIDs are kept in canonical big-endian form, because a request and its
+response may use different DREP byte orders.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+from pd_analyze import rules
+from pd_analyze.rules import Finding
+from pd_analyze.structs import Layout
+from pd_analyze.tables import (
+    FLAG1_LASTFRAG,
+    PNIO_UUID_SUFFIX,
+    PTYPE_ACK,
+    PTYPE_CANCEL,
+    PTYPE_CANCEL_ACK,
+    PTYPE_FACK,
+    PTYPE_PING,
+    PTYPE_REQUEST,
+)
+
+HEADER_SIZE = 80
+_FIELDS = (
+    ("rpc.ver", "B"), ("rpc.ptype", "B"), ("rpc.flags1", "B"), ("rpc.flags2", "B"), ("rpc.drep", "3s"),
+    ("rpc.serial_hi", "B"), ("rpc.object", "16s"), ("rpc.interface", "16s"), ("rpc.activity", "16s"),
+    ("rpc.boot_time", "I"), ("rpc.if_version", "I"), ("rpc.seq", "I"), ("rpc.opnum", "H"),
+    ("rpc.ihint", "H"), ("rpc.ahint", "H"), ("rpc.frag_len", "H"), ("rpc.frag_num", "H"),
+    ("rpc.auth_proto", "B"), ("rpc.serial_lo", "B"))
+HEADER_LE = Layout("DCE/RPC connectionless header", "<", _FIELDS)
+HEADER_BE = Layout("DCE/RPC connectionless header", ">", _FIELDS)
+(I_VER, I_PTYPE, I_FLAGS1, I_FLAGS2, I_DREP, I_SERIAL_HI, I_OBJECT, I_INTERFACE, I_ACTIVITY, I_BOOT,
+ I_IFVER, I_SEQ, I_OPNUM, I_IHINT, I_AHINT, I_FRAG_LEN, I_FRAG_NUM, I_AUTH, I_SERIAL_LO) = range(19)
+FAULT_LE = Layout("Fault status", "<", (("rpc.fault_status", "I"),))
+FAULT_BE = Layout("Fault status", ">", (("rpc.fault_status", "I"),))
+_CONTROL_PTYPES = frozenset({PTYPE_PING, PTYPE_ACK, PTYPE_CANCEL, PTYPE_FACK, PTYPE_CANCEL_ACK})
+
+SKIP_NOT_RPC = "UDP, not DCE/RPC v4"
+SKIP_NOT_PNIO = "DCE/RPC, not PNIO (e.g. endpoint mapper)"
+
+MAX_OPEN_CALLS = 65_536
+MAX_CLOSED_CALLS = 16_384  # remembered to tell duplicate responses from orphans
+MAX_FRAG_SETS = 4_096
+MAX_FRAG_BYTES = 64 * 1024 * 1024
+
+
+def canonical_uuid(raw: bytes, little: bool) -> bytes:
+    """A DREP-ordered UUID as big-endian bytes, so both byte orders give one key."""
+    if not little:
+        return raw
+    return raw[3::-1] + raw[5:3:-1] + raw[7:5:-1] + raw[8:]
+
+
+def is_pnio_uuid(canonical: bytes) -> bool:
+    return canonical[:3] == b"\xde\xa0\x00" and canonical[4:] == PNIO_UUID_SUFFIX
+
+
+def plausible(payload: bytes) -> bool:
+    """protocol.md 1.4 items 1-3: a CL-RPC v4 header, by a few byte comparisons."""
+    return (len(payload) >= HEADER_SIZE and payload[0] == 4 and payload[1] <= 10
+            and not payload[3] & 0xFC and not payload[4] & 0xEE and payload[5] <= 3)
+
+
+class Header(NamedTuple):
+    """The header fields the analysis needs, decoded from one unpack of the 80 bytes."""
+
+    values: tuple
+    little: bool
+    ptype: int
+    flags1: int
+    activity: bytes  # canonical
+    interface: bytes  # canonical
+    seq: int
+    opnum: int
+    frag_len: int
+    frag_num: int
+
+
+def header(payload: bytes) -> Header:
+    little = bool(payload[4] & 0x10)
+    v = (HEADER_LE if little else HEADER_BE).unpack(payload)
+    return Header(v, little, v[I_PTYPE], v[I_FLAGS1], canonical_uuid(v[I_ACTIVITY], little),
+                  canonical_uuid(v[I_INTERFACE], little), v[I_SEQ], v[I_OPNUM], v[I_FRAG_LEN],
+                  v[I_FRAG_NUM])
+
+
+def is_control(ptype: int) -> bool:
+    """Ping, ack, cancel, fack, cancel_ack: no body to decode as data."""
+    return ptype in _CONTROL_PTYPES
+
+
+@dataclass(slots=True)
+class _FragSet:
+    first_frame: int
+    first_ts: float
+    bodies: dict[int, bytes] = field(default_factory=dict)
+    frames: dict[int, int] = field(default_factory=dict)
+    last: int = -1
+    size: int = 0
+
+
+class Reassembled(NamedTuple):
+    body: bytes
+    frames: tuple[int, ...]  # frames of fragments 0..last, in fragment order
+    first_ts: float
+
+
+class FragmentTable:
+    """CL fragment reassembly keyed by activity + seq + direction + address pair (protocol.md 2.3)."""
+
+    def __init__(self) -> None:
+        self._sets: dict[tuple, _FragSet] = {}
+        self._bytes = 0
+
+    def add(self, key: tuple, number: int, ts: float, hdr: Header, body: bytes,
+            findings: list[Finding]) -> Reassembled | None:
+        """Add one fragment; the whole body once the set is complete, else None."""
+        entry = self._sets.get(key)
+        if entry is None:
+            self._evict(number, findings, len(body))
+            entry = self._sets[key] = _FragSet(number, ts)
+        num = hdr.frag_num
+        is_last = bool(hdr.flags1 & FLAG1_LASTFRAG)
+        if num in entry.bodies:
+            if entry.bodies[num] != body:
+                findings.append(rules.finding(
+                    "rpc_frag_conflict", number, "rpc.frag_num", num, "identical copy",
+                    f"fragment {num} repeated with different bytes (first copy from frame "
+                    f"{entry.frames[num]} kept)"))
+            return None
+        if (is_last and entry.last >= 0 and num != entry.last) or (entry.last >= 0 and num > entry.last):
+            findings.append(rules.finding(
+                "rpc_frag_inconsistent", number, "rpc.frag_num", num, f"<= {entry.last}",
+                f"fragment {num} conflicts with last fragment {entry.last}"))
+            return None
+        if is_last and any(n > num for n in entry.bodies):
+            findings.append(rules.finding(
+                "rpc_frag_inconsistent", number, "rpc.frag_num", num, f"> {max(entry.bodies)}",
+                f"last fragment {num} below fragment {max(entry.bodies)} already seen"))
+            return None
+        entry.bodies[num] = body
+        entry.frames[num] = number
+        entry.size += len(body)
+        self._bytes += len(body)
+        if is_last:
+            entry.last = num
+        if entry.last < 0 or len(entry.bodies) != entry.last + 1:
+            return None
+        del self._sets[key]
+        self._bytes -= entry.size
+        order = range(entry.last + 1)
+        return Reassembled(b"".join(entry.bodies[n] for n in order),
+                           tuple(entry.frames[n] for n in order), entry.first_ts)
+
+    def seen(self, key: tuple, num: int, body: bytes) -> bool:
+        """True when this exact fragment is already held (a retransmitted copy)."""
+        entry = self._sets.get(key)
+        return entry is not None and entry.bodies.get(num) == body
+
+    def drop_call(self, call_key: tuple, number: int, findings: list[Finding]) -> None:
+        """The call was answered: any unfinished fragment set of its request is missing pieces."""
+        for key in [k for k in self._sets if k[0] == call_key[0] and k[1] == call_key[1]
+                    and k[2] == PTYPE_REQUEST]:
+            findings.append(self._missing(key, self._sets.pop(key), number))
+
+    def _missing(self, key: tuple, entry: _FragSet, number: int) -> Finding:
+        self._bytes -= entry.size
+        have = sorted(entry.bodies)
+        top = entry.last if entry.last >= 0 else (have[-1] if have else 0)
+        absent = [n for n in range(top + 1) if n not in entry.bodies]
+        expect = f"fragments 0..{entry.last}" if entry.last >= 0 else "a last fragment"
+        return rules.finding(
+            "rpc_frag_missing", entry.first_frame, "rpc.frag_num", ",".join(map(str, have)), expect,
+            f"fragment set of seq {key[1]} incomplete (missing {absent or 'the last fragment'}; "
+            f"noticed at frame {number})")
+
+    def _evict(self, number: int, findings: list[Finding], incoming: int) -> None:
+        while self._sets and (len(self._sets) >= MAX_FRAG_SETS
+                              or self._bytes + incoming > MAX_FRAG_BYTES):
+            key, entry = next(iter(self._sets.items()))
+            del self._sets[key]
+            self._bytes -= entry.size
+            findings.append(rules.finding(
+                "rpc_frag_evicted", number, "rpc.frag_num", len(entry.bodies),
+                f"<= {MAX_FRAG_SETS} open sets", f"fragment table full: set from frame "
+                f"{entry.first_frame} dropped"))
+
+    def finish(self, number: int) -> list[Finding]:
+        out = [self._missing(key, entry, number) for key, entry in self._sets.items()]
+        self._sets.clear()
+        self._bytes = 0
+        return out
+
+
+@dataclass(slots=True)
+class Call:
+    """An RPC call: the request as first seen, and what the analysis learnt from it."""
+
+    frame: int
+    ts: float
+    src: bytes
+    dst: bytes
+    interface: bytes
+    opnum: int
+    body: bytes
+    info: object = None  # what the record layer keeps for checking the response
+    copies: int = 0
+    working: int = 0
+    pings: int = 0
+    response_frame: int = 0
+
+
+class CallTable:
+    """Open calls by (activity, seq); closed ones remembered a while to spot duplicates."""
+
+    def __init__(self) -> None:
+        self.open: dict[tuple[bytes, int], Call] = {}
+        self.closed: dict[tuple[bytes, int], Call] = {}
+
+    def request(self, key: tuple[bytes, int], call: Call, findings: list[Finding]) -> Call:
+        """Register a request; returns the call it belongs to (the first copy on retransmission)."""
+        known = self.open.get(key) or self.closed.get(key)
+        if known is not None:
+            if known.body == call.body:
+                known.copies += 1
+                findings.append(rules.finding(
+                    "rpc_retransmission", call.frame, "rpc.seq", key[1], "a new sequence number",
+                    f"request retransmitted (copy {known.copies} of frame {known.frame})"))
+            else:
+                findings.append(rules.finding(
+                    "rpc_key_reused", call.frame, "rpc.seq", key[1], "a new sequence number",
+                    f"activity/sequence number of frame {known.frame} reused with a different body"))
+            return known
+        if len(self.open) >= MAX_OPEN_CALLS:
+            old_key, old = next(iter(self.open.items()))
+            del self.open[old_key]
+            findings.append(rules.finding(
+                "rpc_call_evicted", call.frame, "rpc.seq", old_key[1], f"<= {MAX_OPEN_CALLS} open calls",
+                f"open-call table full: call of frame {old.frame} dropped unanswered"))
+        self.open[key] = call
+        return call
+
+    def close(self, key: tuple[bytes, int]) -> Call | None:
+        call = self.open.pop(key, None)
+        if call is not None:
+            self.closed[key] = call
+            if len(self.closed) > MAX_CLOSED_CALLS:
+                del self.closed[next(iter(self.closed))]
+        return call
+
+    def expire(self, now: float, timeout: float) -> list[tuple[tuple[bytes, int], Call]]:
+        """Calls opened more than `timeout` seconds of capture time before `now`."""
+        out = []
+        for key, call in self.open.items():
+            if call.ts + timeout >= now:
+                break
+            out.append((key, call))
+        for key, _ in out:
+            del self.open[key]
+        return out

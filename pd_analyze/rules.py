@@ -1,0 +1,137 @@
+"""The rule registry and the Finding record.
+
+Every check the analyser makes is one Rule here: its id from protocol.md section 6 (or a named
+finding of sections 1-3), severity, group (Wireshark's expert-info groups) and source. A rule id
+with two severities (R3, H5, H9, ...) has one entry per variant, told apart by `name`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+
+ERROR, WARNING, INFO = "error", "warning", "info"
+SEVERITY_RANK = MappingProxyType({INFO: 1, WARNING: 2, ERROR: 3})
+
+# Expert-info groups, as Wireshark uses them.
+MALFORMED, PROTOCOL, SEQUENCE, COMMENT = "malformed", "protocol", "sequence", "comment"
+
+IEC = "IEC 61158-6-10"
+DCE = "DCE 1.1 CL-RPC"
+PCAP = "pcap/pcapng file format"
+YASKAWA_EP3 = "000_8871e7857f299724.txt"
+
+
+@dataclass(frozen=True, slots=True)
+class Rule:
+    id: str
+    name: str
+    severity: str
+    group: str
+    source: str
+    summary: str
+
+
+@dataclass(frozen=True, slots=True)
+class Finding:
+    rule: str
+    name: str
+    severity: str
+    frame: int
+    field: str
+    value: str
+    expected: str
+    source: str
+    message: str
+
+    def as_dict(self) -> dict[str, object]:
+        return {"rule": self.rule, "name": self.name, "severity": self.severity, "frame": self.frame,
+                "field": self.field, "value": self.value, "expected": self.expected,
+                "source": self.source, "message": self.message}
+
+
+R = Rule
+_RULES = (
+    # capture and link layer (protocol.md 1.3)
+    R("L1", "truncated_capture", INFO, MALFORMED, PCAP, "frame captured shorter than its IP total length"),
+    R("L1", "truncated_capture_pnio", ERROR, MALFORMED, PCAP, "capture cut inside a PNIO RPC PDU"),
+    R("L2", "ip_frag_overlap", WARNING, MALFORMED, "RFC 791", "IP fragments overlap with different bytes"),
+    R("L2", "ip_frag_incomplete", INFO, SEQUENCE, "RFC 791", "IP datagram incomplete at end of capture"),
+    R("L2", "ip_frag_evicted", WARNING, SEQUENCE, "RFC 791", "IP reassembly table full: oldest dropped"),
+    R("L3", "link_malformed", WARNING, MALFORMED, "IEEE 802.3 / RFC 791 / RFC 768",
+      "link, IP or UDP header inconsistent"),
+    # DCE/RPC (protocol.md 1.4, 2.2-2.4, 6.1)
+    R("R1", "rpc_truncated", ERROR, MALFORMED, DCE, "fragment length exceeds the bytes present"),
+    R("R2", "rpc_extra_bytes", WARNING, MALFORMED, DCE, "bytes after the fragment body"),
+    R("R3", "rpc_frag_conflict", WARNING, MALFORMED, DCE, "same fragment number, different bytes"),
+    R("R3", "rpc_frag_inconsistent", ERROR, MALFORMED, DCE, "fragment beyond the last, or a second last"),
+    R("R3", "rpc_frag_missing", ERROR, MALFORMED, DCE, "fragment set incomplete"),
+    R("R3", "rpc_frag_evicted", WARNING, SEQUENCE, DCE, "fragment table full: oldest set dropped"),
+    R("R3", "rpc_serial", INFO, PROTOCOL, DCE, "serial number differs from fragment number"),
+    R("R4", "rpc_response_mismatch", WARNING, PROTOCOL, DCE, "response interface/opnum differ from the request"),
+    R("R4", "rpc_addresses_not_swapped", WARNING, PROTOCOL, DCE, "response IP addresses not swapped"),
+    R("R5", "rpc_header_values", WARNING, PROTOCOL, DCE,
+      "interface version, authentication or maybe/broadcast flags unexpected"),
+    R("R6", "rpc_float_repr", WARNING, PROTOCOL, DCE, "DREP float representation not IEEE"),
+    R("R7", "rpc_key_reused", WARNING, SEQUENCE, DCE, "call key reused with a different body"),
+    R("R7", "rpc_retransmission", INFO, SEQUENCE, DCE, "request retransmitted"),
+    R("R7", "orphan_response", INFO, SEQUENCE, DCE, "response without an open request"),
+    R("R7", "rpc_unanswered", WARNING, SEQUENCE, DCE, "request not answered within rpc_timeout"),
+    R("R7", "rpc_nocall", WARNING, SEQUENCE, DCE, "server has no record of the call"),
+    R("R7", "rpc_cancel", INFO, SEQUENCE, DCE, "client cancelled the call"),
+    R("R7", "rpc_fault", WARNING, PROTOCOL, DCE, "call answered with fault/reject"),
+    R("R7", "rpc_call_evicted", WARNING, SEQUENCE, DCE, "open-call table full: oldest call dropped"),
+    R("R8", "pnio_interface", INFO, PROTOCOL, IEC, "Read/Write on a PNIO interface other than Device"),
+    R("R8", "pnio_object", INFO, PROTOCOL, IEC, "object UUID not of the dea00000 form"),
+    R("R9", "auth_present", WARNING, PROTOCOL, DCE, "authenticated PDU: body not decoded"),
+    # NDR (protocol.md 6.1)
+    R("N0", "ndr_truncated", ERROR, MALFORMED, IEC, "stub shorter than the 20-byte NDR header"),
+    R("N1", "ndr_args_len", ERROR, MALFORMED, IEC, "ArgsLength differs from stub length - 20"),
+    R("N2", "ndr_array", ERROR, MALFORMED, IEC, "ActualCount differs from ArgsLength, or Offset not 0"),
+    R("N3", "ndr_max_count", WARNING, PROTOCOL, IEC, "request MaximumCount differs from ArgsMaximum"),
+    R("N4", "ndr_response_max", WARNING, PROTOCOL, IEC,
+      "response MaximumCount/ArgsLength inconsistent with the request's ArgsMaximum"),
+    R("N5", "ndr_args_max_small", INFO, PROTOCOL, IEC, "read ArgsMaximum below 64 + RecordDataLength"),
+    R("N6", "pnio_status_form", WARNING, PROTOCOL, IEC, "PNIOStatus partially zero or unknown ErrorDecode"),
+    R("N7", "pnio_status_service", WARNING, PROTOCOL, IEC, "ErrorCode does not match the service"),
+    R("N7", "pnio_status_generic", INFO, PROTOCOL, IEC, "ErrorCode 0x81 (generic PNIO) on a record service"),
+    R("N8", "pnio_status_differs", WARNING, PROTOCOL, IEC, "NDR and block PNIOStatus differ"),
+    R("N9", "error_with_blocks", INFO, PROTOCOL, IEC, "read response with error status carries blocks"),
+    # IOD headers (protocol.md 6.2)
+    R("H0", "iod_truncated", ERROR, MALFORMED, IEC, "IOD header block cut short"),
+    R("H1", "block_type", ERROR, MALFORMED, IEC, "BlockType does not match service and direction"),
+    R("H2", "block_length", ERROR, MALFORMED, IEC, "BlockLength is not 60"),
+    R("H3", "block_version", WARNING, PROTOCOL, IEC, "block version is not 1.0"),
+    R("H4", "padding_nonzero", WARNING, PROTOCOL, f"{IEC}; {YASKAWA_EP3}", "padding bytes not zero"),
+    R("H5", "record_truncated", ERROR, MALFORMED, IEC, "record shorter than RecordDataLength"),
+    R("H5", "trailing_stub_bytes", WARNING, MALFORMED, IEC, "bytes after the record"),
+    R("H6", "response_not_mirrored", WARNING, PROTOCOL, IEC, "response header does not mirror the request"),
+    R("H7", "write_length_mirror", WARNING, PROTOCOL, IEC, "write response RecordDataLength differs"),
+    R("H8", "read_length_exceeded", WARNING, PROTOCOL, IEC, "read response longer than requested"),
+    R("H9", "aruuid_nil_write", ERROR, PROTOCOL, IEC, "NIL ARUUID in a write"),
+    R("H9", "aruuid_implicit", WARNING, PROTOCOL, IEC, "NIL ARUUID with opnum 2, or non-NIL with opnum 5"),
+    R("H10", "api_not_profidrive", WARNING, PROTOCOL, "PROFIdrive profile", "API is not 0x3A00"),
+    R("H10", "api_dap_yaskawa", INFO, PROTOCOL, YASKAWA_EP3, "API 0x0000 (Yaskawa device access point)"),
+    R("H10", "profibus_index", INFO, COMMENT, "PROFIdrive profile", "PROFIdrive over index 0x002F"),
+    R("H11", "multi_write_structure", ERROR, MALFORMED, IEC, "Write-Multiple structure broken"),
+    R("H11", "multi_write_padding", WARNING, PROTOCOL, IEC, "Write-Multiple alignment/padding wrong"),
+    R("H12", "additional_values", INFO, COMMENT, YASKAWA_EP3, "AdditionalValue1/2 not zero"),
+    R("H13", "pd_record_length", ERROR, PROTOCOL, "PROFIdrive profile", "PROFIdrive record length out of range"),
+    R("H14", "pd_read_buffer_small", INFO, PROTOCOL, "PROFIdrive profile", "read buffer below 240 bytes"),
+    R("H15", "not_profidrive", INFO, COMMENT, "protocol.md 1.4", "record is not PROFIdrive"),
+)
+RULES: Mapping[str, Rule] = MappingProxyType({r.name: r for r in _RULES})
+
+
+def finding(name: str, frame: int, field: str, value: object, expected: object, message: str) -> Finding:
+    """A finding of rule `name` at a frame; severity and source come from the registry."""
+    rule = RULES[name]
+    return Finding(rule.id, name, rule.severity, frame, field, _text(value), _text(expected),
+                   rule.source, message)
+
+
+def _text(value: object) -> str:
+    if value is None:
+        return ""
+    return value if isinstance(value, str) else str(value)
