@@ -14,12 +14,14 @@ from collections import Counter, deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
-from pd_analyze import capture, checks, link, profidrive, rpc
+from pd_analyze import capture, checks, link, profidrive, profiles, rpc
 from pd_analyze import record as rec
+from pd_analyze.pd_checks import Checker
 from pd_analyze.rules import Finding, finding
 from pd_analyze.structs import Field, derived, plain
 from pd_analyze.tables import (
     FLAG1_FRAG,
+    INDEX_PD_DPV1,
     INDEX_WRITE_MULTIPLE,
     NCA_STATUS,
     OP_READ,
@@ -42,6 +44,7 @@ from pd_analyze.tables import (
 DEFAULT_RPC_TIMEOUT = 5.0
 MAX_HELD_FRAMES = 10_000
 MAX_KNOWN_ACTIVITIES = 65_536
+MAX_CHANNELS = 16_384  # channels whose last parameter request is kept for labelling responses
 RECORD_SERVICES = (OP_READ, OP_WRITE, OP_READ_IMPLICIT)
 
 # Frame outcomes beyond the link-layer skip reasons.
@@ -119,9 +122,13 @@ class Accounting:
 class Dissector:
     """State for one capture: IP and CL reassembly, open calls, the ordered output."""
 
-    def __init__(self, annotate: bool = False, rpc_timeout: float = DEFAULT_RPC_TIMEOUT) -> None:
+    def __init__(self, annotate: bool = False, rpc_timeout: float = DEFAULT_RPC_TIMEOUT,
+                 checker: Checker | None = None) -> None:
         self.annotate = annotate
         self.rpc_timeout = rpc_timeout
+        self.checker = checker or Checker(profiles.generic())
+        self.records_not_profidrive = 0
+        self._pd_requests: dict[tuple, profidrive.Parsed] = {}  # last parameter request per channel
         self.link = link.LinkDecoder()
         self.frags = rpc.FragmentTable()
         self.calls = rpc.CallTable()
@@ -287,7 +294,7 @@ class Dissector:
             pdu.request.info = stub
         res.findings += checks.ndr(stub, len(body), hdr.opnum, number, request_stub)
         res.findings += checks.blocks(stub, hdr.opnum, number, request_stub)
-        self._records(res, stub, hdr, number)
+        self._records(res, stub, hdr, dgram)
         res.summary = self._summary(hdr, stub, len(frames))
         if self.annotate:
             self._annotate_stub(res, stub, body, stub_base, hdr.opnum)
@@ -375,13 +382,42 @@ class Dissector:
         del dgram
 
     # --- records ----------------------------------------------------------------------------
-    def _records(self, res: FrameResult, stub: rec.Stub, hdr: rpc.Header, number: int) -> None:
-        """PROFIdrive hook for records at 0xB02E/0xB02F/0x002F; other records are only counted."""
+    def _records(self, res: FrameResult, stub: rec.Stub, hdr: rpc.Header, dgram: link.Datagram) -> None:
+        """PROFIdrive records at 0xB02E/0xB02F/0x002F are decoded and checked; others only counted."""
         response = hdr.ptype == PTYPE_RESPONSE
+        number = res.frame
         for block in stub.blocks:
-            if block.index in PROFIDRIVE_INDICES and block.layout in (rec.WRITE_REQ, rec.READ_RES) \
-                    and len(block.record) == block.record_len:
-                res.findings += profidrive.dissect_record(block.record, response, number, 0, False)[1]
+            if block.index not in PROFIDRIVE_INDICES:
+                if block.layout in (rec.WRITE_REQ, rec.READ_RES) and block.index != INDEX_WRITE_MULTIPLE:
+                    self.records_not_profidrive += 1
+                continue
+            v = block.values
+            if not response:
+                res.findings += self.checker.iod(v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], block.index, number)
+            if block.layout not in (rec.WRITE_REQ, rec.READ_RES) or len(block.record) < block.record_len:
+                continue
+            if response and stub.status is not None and not stub.status.ok:
+                continue
+            if block.index == INDEX_PD_DPV1 and not profidrive.plausible(block.record):
+                res.findings.append(finding("not_profidrive", number, "iod.index", "0x002f",
+                                            "a plausible PROFIdrive header", "record at index 0x002F is not a "
+                                                                             "PROFIdrive parameter block"))
+                self.records_not_profidrive += 1
+                continue
+            key = _channel(dgram, v, block.target_ar, response)
+            if response:
+                request = self._pd_requests.get(key)
+                parsed = profidrive.parse_response(block.record, number, res.findings)
+                res.findings += self.checker.response(parsed, number, request)
+                block.pd = (parsed, request)
+            else:
+                parsed = profidrive.parse_request(block.record, number, res.findings)
+                res.findings += self.checker.request(parsed, number)
+                block.pd = (parsed, None)
+                self._pd_requests.pop(key, None)
+                self._pd_requests[key] = parsed
+                if len(self._pd_requests) > MAX_CHANNELS:
+                    del self._pd_requests[next(iter(self._pd_requests))]
 
     def _summary(self, hdr: rpc.Header, stub: rec.Stub, fragments: int) -> str:
         op = PNIO_OPNUM.get(hdr.opnum, f"opnum {hdr.opnum}")
@@ -422,8 +458,7 @@ class Dissector:
             res.layers.append(Layer(f"{block.layout.title}, index {block.index:#06x}", depth,
                                     block.layout.annotate(body, block.offset, block.values, base)))
             if block.layout in (rec.WRITE_REQ, rec.READ_RES) and block.index != INDEX_WRITE_MULTIPLE:
-                title, fields = self._record_fields(block, response, res.frame, base)
-                res.layers.append(Layer(title, depth + 1, fields))
+                res.layers += self._record_layers(block, response, base, depth + 1)
             end = block.record_offset + len(block.record)
             if end in pads:
                 pad = body[end:end + pads[end]]
@@ -434,12 +469,16 @@ class Dissector:
             res.layers.append(Layer("Trailing bytes", 1, [plain("record.trailing", start, body, stub.trailing,
                                                                 body[start:], base)]))
 
-    def _record_fields(self, block: rec.Block, response: bool, frame: int, base: int) -> tuple[str, list[Field]]:
+    def _record_layers(self, block: rec.Block, response: bool, base: int, depth: int) -> list[Layer]:
         data = block.record
-        if block.index in PROFIDRIVE_INDICES:
-            fields, _ = profidrive.dissect_record(data, response, frame, base + block.record_offset, True)
-            return f"PROFIdrive parameter {'response' if response else 'request'} ({len(data)} bytes)", fields
-        return f"Record data, index {block.index:#06x} ({len(data)} bytes, not PROFIdrive)", [_raw_record(block, base)]
+        if isinstance(block.pd, tuple):
+            parsed, request = block.pd
+            at = base + block.record_offset
+            return [Layer(title, depth, fields) for title, fields in
+                    profidrive.annotate(parsed, data, at, self.checker.describe, request)]
+        what = "PROFIdrive, not decoded" if block.index in PROFIDRIVE_INDICES else "not PROFIdrive"
+        return [Layer(f"Record data, index {block.index:#06x} ({len(data)} bytes, {what})", depth,
+                      [_raw_record(block, base)])]
 
     # --- held output (annotate mode) --------------------------------------------------------
     def _wait(self, res: FrameResult) -> None:
@@ -488,6 +527,13 @@ class Dissector:
                 break
             ready.append(self._held.popleft())
         return ready
+
+
+def _channel(dgram: link.Datagram, v: tuple, target_ar: bytes, response: bool) -> tuple:
+    """Device, controller, AR (TargetAR for implicit reads), API, slot, subslot, index (protocol.md 7.2)."""
+    device, controller = (dgram.src, dgram.dst) if response else (dgram.dst, dgram.src)
+    ar = target_ar if v[rec.B_AR] == rec.NIL_UUID and target_ar else v[rec.B_AR]
+    return device, controller, ar, v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], v[rec.B_INDEX]
 
 
 def _raw_record(block: rec.Block, base: int) -> Field:

@@ -98,6 +98,7 @@ class Block:
     depth: int = 0  # 1 for the inner blocks of a Write-Multiple
     status: Status | None = None  # write response block status
     target_ar: bytes = b""
+    pd: object = None  # the parsed PROFIdrive request/response of this record, if any
 
     @property
     def index(self) -> int:

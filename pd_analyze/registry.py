@@ -6,10 +6,12 @@ module; `tshark` names the tshark 4.0 field it is compared with (protocol.md 8.2
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
 
+from pd_analyze import pdtables as pt
 from pd_analyze import tables as t
 
 # Field types: how a value is held and shown.
@@ -32,6 +34,7 @@ def _defs(*defs: FieldDef) -> dict[str, FieldDef]:
 
 
 F = FieldDef
+_PD = "pn_io.profidrive.parameter"
 _FIELDS = _defs(
     # capture / frame
     F("frame.no", UINT, "Frame number, 1-based as in Wireshark", tshark="frame.number"),
@@ -142,11 +145,56 @@ _FIELDS = _defs(
     F("iod.rw_pad", BYTES, "RWPadding", tshark="pn.padding"),
     F("iod.multi_pad", BYTES, "Write-Multiple alignment padding"),
     F("record.data", BYTES, "Record data (not decoded)"),
+    # PROFIdrive parameter request / response (protocol.md 3; tshark prefix pn_io.profidrive.parameter)
+    F("pd.ref", UINT, "Request Reference (response: mirrored)", tshark=f"{_PD}.request_reference"),
+    F("pd.req_id", HEX, "Request ID", pt.REQUEST_ID, tshark=f"{_PD}.request_id"),
+    F("pd.resp_id", HEX, "Response ID", pt.RESPONSE_ID, tshark=f"{_PD}.response_id"),
+    F("pd.do", UINT, "DO-ID (axis / drive object)", tshark=f"{_PD}.do"),
+    F("pd.n_params", UINT, "No. of parameters", tshark=f"{_PD}.no_of_parameters"),
+    F("pd.addr[i].attr", HEX, "Attribute", pt.ATTRIBUTE, tshark=f"{_PD}.attribute"),
+    F("pd.addr[i].n_elems", UINT, "No. of elements (0 = single value)", tshark=f"{_PD}.no_of_elems"),
+    F("pd.addr[i].pnu", UINT, "Parameter number (PNU)", tshark=f"{_PD}.number"),
+    F("pd.addr[i].subindex", UINT, "Subindex (first array element)", tshark=f"{_PD}.index"),
+    F("pd.val[i].format", HEX, "Format (data type)", pt.FORMAT_NAME, tshark=f"{_PD}.format"),
+    F("pd.val[i].n_values", UINT, "No. of values (strings: characters)", tshark=f"{_PD}.no_of_values"),
+    F("pd.val[i].value[j]", TEXT, "One value, decoded by its format"),
+    F("pd.val[i].value", TEXT, "String/octet-string value of No.-of-values characters or bytes",
+      tshark=f"{_PD}.value_str"),
+    F("pd.val[i].pad", HEX, "Word-alignment pad byte after an odd value list"),
+    F("pd.val[i].error", HEX, "Error number", MappingProxyType({k: v.text for k, v in pt.ERRORS.items()}),
+      tshark=f"{_PD}.error_num"),
+    F("pd.val[i].error_subindex", UINT, "Subindex of the first faulty element", tshark=f"{_PD}.error_subindex"),
+    F("pd.val[i].desc.identifier", HEX, "Description: identifier (data type and flags)"),
+    F("pd.val[i].desc.elements", UINT, "Description: number of array elements / string length"),
+    F("pd.val[i].desc.standardisation_factor", FLOAT, "Description: standardisation factor"),
+    F("pd.val[i].desc.variable_attribute", HEX, "Description: variable attribute"),
+    F("pd.val[i].desc.reserved1", HEX, "Description: reserved"),
+    F("pd.val[i].desc.name", TEXT, "Description: name (16 characters)"),
+    F("pd.val[i].desc.low_limit", HEX, "Description: low limit"),
+    F("pd.val[i].desc.high_limit", HEX, "Description: high limit"),
+    F("pd.val[i].desc.reserved2", HEX, "Description: reserved"),
+    F("pd.val[i].desc.id_extension", HEX, "Description: ID extension"),
+    F("pd.val[i].desc.reference_parameter", UINT, "Description: reference parameter"),
+    F("pd.val[i].desc.normalisation", HEX, "Description: normalisation"),
+    F("pd.echo", BYTES, "Parameter address echoed before the first block (AKD manual layout)"),
+    F("pd.trailing", BYTES, "Bytes after the parsed parameter request/response"),
     F("record.trailing", BYTES, "Bytes after the record that RecordDataLength does not cover"),
 )
 FIELDS: Mapping[str, FieldDef] = MappingProxyType(_FIELDS)
 
 
+_INDEX = re.compile(r"\[\d+\]")
+
+
+def template(name: str) -> str:
+    """The registry name of a concrete field name: pd.val[3].value[1] -> pd.val[i].value[j]."""
+    if "[" not in name:
+        return name
+    letters = iter("ij")
+    return _INDEX.sub(lambda _m: f"[{next(letters, 'k')}]", name)
+
+
 def field(name: str) -> FieldDef:
-    """The registry entry of a field; KeyError names the unknown field."""
-    return FIELDS[name]
+    """The registry entry of a field (concrete indexed names allowed); KeyError if unknown."""
+    found = FIELDS.get(name)
+    return found if found is not None else FIELDS[template(name)]

@@ -21,6 +21,8 @@ IEC = "IEC 61158-6-10"
 DCE = "DCE 1.1 CL-RPC"
 PCAP = "pcap/pcapng file format"
 YASKAWA_EP3 = "000_8871e7857f299724.txt"
+AKD = "003_8e0163ef8c5e11f4.txt"
+PD = "PROFIdrive profile V4.2"
 
 
 @dataclass(frozen=True, slots=True)
@@ -120,15 +122,59 @@ _RULES = (
     R("H13", "pd_record_length", ERROR, PROTOCOL, "PROFIdrive profile", "PROFIdrive record length out of range"),
     R("H14", "pd_read_buffer_small", INFO, PROTOCOL, "PROFIdrive profile", "read buffer below 240 bytes"),
     R("H15", "not_profidrive", INFO, COMMENT, "protocol.md 1.4", "record is not PROFIdrive"),
+    # PROFIdrive parameter request (protocol.md 6.3)
+    R("P1", "pd_too_short", ERROR, MALFORMED, PD, "request shorter than its header and addresses"),
+    R("P2", "pd_request_range", ERROR, PROTOCOL, PD, "request field outside the PROFIdrive profile range"),
+    R("P3", "subindex_ffff", WARNING, PROTOCOL, PD, "subindex 0xFFFF (refused by devices)"),
+    R("P4", "vendor_limit", WARNING, PROTOCOL, "vendor profile", "field outside the selected vendor's limit"),
+    R("P5", "read_request_length", WARNING, PROTOCOL, PD, "read request longer than 4 + 6n"),
+    R("P6", "change_blocks", ERROR, MALFORMED, PD, "change request value blocks wrong in number or format"),
+    R("P6", "block_overrun", ERROR, MALFORMED, PD, "value block overruns the record"),
+    R("P7", "n_values_mismatch", WARNING, PROTOCOL, PD, "No. of values differs from No. of elements"),
+    R("P8", "value_too_long", WARNING, PROTOCOL, PD, "value list longer than 240 - 12 bytes"),
+    R("P8", "pad_nonzero", WARNING, PROTOCOL, PD, "pad byte not zero"),
+    R("P8", "pad_missing", WARNING, PROTOCOL, PD, "pad byte after an odd value list missing"),
+    R("P8", "pad_missing_final", WARNING, PROTOCOL, PD, "final pad byte missing"),
+    R("P9", "change_description", INFO, COMMENT, PD, "change of a Description or Text attribute"),
+    R("P10", "request_trailing", WARNING, MALFORMED, PD, "bytes left after the parsed request"),
+    # PROFIdrive parameter response (protocol.md 6.4)
+    R("Q1", "pd_response_too_short", ERROR, MALFORMED, PD, "response shorter than its header"),
+    R("Q1", "response_id", ERROR, PROTOCOL, PD, "Response ID not in the profile's table"),
+    R("Q2", "reference_mismatch", ERROR, SEQUENCE, PD, "Request Reference not mirrored"),
+    R("Q3", "response_id_mismatch", ERROR, SEQUENCE, PD, "Response ID does not answer the Request ID"),
+    R("Q4", "do_not_mirrored", WARNING, SEQUENCE, PD, "DO-ID not mirrored"),
+    R("Q5", "n_params_not_mirrored", WARNING, SEQUENCE, PD, "No. of parameters not mirrored"),
+    R("Q5", "header_level_error", INFO, COMMENT, PD, "whole request refused with one error block"),
+    R("Q6", "change_response_body", WARNING, PROTOCOL, PD, "positive change response carries a body"),
+    R("Q6", "akd_trailing_zero", INFO, COMMENT, AKD, "AKD positive change response with trailing 00 00"),
+    R("Q7", "read_response_blocks", ERROR, PROTOCOL, PD, "positive read response with Zero/Error blocks"),
+    R("Q7", "n_values_read", WARNING, PROTOCOL, PD, "No. of values differs from the requested elements"),
+    R("Q8", "nak_blocks", WARNING, PROTOCOL, PD, "negative response blocks inconsistent"),
+    R("Q9", "error_block_count", ERROR, MALFORMED, PD, "error block No. of values not 1 or 2"),
+    R("Q9", "error_subindex_presence", INFO, COMMENT, PD, "error subindex present/absent against 4.5"),
+    R("Q10", "error_reserved", WARNING, PROTOCOL, PD, "error number reserved in the profile"),
+    R("Q10", "error_manufacturer", INFO, COMMENT, PD, "manufacturer-specific error number"),
+    R("Q11", "response_too_long", WARNING, PROTOCOL, PD, "response longer than 240 bytes"),
+    R("Q12", "response_trailing", WARNING, MALFORMED, PD, "bytes left after the parsed response"),
+    R("Q12", "pd_response_truncated", ERROR, MALFORMED, PD, "response ends before n blocks"),
+    R("Q12", "response_block_overrun", ERROR, MALFORMED, PD, "response block overruns the record"),
+    R("Q13", "string_nonprintable", INFO, COMMENT, PD, "VisibleString with non-printable characters"),
+    R("Q13", "boolean_value", WARNING, PROTOCOL, PD, "Boolean value not 0 or 1"),
+    R("F1", "format_unsupported", WARNING, MALFORMED, PD, "format of unknown size in the last block"),
+    R("F1", "format_unsupported_stop", ERROR, MALFORMED, PD, "format of unknown size before the last block"),
+    R("F2", "date_padded", WARNING, PROTOCOL, PD, "Date values padded to 8 bytes"),
+    R("F3", "format_zero_akd", WARNING, PROTOCOL, AKD, "format 0x00 used for Zero (AKD only)"),
+    R("V1", "akd_address_echo", WARNING, PROTOCOL, AKD, "response repeats the parameter address"),
 )
 RULES: Mapping[str, Rule] = MappingProxyType({r.name: r for r in _RULES})
 
 
-def finding(name: str, frame: int, field: str, value: object, expected: object, message: str) -> Finding:
-    """A finding of rule `name` at a frame; severity and source come from the registry."""
+def finding(name: str, frame: int, field: str, value: object, expected: object, message: str,
+            source: str = "") -> Finding:
+    """A finding of rule `name` at a frame; severity and (unless given) source from the registry."""
     rule = RULES[name]
     return Finding(rule.id, name, rule.severity, frame, field, _text(value), _text(expected),
-                   rule.source, message)
+                   source or rule.source, message)
 
 
 def _text(value: object) -> str:
