@@ -11,9 +11,11 @@ from collections.abc import Callable
 
 import click
 
-from pd_analyze import __version__, checks, dump
+from pd_analyze import __version__, checks, dump, profiles
 from pd_analyze.capture import CaptureError
+from pd_analyze.decode import decode, parse_hex
 from pd_analyze.dissect import DEFAULT_RPC_TIMEOUT, Dissector, dissect
+from pd_analyze.pd_checks import Checker
 from pd_analyze.registry import FIELDS
 
 EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
@@ -77,6 +79,18 @@ def _style(enabled: bool) -> dump.Style:
     return lambda text, role: click.style(text, fg=_COLOURS.get(role))
 
 
+def _checker(profile: str) -> Checker:
+    try:
+        return Checker(profiles.generic(), profiles.load(profile))
+    except profiles.ProfileError as exc:
+        raise click.BadParameter(str(exc), param_hint="--profile") from None
+
+
+def profile_option(func: Callable) -> Callable:
+    return click.option("--profile", default=profiles.DEFAULT, show_default=True, metavar="NAME|FILE.toml",
+                        help="Vendor limits to check against (see `pd-analyze profiles`).")(func)
+
+
 @main.command("dump", epilog=DUMP_EXAMPLES)
 @click.argument("captures", nargs=-1, metavar="CAPTURE...")
 @click.option("-r", "--read", "read", metavar="FILE", help="Capture to read (as tshark -r); - for stdin.")
@@ -87,10 +101,12 @@ def _style(enabled: bool) -> dump.Style:
 @click.option("--color/--no-color", default=None, help="Colour the text output (default: on a terminal).")
 @click.option("--rpc-timeout", type=click.FloatRange(min=0.001), default=DEFAULT_RPC_TIMEOUT,
               show_default=True, help="Seconds of capture time before a request counts as unanswered.")
+@profile_option
 def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None, findings_only: bool,
-                 fmt: str, color: bool | None, rpc_timeout: float) -> None:
+                 fmt: str, color: bool | None, rpc_timeout: float, profile: str) -> None:
     """Every PNIO RPC frame as a tree of layers and fields: offset, bytes, value, meaning, check."""
     paths = _inputs(captures, read)
+    checker = _checker(profile)
     try:
         wanted: Callable[[int], bool] = dump.parse_frames(frames) if frames else (lambda n: True)
     except ValueError as exc:
@@ -101,7 +117,7 @@ def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None
     for path in paths:
         if len(paths) > 1 and fmt == "text":
             click.echo(f"==> {path} <==")
-        d = Dissector(annotate=True, rpc_timeout=rpc_timeout)
+        d = Dissector(annotate=True, rpc_timeout=rpc_timeout, checker=checker)
         results = (r for r in dissect(path, dissector=d) if wanted(r.frame))
         try:
             dump.render(results, fmt, click.echo, style, findings_only, checks.CHECKED_FIELDS)
@@ -118,6 +134,86 @@ def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None
                        "(see --format text)", err=True)
         click.echo(f"{path}: {d.accounting.line()}", err=True)
     sys.exit(status)
+
+
+DECODE_EXAMPLES = """\b
+Examples:
+  pd-analyze decode "01 01 01 02 10 01 03 C4 00 00 10 03 07 D0 00 00" --request
+  pd-analyze decode 0101010142011234 --response --for-request 01010101100103c40000
+  pd-analyze decode "5F 00 2F 0A 01 01 01 01 10 00 00 2F 00 00" --dpv1
+  pd-analyze decode "..." --request --profile sinamics --format json
+"""
+
+
+@main.command("decode", epilog=DECODE_EXAMPLES)
+@click.argument("hex_text", nargs=-1, required=True, metavar="HEX")
+@click.option("--request", "side", flag_value="request", help="The bytes are a parameter request.")
+@click.option("--response", "side", flag_value="response", help="The bytes are a parameter response.")
+@click.option("--dpv1", is_flag=True, help="A DP-V1 header (0x5E read / 0x5F write, slot, index, length) "
+                                           "precedes the block.")
+@click.option("--for-request", "for_request", metavar="HEX",
+              help="The request a response answers, to label its blocks P<pnu>[<sub>].")
+@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True)
+@profile_option
+def decode_command(hex_text: tuple[str, ...], side: str | None, dpv1: bool, for_request: str | None,
+                   fmt: str, profile: str) -> None:
+    """Decode a raw PROFIdrive parameter block given as hex (spaces or not)."""
+    checker = _checker(profile)
+    try:
+        data = parse_hex(" ".join(hex_text))
+        request = parse_hex(for_request) if for_request else None
+        result = decode(data, None if side is None else side == "response", checker, dpv1, request)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="HEX") from None
+    if fmt == "json":
+        click.echo(dump.decoded_json(result.sections, result.findings))
+    else:
+        kind = "response" if result.response else "request"
+        click.echo(f"PROFIdrive parameter {kind}, {len(data)} bytes, profile {profile}")
+        click.echo(dump.decoded_text(result.sections, result.findings, _style(sys.stdout.isatty())))
+    sys.exit(EXIT_OK)
+
+
+@main.command("profiles")
+@click.argument("names", nargs=-1, metavar="[NAME|FILE.toml]...")
+@click.option("--format", "fmt", type=click.Choice(["text", "markdown"]), default="text", show_default=True)
+def profiles_command(names: tuple[str, ...], fmt: str) -> None:
+    """Print the limits of the vendor profiles side by side, with their sources."""
+    try:
+        chosen = [profiles.load(n) for n in (names or sorted(profiles.packaged(), key=_profile_order))]
+    except profiles.ProfileError as exc:
+        raise click.BadParameter(str(exc), param_hint="NAME") from None
+    click.echo(profiles_table(chosen, fmt))
+
+
+def _profile_order(name: str) -> tuple[int, str]:
+    return (0 if name == profiles.DEFAULT else 1, name)
+
+
+def profiles_table(chosen: list[profiles.Profile], fmt: str) -> str:
+    keys = [k for k in profiles.LIMIT_KEYS if any(p.limits_for(k) for p in chosen)]
+    header = ["limit"] + [p.name for p in chosen]
+    rows = [[k] + [" / ".join(lim.text() for lim in p.limits_for(k)) or "-" for p in chosen] for k in keys]
+    lines = []
+    if fmt == "markdown":
+        lines.append("| " + " | ".join(header) + " |")
+        lines.append("|" + "---|" * len(header))
+        lines += ["| " + " | ".join(row) + " |" for row in rows]
+    else:
+        widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+        lines.append("  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)))
+        lines += ["  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)) for row in rows]
+    lines.append("")
+    lines.append("Sources:")
+    for p in chosen:
+        lines.append(f"  {p.name}: {p.title}. {p.description}")
+        for lim in p.limits:
+            lines.append(f"    {lim.key} = {lim.text()}  <- {lim.source}")
+        if p.tolerate:
+            lines += [f"    tolerates: {profiles.TOLERATIONS[t]}" for t in sorted(p.tolerate)]
+        if p.error_texts:
+            lines.append(f"    vendor error texts: {', '.join(f'{k:#04x}' for k in p.error_texts)}")
+    return "\n".join(lines)
 
 
 @main.command("fields")

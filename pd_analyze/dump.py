@@ -31,11 +31,16 @@ def mark_checks(result: FrameResult, checked: frozenset[str]) -> None:
     for f in result.findings:
         by_field.setdefault(f.field, []).append(f)
     for fld in result.fields():
-        found = by_field.get(fld.name)
-        if found:
-            fld.check = "; ".join(f"{f.rule} {f.severity}: {f.message}" for f in found)
-        elif fld.name in checked:
-            fld.check = "ok"
+        mark_field(fld, by_field, checked)
+
+
+def mark_field(fld: Field, by_field: dict[str, list[Finding]], checked: frozenset[str]) -> None:
+    found = by_field.get(fld.name)
+    if found:
+        broken = "; ".join(f"{f.rule} {f.severity}: {f.message}" for f in found)
+        fld.check = broken
+    elif not fld.check and fld.name in checked:
+        fld.check = "ok"
 
 
 def frame_json(result: FrameResult) -> str:
@@ -60,6 +65,23 @@ def frame_text(result: FrameResult, style: Style = plain_style, findings_only: b
     return "\n".join(lines)
 
 
+def decoded_text(sections: list[tuple[str, list[Field]]], findings: list[Finding], style: Style = plain_style) -> str:
+    """`pd-analyze decode` as text: the same tree as the dump, offsets within the pasted bytes."""
+    lines = []
+    for title, fields in sections:
+        lines.append(f"  {safe(title)}")
+        lines += [_field_line(f, "    ", style) for f in fields]
+    lines += [finding_line(f, "  ", style) for f in findings]
+    if not findings:
+        lines.append("  no findings")
+    return "\n".join(lines)
+
+
+def decoded_json(sections: list[tuple[str, list[Field]]], findings: list[Finding]) -> str:
+    return json.dumps({"fields": [f.as_dict() for _, fields in sections for f in fields],
+                       "findings": [f.as_dict() for f in findings]}, ensure_ascii=True, separators=(",", ":"))
+
+
 def _field_line(f: Field, indent: str, style: Style) -> str:
     if f.offset < 0:
         where = " " * 32
@@ -67,10 +89,8 @@ def _field_line(f: Field, indent: str, style: Style) -> str:
         raw = f.raw[:8].hex(" ") + (" .." if len(f.raw) > 8 else "")
         where = f"{f.offset:04x}  {raw:<26}"
     line = f"{indent}{style(where, 'dim')}  {f.name} = {safe(f.show)}"
-    if f.check and f.check != "ok":
+    if f.check:
         line += "  " + style(f"[{safe(f.check)}]", _check_role(f.check))
-    elif f.check == "ok":
-        line += "  " + style("[ok]", "dim")
     return line
 
 
@@ -78,7 +98,7 @@ def _check_role(check: str) -> str:
     for sev in (ERROR, WARNING, INFO):
         if f" {sev}:" in check:
             return sev
-    return "dim"
+    return "warning" if "BREAKS" in check else "dim"
 
 
 def finding_line(f: Finding, indent: str = "", style: Style = plain_style) -> str:

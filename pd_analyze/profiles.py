@@ -66,13 +66,13 @@ class Limit:
         return any(lo <= value <= hi for lo, hi in self.ranges)
 
     def text(self) -> str:
-        hexa = self.key.endswith(("_id", "attribute", "format", "api", "index"))
+        hexa = self.key.endswith(("_id", "attribute", "format", "api", ".index"))
         return ", ".join(_num(lo, hexa) if lo == hi else f"{_num(lo, hexa)} ... {_num(hi, hexa)}"
                          for lo, hi in self.ranges)
 
 
 def _num(value: int, hexa: bool = False) -> str:
-    return f"0x{value:02x}" if hexa or value > 255 else str(value)
+    return f"0x{value:02x}" if hexa else str(value)
 
 
 @dataclass(frozen=True, slots=True)

@@ -164,6 +164,7 @@ _RULES = (
     R("F1", "format_unsupported_stop", ERROR, MALFORMED, PD, "format of unknown size before the last block"),
     R("F2", "date_padded", WARNING, PROTOCOL, PD, "Date values padded to 8 bytes"),
     R("F3", "format_zero_akd", WARNING, PROTOCOL, AKD, "format 0x00 used for Zero (AKD only)"),
+    R("D1", "dpv1_header", WARNING, PROTOCOL, "PROFIBUS DP-V1", "DP-V1 header inconsistent with the block"),
     R("V1", "akd_address_echo", WARNING, PROTOCOL, AKD, "response repeats the parameter address"),
 )
 RULES: Mapping[str, Rule] = MappingProxyType({r.name: r for r in _RULES})

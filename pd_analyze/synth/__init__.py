@@ -1,0 +1,7 @@
+"""Deterministic generator of sample PROFINET IO / PROFIdrive captures.
+
+Layers: link/rpc/pnio/profidrive (pure encoders, re-exported by encode),
+writers (pcap, pcapng, gzip), scenario (clock, hosts, PNIO sessions),
+samples (the files in sample_pcaps/). `python -m pd_analyze.synth [OUTDIR]`
+regenerates every sample byte for byte.
+"""

@@ -1,0 +1,21 @@
+"""python -m pd_analyze.synth [OUTDIR]: regenerate every sample capture."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from .samples import build_all
+
+
+def main(argv: list[str]) -> int:
+    outdir = Path(argv[1] if len(argv) > 1 else "sample_pcaps")
+    outdir.mkdir(parents=True, exist_ok=True)
+    for name, data in build_all().items():
+        (outdir / name).write_bytes(data)
+        print(f"{name}: {len(data)} bytes")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv))

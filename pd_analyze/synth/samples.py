@@ -1,0 +1,550 @@
+"""The sample captures of sample_pcaps/, one function each.
+
+Every function builds its file from constants only (fixed UUIDs, addresses,
+timestamps from EPOCH_NS, seeded Random), so the output is byte for byte
+the same on every run. sample_pcaps/README.md describes what a decoder
+should find in each file; keep it in step when changing a function here.
+"""
+
+from __future__ import annotations
+
+import struct
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from . import link, pnio, rpc
+from .link import ETH_ARP, ETH_PNRT, LINKTYPE_ETHERNET, LINKTYPE_LINUX_SLL, LINKTYPE_LINUX_SLL2, LINKTYPE_RAW, VlanTag
+from .pnio import InnerWrite
+from .profidrive import ParamAddress as P
+from .profidrive import change_ok, change_request, pd_response, read_request, value_block
+from .scenario import EPOCH_NS, Capture, Clock, Host, Medium, PnioSession, host
+from .writers import Frame, Pcapng, gzip_bytes, pcap_bytes
+
+BROADCAST = b"\xff" * 6
+
+
+@dataclass(frozen=True)
+class Sample:
+    name: str
+    build: Callable[[], bytes]
+
+
+SAMPLES: list[Sample] = []
+
+
+def sample(name: str) -> Callable[[Callable[[], bytes]], Callable[[], bytes]]:
+    def register(fn: Callable[[], bytes]) -> Callable[[], bytes]:
+        SAMPLES.append(Sample(name, fn))
+        return fn
+
+    return register
+
+
+def build_all() -> dict[str, bytes]:
+    return {s.name: s.build() for s in SAMPLES}
+
+
+# ---- shared fixtures ---------------------------------------------------------
+
+
+def fixed_uuid(kind: int, n: int) -> uuid.UUID:
+    """Readable deterministic UUIDs: kind 0xAC = activity, 0xA2 = AR, ..."""
+    return uuid.UUID(f"{kind:08x}-0000-1000-8000-{n:012x}")
+
+
+def plant(n: int = 1, *, net: str = "192.168.1") -> tuple[Host, Host]:
+    """Controller .10+n and device .20+n with matching MACs."""
+    ctrl = host(f"02:00:00:00:01:{n:02x}", f"{net}.{10 + n}", ip_ident=0x1000 * n)
+    dev = host(f"02:00:00:00:02:{n:02x}", f"{net}.{20 + n}", ip_ident=0x1000 * n + 0x800)
+    return ctrl, dev
+
+
+def session(cap: Capture, n: int = 1, *, net: str = "192.168.1", **kw: Any) -> PnioSession:
+    """Session n of a plant: activity 000000ac-...-n, ARUUID 000000a2-...-n."""
+    ctrl, dev = plant(n, net=net)
+    return PnioSession(cap, ctrl, dev, activity=fixed_uuid(0xAC, n), ar_uuid=fixed_uuid(0xA2, n), **kw)
+
+
+def arp_exchange(cap: Capture, asker: Host, target: Host, medium: Medium | None = None) -> None:
+    cap.send_ether(asker, BROADCAST, ETH_ARP, link.arp(1, asker.mac, asker.ip, bytes(6), target.ip), medium=medium)
+    cap.clock.advance_us(180)
+    cap.send_ether(target, asker.mac, ETH_ARP, link.arp(2, target.mac, target.ip, asker.mac, asker.ip), medium=medium)
+    cap.clock.advance_us(500)
+
+
+def pn_rt(cap: Capture, src: Host, dst: Host, counter: int) -> None:
+    """One cyclic PN-RT frame (EtherType 0x8892), VLAN-less as PN-RT class 1."""
+    cap.send_ether(src, dst.mac, ETH_PNRT, link.pn_rt_cyclic(0x8001, bytes(range(40)), cycle_counter=counter))
+    cap.clock.advance_us(50)
+
+
+def udp_noise(cap: Capture, src: Host, dst: Host) -> None:
+    """A UDP datagram that is not DCE/RPC, between ports no dissector claims."""
+    cap.send_udp(src, 50010, dst, 50020, b"plain UDP, not DCE/RPC " * 4)
+    cap.clock.advance_us(300)
+
+
+def epm_lookup(cap: Capture, ctrl: Host, dev: Host, drep: bytes) -> None:
+    """Endpoint-mapper ept_lookup call + 'not registered' answer on the PNIO
+    port: DCE/RPC v4 that a PNIO decoder must ignore silently."""
+    le = rpc.drep_little(drep)
+    act = fixed_uuid(0xE9, 1)
+    # inquiry_type, NULL object ptr, NULL interface ptr, vers_option,
+    # 20-byte NIL entry handle, max_ents
+    body = rpc.u32(0, le) + rpc.u32(0, le) + rpc.u32(0, le) + rpc.u32(1, le) + bytes(20) + rpc.u32(1, le)
+    epm = dict(activity=act, seq=0, opnum=2, interface=rpc.EPM_IF, if_version=3, drep=drep)
+    req = rpc.rpc_pdu(body, ptype=rpc.REQUEST, flags1=0x20, **epm)
+    cap.send_udp(ctrl, 49160, dev, 34964, req)
+    cap.clock.advance_us(900)
+    # entry handle, num_ents 0, empty conformant varying array, ept_s_not_registered
+    res_body = bytes(20) + rpc.u32(0, le) + rpc.u32(1, le) + rpc.u32(0, le) + rpc.u32(0, le) + rpc.u32(0x16C9A0D6, le)
+    res = rpc.rpc_pdu(res_body, ptype=rpc.RESPONSE, flags1=0x0A, boot_time=0x5F000000, **epm)
+    cap.send_udp(dev, 34964, ctrl, 49160, res)
+    cap.clock.advance_us(2000)
+
+
+def pcap_of(cap: Capture, **kw: Any) -> bytes:
+    return pcap_bytes(cap.frames, linktype=cap.medium.linktype, **kw)
+
+
+def pcapng_of(frames: list[Frame], linktype: int = LINKTYPE_ETHERNET) -> bytes:
+    ng = Pcapng()
+    ng.section_header()
+    ng.interface(linktype, name="eth0")
+    for f in frames:
+        ng.epb(f)
+    return ng.tobytes()
+
+
+# Standard PROFIdrive exchanges reused by several files ---------------------
+
+
+def txn_read_one(s: PnioSession, ref: int, *, b5: int = 1) -> None:
+    """Read P964[0] (Word 0x1234)."""
+    s.parameter_access(
+        read_request(ref, 1, [P(964)]), pd_response(ref, 0x01, 1, [value_block(0x42, [0x1234])]), b5_retries=b5
+    )
+
+
+def txn_change_float(s: PnioSession, ref: int) -> None:
+    """Change P1120[0] (ramp-up time) to 10.0 s; positive change response."""
+    s.parameter_access(change_request(ref, 1, [(P(1120), value_block(0x08, [10.0]))]), change_ok(ref, 1, 1))
+
+
+def txn_read_multi(s: PnioSession, ref: int, *, b5: int = 2) -> None:
+    """Read P2000[0] (Float32), P2001[0..1] (Double word), P107[0..2]
+    (Unsigned8 x3: odd count -> pad byte after the last list)."""
+    req = read_request(ref, 1, [P(2000), P(2001, n_elems=2), P(107, n_elems=3)])
+    res = pd_response(
+        ref,
+        0x01,
+        1,
+        [value_block(0x08, [1500.0]), value_block(0x43, [0x000186A0, 0x00000001]), value_block(0x05, [1, 2, 3])],
+    )
+    s.parameter_access(req, res, b5_retries=b5)
+
+
+def txn_global_do(s: PnioSession, ref: int) -> None:
+    """Global access (0xB02F) to DO 2: read P10[0] (Unsigned16 1)."""
+    s.parameter_access(
+        read_request(ref, 2, [P(10)]), pd_response(ref, 0x01, 2, [value_block(0x06, [1])]), index=0xB02F, b5_retries=0
+    )
+
+
+# ---- 1. worked example -------------------------------------------------------
+
+WORKED_REQUEST = read_request(1, 1, [P(964, n_elems=1), P(2000, n_elems=3)])
+WORKED_RESPONSE = pd_response(1, 0x01, 1, [value_block(0x42, [0x1234]), value_block(0x43, [1, 2, 3])])
+
+
+def worked_example_capture() -> Capture:
+    """protocol.md section 9: frames and times exactly as its table."""
+    cap = Capture(Clock(EPOCH_NS))
+    ctrl = host("02:00:00:00:01:01", "192.168.0.1")
+    dev = host("02:00:00:00:02:01", "192.168.0.2")
+    s = PnioSession(
+        cap,
+        ctrl,
+        dev,
+        activity=uuid.UUID("11111111-2222-3333-4444-555566667777"),
+        ar_uuid=uuid.UUID("aaaaaaaa-bbbb-cccc-dddd-eeeeffff0001"),
+        object_uuid=rpc.pnio_object_uuid(1, 0x0002, 0x0002),
+    )
+    s.write(0xB02E, WORKED_REQUEST, rtt_us=2100, gap_us=400)  # frames 1, 2
+    s.read(0xB02E, status=pnio.STATUS_B5, rtt_us=1900, gap_us=10200)  # frames 3, 4
+    s.read(0xB02E, WORKED_RESPONSE, rtt_us=1700)  # frames 5, 6
+    return cap
+
+
+@sample("worked_example.pcap")
+def worked_example() -> bytes:
+    return pcap_of(worked_example_capture())
+
+
+# ---- 2./3. record read/write with background traffic ------------------------
+
+
+def record_rw_capture(drep: bytes) -> Capture:
+    cap = Capture()
+    s = session(cap, 1, drep=drep, rtt_us=1800, gap_us=900)
+    other = host("02:00:00:00:03:01", "192.168.1.50")
+    arp_exchange(cap, s.controller, s.device)
+    epm_lookup(cap, s.controller, s.device, drep)
+    pn_rt(cap, s.device, s.controller, 0x0100)
+    txn_read_one(s, 1, b5=1)
+    pn_rt(cap, s.device, s.controller, 0x0180)
+    txn_change_float(s, 2)
+    udp_noise(cap, s.controller, other)
+    txn_read_multi(s, 3, b5=2)
+    pn_rt(cap, s.device, s.controller, 0x0200)
+    txn_global_do(s, 4)
+    return cap
+
+
+@sample("record_rw_le.pcap")
+def record_rw_le() -> bytes:
+    return pcap_of(record_rw_capture(rpc.DREP_LE))
+
+
+@sample("record_rw_be.pcap")
+def record_rw_be() -> bytes:
+    return pcap_of(record_rw_capture(rpc.DREP_BE))
+
+
+@sample("record_rw_le.pcap.gz")
+def record_rw_le_gz() -> bytes:
+    return gzip_bytes(record_rw_le())
+
+
+# ---- 4. VLAN tags ------------------------------------------------------------
+
+
+@sample("vlan_stacked.pcap")
+def vlan_stacked() -> bytes:
+    cap = Capture()
+    single = Medium(vlans=(VlanTag(100, pcp=6),))
+    stacked = Medium(vlans=(VlanTag(200, tpid=link.ETH_QINQ), VlanTag(100, pcp=6)))
+    s1 = session(cap, 1, medium=single)
+    s2 = session(cap, 2, medium=stacked)
+    txn_read_one(s1, 1, b5=1)
+    txn_read_one(s2, 1, b5=0)
+    txn_change_float(s2, 2)
+    return pcap_of(cap)
+
+
+# ---- 5. IP fragments ---------------------------------------------------------
+
+
+@sample("ip_fragments.pcap")
+def ip_fragments() -> bytes:
+    cap = Capture()
+    # No CL fragmentation: the big bodies travel as one RPC PDU and IP cuts them.
+    s = session(cap, 1, max_frag_body=None)
+    s.write(0x1000, bytes(i & 0xFF for i in range(3000)))  # 3 fragments in order
+    # Write-Multiple carrying a PROFIdrive request, fragments sent last-first.
+    inner = [
+        (0xB02E, read_request(1, 1, [P(964)])),
+        (0x1001, bytes(1500)),
+    ]
+    s.write_multiple(inner, req_ip={"fragment_order": [1, 0]})
+    s.read(0xB02E, pd_response(1, 0x01, 1, [value_block(0x42, [0x1234])]))
+    return pcap_of(cap)
+
+
+# ---- 6. CL fragments with FACKs ----------------------------------------------
+
+
+@sample("cl_fragments_fack.pcapng")
+def cl_fragments_fack() -> bytes:
+    cap = Capture()
+    s = session(cap, 1)
+    clk = cap.clock
+    # Write with a 2900-byte record: body 20 + 64 + 2900 = 2984 -> 1384 + 1384 + 216.
+    data = bytes((7 * i) & 0xFF for i in range(2900))
+    req, res = s.write_stubs(0x1000, data, api=0, slot=1, subslot=1)
+    seq = s.next_seq()
+    frags = s.pdus(rpc.REQUEST, req, seq=seq, opnum=3, from_client=True)
+    assert len(frags) == 3
+    s.send(frags[0], from_client=True)  # 1
+    clk.advance_us(800)
+    s.fack(seq=seq, opnum=3, frag_num=0, from_client=False)  # 2
+    clk.advance_us(300)
+    s.send(frags[2], from_client=True)  # 3: out of order, last fragment first
+    clk.advance_us(200)
+    s.send(frags[1], from_client=True)  # 4
+    clk.advance_us(700)
+    s.fack(seq=seq, opnum=3, frag_num=1, from_client=False)  # 5
+    clk.advance_us(400)
+    s.send(frags[1], from_client=True)  # 6: retransmission, identical RPC PDU
+    clk.advance_us(1500)
+    s.reply(3, res, seq=seq)  # 7
+    clk.advance_us(2000)
+
+    # Read with a 1500-byte answer: body 20 + 64 + 1500 = 1584 -> 1384 + 200;
+    # the response fragments ask for FACKs, the client FACKs the first one.
+    rec = bytes((3 * i) & 0xFF for i in range(1500))
+    req, res, _ = s.read_stubs(0x1000, rec, api=0, slot=1, subslot=1, max_len=1600)
+    seq = s.next_seq()
+    s.send(s.pdu(rpc.REQUEST, req, seq=seq, opnum=2, from_client=True), from_client=True)  # 8
+    clk.advance_us(1200)
+    rfrags = s.pdus(rpc.RESPONSE, res, seq=seq, opnum=2, from_client=False, flags1=0)
+    assert len(rfrags) == 2
+    s.send(rfrags[0], from_client=False)  # 9
+    clk.advance_us(300)
+    s.fack(seq=seq, opnum=2, frag_num=0, from_client=True)  # 10
+    clk.advance_us(250)
+    s.send(rfrags[1], from_client=False)  # 11
+    return pcapng_of(cap.frames)
+
+
+# ---- 7. implicit read --------------------------------------------------------
+
+
+def im0_record() -> bytes:
+    """I&M0 block (0x0020): vendor (2, as the object UUID), order id, serial,
+    hardware/software revision, revision counter, profile 0x3A00, I&M version
+    1.1, I&M1-4 supported."""
+    body = struct.pack(">H", 0x0002) + b"PD-SYNTH-DRIVE-01".ljust(20) + b"SN-0001".ljust(16)
+    body += struct.pack(">H", 3) + b"V" + bytes([4, 7, 0]) + struct.pack(">HHHHH", 0, 0x3A00, 0x0000, 0x0101, 0x001E)
+    return pnio.block(0x0020, body)
+
+
+@sample("implicit_read.pcap")
+def implicit_read() -> bytes:
+    cap = Capture()
+    s = session(cap, 1)
+    s.read_implicit(0xAFF0, im0_record(), api=0, slot=0, subslot=1, max_len=4096)  # frames 1, 2
+    s.write(0xB02E, read_request(5, 1, [P(964)]))  # frames 3, 4
+    s.read_implicit(0xB02E, pd_response(5, 0x01, 1, [value_block(0x42, [0x1234])]))  # frames 5, 6
+    return pcap_of(cap)
+
+
+# ---- 8. Write-Multiple ---------------------------------------------------------
+
+
+@sample("write_multiple.pcap")
+def write_multiple() -> bytes:
+    cap = Capture()
+    s = session(cap, 1)
+    ar = s.ar_uuid
+    pd_req = read_request(7, 1, [P(964)])  # 10 bytes: 64 + 10 -> 2 pad bytes
+    s.iod_seq = 10
+    writes = [
+        InnerWrite(0xB02E, pd_req, 11, ar, api=0x3A00, slot=1, subslot=1),
+        InnerWrite(0x1000, bytes([1, 2, 3, 4, 5]), 12, ar, api=0, slot=2, subslot=1),  # 64 + 5 -> 3 pad bytes
+        InnerWrite(0x1001, bytes(range(8)), 13, ar, api=0, slot=2, subslot=1),  # last: no pad
+    ]
+    s.write_multiple(writes)  # frames 1, 2 (outer SeqNumber 10)
+    s.iod_seq = 14
+    s.read(0xB02E, status=pnio.STATUS_B5)  # frames 3, 4
+    s.read(0xB02E, pd_response(7, 0x01, 1, [value_block(0x42, [0x0815])]))  # frames 5, 6
+    return pcap_of(cap)
+
+
+# ---- 9. response from another port, retransmitted request --------------------
+
+
+@sample("other_port_response.pcap")
+def other_port_response() -> bytes:
+    cap = Capture()
+    s = session(cap, 1, reply_port=49153)
+    s.write(0xB02E, read_request(9, 1, [P(964)]))  # 1, 2
+    s.read(0xB02E, status=pnio.STATUS_B5)  # 3, 4
+    # final read: request lost from the controller's view, sent again after 100 ms
+    s.read(0xB02E, pd_response(9, 0x01, 1, [value_block(0x42, [0x4711])]), retransmit_after_us=[100_000])  # 5, 6, 7
+    return pcap_of(cap)
+
+
+# ---- 10. pcapng with two interfaces --------------------------------------------
+
+
+@sample("two_interfaces.pcapng")
+def two_interfaces() -> bytes:
+    cap = Capture()
+    eth = Medium(LINKTYPE_ETHERNET, iface=0)
+    a = session(cap, 1, medium=eth)
+    ctrl_b, dev_b = plant(2)
+    cooked = Medium(LINKTYPE_LINUX_SLL, iface=1, local_ip=ctrl_b.ip)
+    b = PnioSession(
+        cap, ctrl_b, dev_b, activity=fixed_uuid(0xAC, 2), ar_uuid=fixed_uuid(0xA2, 2), medium=cooked,
+        rtt_us=1234.567, gap_us=765.433,
+    )  # fmt: skip
+    txn_read_one(a, 1, b5=0)  # iface 0, file frames 1-4
+    cap.clock.advance_us(0.123)  # make interface-1 times need nanoseconds
+    txn_read_one(b, 1, b5=1)  # iface 1, file frames 6-11 (the SPB is frame 5)
+    spb_frame = Frame(
+        None,
+        link.ethernet(
+            BROADCAST, a.controller.mac, ETH_ARP, link.arp(1, a.controller.mac, a.controller.ip, bytes(6), a.device.ip)
+        ),
+    )
+
+    ng = Pcapng()
+    ng.section_header()
+    ng.interface(LINKTYPE_ETHERNET, tsresol=6, name="eth0")
+    ng.interface(LINKTYPE_LINUX_SLL, tsresol=9, name="any")
+    for i, f in enumerate(cap.frames):
+        if i == 2:
+            # unknown block type between packets; readers must skip it by length
+            ng.block(0x0000_0B0B, b"unknown block: skip me\x00\x00")
+        if i == 4:
+            ng.spb(spb_frame)
+        ng.epb(f)
+    return ng.tobytes()
+
+
+# ---- 11. gzip-compressed pcapng named .pcap -----------------------------------
+
+
+@sample("gzip_pcapng_named.pcap")
+def gzip_pcapng_named() -> bytes:
+    cap = Capture()
+    s = session(cap, 1)
+    txn_read_one(s, 1, b5=1)
+    txn_change_float(s, 2)
+    return gzip_bytes(pcapng_of(cap.frames))
+
+
+# ---- 12. other link types --------------------------------------------------------
+
+
+def _one_link(medium: Medium) -> bytes:
+    cap = Capture(medium=medium)
+    s = session(cap, 1, medium=medium)
+    if medium.linktype != LINKTYPE_RAW:
+        arp_exchange(cap, s.controller, s.device)
+    txn_read_one(s, 1, b5=1)
+    txn_read_multi(s, 2, b5=0)
+    return pcap_of(cap)
+
+
+@sample("linux_sll.pcap")
+def linux_sll() -> bytes:
+    return _one_link(Medium(LINKTYPE_LINUX_SLL, local_ip="192.168.1.11"))
+
+
+@sample("linux_sll2.pcap")
+def linux_sll2() -> bytes:
+    return _one_link(Medium(LINKTYPE_LINUX_SLL2, local_ip="192.168.1.11"))
+
+
+@sample("raw_ipv4.pcap")
+def raw_ipv4() -> bytes:
+    return _one_link(Medium(LINKTYPE_RAW))
+
+
+# ---- 13. nanosecond big-endian pcap ----------------------------------------------
+
+
+@sample("pcap_nsec_be.pcap")
+def pcap_nsec_be() -> bytes:
+    cap = Capture(Clock(EPOCH_NS + 123_456_789))
+    s = session(cap, 1, rtt_us=1111.111, gap_us=2222.222)
+    txn_read_one(s, 1, b5=1)
+    return pcap_of(cap, nanosecond=True, big_endian=True)
+
+
+# ---- 14. RPC control PDUs ---------------------------------------------------------
+
+
+@sample("rpc_control_pdus.pcap")
+def rpc_control_pdus() -> bytes:
+    cap = Capture()
+    s = session(cap, 1)
+    clk = cap.clock
+    ar, key = s.ar_uuid, 1
+    ctrl_obj = rpc.pnio_object_uuid(1, 0x0001, 0x002A)
+    # Connect (seq 1): ARBlockReq / ARBlockRes only, blocks shown raw
+    s.cm_call(
+        0,
+        pnio.ar_block_req(
+            ar_uuid=ar, session_key=key, initiator_mac=s.controller.mac, initiator_object=ctrl_obj, station_name="plc1"
+        ),
+        pnio.ar_block_res(ar_uuid=ar, session_key=key, responder_mac=s.device.mac),
+        rtt_us=9000,
+    )
+    # Control PrmEnd (seq 2), not idempotent: the client acks the response
+    c = s.cm_call(
+        4,
+        pnio.control_block(pnio.IOD_CONTROL_REQ, ar_uuid=ar, session_key=key, command=pnio.CMD_PRM_END),
+        pnio.control_block(pnio.IOD_CONTROL_RES, ar_uuid=ar, session_key=key, command=pnio.CMD_DONE),
+        req_rpc={"flags1": 0},
+        gap_us=200,
+    )
+    s.send_pdu(rpc.ACK, seq=c.seq, opnum=4, from_client=True)
+    clk.advance_us(5000)
+
+    # Long write (seq 3): ping -> working twice, then the response
+    req, res = s.write_stubs(0x1000, b"\x00\x01\x02\x03", api=0)
+    seq = s.next_seq()
+    s.send(s.pdu(rpc.REQUEST, req, seq=seq, opnum=3, from_client=True), from_client=True)
+    for _ in range(2):
+        clk.advance_us(300_000)
+        s.send_pdu(rpc.PING, seq=seq, opnum=3, from_client=True)
+        clk.advance_us(800)
+        s.send_pdu(rpc.WORKING, seq=seq, opnum=3, from_client=False)
+    clk.advance_us(150_000)
+    s.reply(3, res, seq=seq)
+    clk.advance_us(3000)
+
+    # Read (seq 4): device has no record of the call -> nocall; the client
+    # sends the request again (identical RPC PDU) and gets the answer
+    req, res, _ = s.read_stubs(0x1000, b"\x00\x01\x02\x03", api=0, max_len=64)
+    seq = s.next_seq()
+    req_pdu = s.pdu(rpc.REQUEST, req, seq=seq, opnum=2, from_client=True)
+    s.send(req_pdu, from_client=True)
+    clk.advance_us(500_000)
+    s.send_pdu(rpc.PING, seq=seq, opnum=2, from_client=True)
+    clk.advance_us(700)
+    s.send_pdu(rpc.NOCALL, seq=seq, opnum=2, from_client=False)
+    clk.advance_us(1000)
+    s.send(req_pdu, from_client=True)
+    clk.advance_us(1500)
+    s.reply(2, res, seq=seq)
+    clk.advance_us(3000)
+
+    # Fault (seq 5): read addressed to the Supervisor interface -> unknown interface
+    c = s.read(0x1000, api=0, max_len=64, respond=False, req_rpc={"interface": rpc.PNIO_SUPERVISOR_IF}, gap_us=900)
+    s.status_pdu(rpc.FAULT, 0x1C010003, seq=c.seq, opnum=2, interface=rpc.PNIO_SUPERVISOR_IF)
+    clk.advance_us(3000)
+
+    # Reject (seq 6): unknown opnum 9 -> operation range error
+    c = s.call(9, s.req_stub(b"", args_max=0), None, gap_us=700)
+    s.status_pdu(rpc.REJECT, 0x1C010002, seq=c.seq, opnum=9)
+    clk.advance_us(3000)
+
+    # Cancelled write (seq 7): cl_cancel, cancel_ack, then fault nca_s_fault_cancel
+    c = s.write(0x1001, b"\x0a\x0b\x0c\x0d", api=0, respond=False, gap_us=200_000)
+    s.send_pdu(rpc.CL_CANCEL, seq=c.seq, opnum=3, from_client=True, body=rpc.cancel_body(1, s.little))
+    clk.advance_us(900)
+    s.send_pdu(rpc.CANCEL_ACK, seq=c.seq, opnum=3, from_client=False, body=rpc.cancel_ack_body(1, s.little))
+    clk.advance_us(1200)
+    s.status_pdu(rpc.FAULT, 0x1C00000D, seq=c.seq, opnum=3)
+    clk.advance_us(5000)
+
+    # Release (seq 8)
+    s.cm_call(
+        1,
+        pnio.control_block(pnio.IOD_RELEASE_REQ, ar_uuid=ar, session_key=key, command=pnio.CMD_RELEASE),
+        pnio.control_block(pnio.IOD_RELEASE_RES, ar_uuid=ar, session_key=key, command=pnio.CMD_DONE),
+    )
+    return pcap_of(cap)
+
+
+# ---- 15. snaplen truncation ---------------------------------------------------------
+
+
+@sample("truncated_snaplen.pcap")
+def truncated_snaplen() -> bytes:
+    cap = Capture()
+    s = session(cap, 1)
+    other = host("02:00:00:00:03:01", "192.168.1.50")
+    arp_exchange(cap, s.controller, s.device)
+    txn_read_one(s, 1, b5=0)  # frames 3-6, all <= 256 bytes
+    # change request with 20 Unsigned32 values: 92-byte record, 298-byte frame
+    req = change_request(2, 1, [(P(2000, n_elems=20), value_block(0x07, list(range(1, 21))))])
+    s.parameter_access(req, change_ok(2, 1, 1))  # frames 7-10, frame 7 cut
+    cap.send_udp(s.controller, 50010, other, 50020, bytes(400))  # frame 11, cut
+    return pcap_of(cap, snaplen=256)
