@@ -157,8 +157,8 @@ class LinkDecoder:
             lo, hi = max(offset, other_off), min(offset + len(piece), other_off + len(other))
             if lo < hi and piece[lo - offset:hi - offset] != other[lo - other_off:hi - other_off]:
                 self.findings.append(rules.finding(
-                    "ip_frag_overlap", number, "ip.frag_offset", offset, "no overlap",
-                    f"IP fragment at offset {offset} overlaps earlier bytes with different content "
+                    "ip_frag_overlap", number, "ip.frag_offset", offset // 8, "no overlap",
+                    f"IP fragment at byte offset {offset} overlaps earlier bytes with different content "
                     f"(first kept; datagram id {ident:#06x})"))
                 break
         entry.pieces.append((offset, piece))
@@ -241,7 +241,10 @@ def annotate(linktype: int, data: bytes, dgram: Datagram) -> list[tuple[str, lis
     ver_ihl, flags_frag = values[0], values[4]
     ip[0:1] = [plain("ip.version", off, data, 1, ver_ihl >> 4), plain("ip.ihl", off, data, 1, ver_ihl & 0x0F)]
     ip.insert(6, plain("ip.mf", off + 6, data, 2, (flags_frag >> 13) & 1))
-    ip.insert(7, plain("ip.frag_offset", off + 6, data, 2, (flags_frag & 0x1FFF) * 8))
+    # The wire value, in 8-byte units as tshark's ip.frag_offset (protocol.md 1.3, 8.2); bytes in the text.
+    frag = plain("ip.frag_offset", off + 6, data, 2, flags_frag & 0x1FFF)
+    frag.show = f"{frag.value} ({(flags_frag & 0x1FFF) * 8} bytes)"
+    ip.insert(7, frag)
     if (ver_ihl & 0x0F) > 5:
         ip.append(plain("ip.options", off + 20, data, (ver_ihl & 0x0F) * 4 - 20,
                         bytes(data[off + 20:off + (ver_ihl & 0x0F) * 4])))

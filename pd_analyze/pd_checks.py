@@ -92,6 +92,7 @@ class Checker:
             if block.format in (pt.FMT_ZERO, pt.FMT_ERROR, pt.FMT_AKD_ZERO):
                 out.append(finding("change_blocks", frame, f"{name}.format", f"{block.format:#04x}",
                                    "a sized data type", "Zero/Error format in a change request"))
+                continue
             self.limit("request.format", f"{name}.format", block.format, frame, out)
             self.limit("request.n_values", f"{name}.n_values", block.n_values, frame, out)
             if addr.attr == pt.ATTR_VALUE and not (

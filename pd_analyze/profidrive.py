@@ -111,6 +111,10 @@ def parse_request(data: bytes, frame: int, findings: list[Finding]) -> Parsed:
         p.complete = True
         return p
     p.blocks, p.end, p.complete = _blocks(data, pos, p.n, frame, findings, False)
+    if len(p.blocks) < p.n and p.end >= len(data) and not any(b.unknown_size for b in p.blocks):
+        findings.append(finding("change_blocks", frame, "pd.n_params", len(p.blocks), p.n,
+                                f"change request ends after {len(p.blocks)} of {p.n} value blocks"))
+        p.complete = False
     return p
 
 
@@ -131,7 +135,7 @@ def parse_response(data: bytes, frame: int, findings: list[Finding]) -> Parsed:
     count = 1 if p.ident == pt.RES_NOT_SUPPORTED and p.n == 0 else p.n
     trial: list[Finding] = []
     blocks, end, ok = _blocks(data, 4, count, frame, trial, True)
-    if not ok and len(data) > 10 and count == 1:
+    if (trial or not ok) and len(data) > 10 and count == 1:
         echo_trial: list[Finding] = []
         eblocks, eend, eok = _blocks(data, 10, count, frame, echo_trial, True)
         if eok and eend == len(data):

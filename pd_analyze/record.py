@@ -23,6 +23,7 @@ from pd_analyze.tables import (
     OP_READ,
     OP_READ_IMPLICIT,
     OP_WRITE,
+    PNIO_OPNUM,
 )
 
 NDR_SIZE = 20
@@ -131,8 +132,14 @@ class Stub:
 
 def parse_stub(stub: bytes, little: bool, response: bool, opnum: int, frame: int,
                findings: list[Finding]) -> Stub:
-    """NDR header and, for Read/Write/ReadImplicit, the IOD blocks with their records."""
+    """NDR header and, for Read/Write/ReadImplicit, the IOD blocks with their records.
+
+    Only the PNIO CM operations (opnums 0-5, protocol.md 1.4) have NDR args; the stub of any other
+    opnum is left undecoded (no `ndr`), as tshark does, rather than read as an args header.
+    """
     out = Stub(little, response)
+    if opnum not in PNIO_OPNUM:
+        return out
     layout = out.ndr_layout
     if len(stub) < NDR_SIZE:
         out.truncated = True

@@ -67,7 +67,7 @@ _FIELDS = _defs(
     F("ip.id", HEX, "Identification", tshark="ip.id"),
     F("ip.flags", HEX, "Flags (0x2 DF, 0x1 MF) and fragment offset word"),
     F("ip.mf", UINT, "More fragments", tshark="ip.flags.mf"),
-    F("ip.frag_offset", UINT, "Fragment offset in bytes", tshark="ip.frag_offset"),
+    F("ip.frag_offset", UINT, "Fragment offset in 8-byte units (wire value)", tshark="ip.frag_offset"),
     F("ip.ttl", UINT, "Time to live"),
     F("ip.proto", UINT, "Protocol", t.IP_PROTO),
     F("ip.checksum", HEX, "Header checksum (not verified)"),

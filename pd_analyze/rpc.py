@@ -7,6 +7,7 @@ response may use different DREP byte orders.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -46,6 +47,7 @@ MAX_OPEN_CALLS = 65_536
 MAX_CLOSED_CALLS = 16_384  # remembered to tell duplicate responses from orphans
 MAX_FRAG_SETS = 4_096
 MAX_FRAG_BYTES = 64 * 1024 * 1024
+MAX_DONE_SETS = 4_096  # reassembled sets remembered to recognise late retransmitted fragments
 
 
 def canonical_uuid(raw: bytes, little: bool) -> bytes:
@@ -109,17 +111,36 @@ class Reassembled(NamedTuple):
     first_ts: float
 
 
+class _Done(NamedTuple):
+    """A reassembled set: the frame that completed it and a digest of each fragment body."""
+
+    frame: int
+    digests: dict[int, bytes]
+
+
+def _digest(body: bytes) -> bytes:
+    return hashlib.blake2b(body, digest_size=16).digest()
+
+
 class FragmentTable:
     """CL fragment reassembly keyed by activity + seq + direction + address pair (protocol.md 2.3)."""
 
     def __init__(self) -> None:
         self._sets: dict[tuple, _FragSet] = {}
         self._bytes = 0
+        self._done: dict[tuple, _Done] = {}
 
     def add(self, key: tuple, number: int, ts: float, hdr: Header, body: bytes,
             findings: list[Finding]) -> Reassembled | None:
         """Add one fragment; the whole body once the set is complete, else None."""
         entry = self._sets.get(key)
+        if entry is None and self._late_copy(key, hdr.frag_num, body):
+            done = self._done[key]
+            findings.append(rules.finding(
+                "rpc_retransmission", number, "rpc.frag_num", hdr.frag_num, "a new fragment",
+                f"fragment {hdr.frag_num} retransmitted after its PDU was reassembled in frame "
+                f"{done.frame} (identical copy)"))
+            return None
         if entry is None:
             self._evict(number, findings, len(body))
             entry = self._sets[key] = _FragSet(number, ts)
@@ -152,14 +173,33 @@ class FragmentTable:
             return None
         del self._sets[key]
         self._bytes -= entry.size
+        self._remember(key, number, entry)
         order = range(entry.last + 1)
         return Reassembled(b"".join(entry.bodies[n] for n in order),
                            tuple(entry.frames[n] for n in order), entry.first_ts)
 
     def seen(self, key: tuple, num: int, body: bytes) -> bool:
-        """True when this exact fragment is already held (a retransmitted copy)."""
+        """True when this exact fragment is already held, or was part of the set reassembled last
+        under this key (a retransmitted copy, protocol.md 2.3)."""
         entry = self._sets.get(key)
-        return entry is not None and entry.bodies.get(num) == body
+        if entry is not None:
+            return entry.bodies.get(num) == body
+        return self._late_copy(key, num, body)
+
+    def reassembled_in(self, key: tuple) -> int | None:
+        """The frame that completed the last set reassembled under this key, if remembered."""
+        done = self._done.get(key)
+        return done.frame if done is not None else None
+
+    def _late_copy(self, key: tuple, num: int, body: bytes) -> bool:
+        done = self._done.get(key)
+        return done is not None and done.digests.get(num) == _digest(body)
+
+    def _remember(self, key: tuple, number: int, entry: _FragSet) -> None:
+        self._done.pop(key, None)
+        self._done[key] = _Done(number, {n: _digest(b) for n, b in entry.bodies.items()})
+        if len(self._done) > MAX_DONE_SETS:
+            del self._done[next(iter(self._done))]
 
     def drop_call(self, call_key: tuple, number: int, findings: list[Finding]) -> None:
         """The call was answered: any unfinished fragment set of its request is missing pieces."""

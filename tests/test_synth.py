@@ -1,0 +1,440 @@
+"""Exact-value tests of the sample generator (pd_analyze.synth).
+
+The generator is the ground truth for the decoder's tests, so each layer is
+checked against an independent parse (dpkt for Ethernet/IP/UDP, struct for
+RPC/NDR/IOD/PROFIdrive) and the worked example against protocol.md 9.
+"""
+
+from __future__ import annotations
+
+import gzip
+import io
+import struct
+import uuid
+from pathlib import Path
+
+import dpkt
+import pytest
+
+from pd_analyze.synth import link, pnio, profidrive, rpc, samples, scenario, writers
+from pd_analyze.synth.__main__ import main as synth_main
+
+SAMPLE_DIR = Path(__file__).resolve().parent.parent / "sample_pcaps"
+EPOCH = 1_767_225_600
+
+# protocol.md 9.1 / 9.2, UDP payloads of frames 1 and 6
+WORKED_F1 = bytes.fromhex(
+    "04002000100000000000a0de976cd11182710001000200020100a0de976cd111827100a02442df7d1111111122223333"
+    "44445555666677770000000001000000010000000300ffffffff64000000000038410000500000003841000000000000"
+    "500000000008003c01000001aaaaaaaabbbbccccddddeeeeffff000100003a00000100010000b02e0000001000000000"
+    "000000000000000000000000000000000000000001010102100103c40000100307d00000"
+)
+WORKED_F6 = bytes.fromhex(
+    "04020a00100000000000a0de976cd11182710001000200020100a0de976cd111827100a02442df7d1111111122223333"
+    "44445555666677770000005f01000000030000000200ffffffff6a000000000000000000560000003001000000000000"
+    "560000008009003c01000003aaaaaaaabbbbccccddddeeeeffff000100003a00000100010000b02e0000001600000000"
+    "000000000000000000000000000000000000000001010102420112344303000000010000000200000003"
+)
+
+
+def udp_payloads(pcap: bytes) -> list[tuple[float, dpkt.ethernet.Ethernet]]:
+    return [(ts, dpkt.ethernet.Ethernet(buf)) for ts, buf in dpkt.pcap.Reader(io.BytesIO(pcap))]
+
+
+# ---- worked example ------------------------------------------------------------
+
+
+def test_worked_example_hex_lengths() -> None:
+    assert len(WORKED_F1) == 180
+    assert len(WORKED_F6) == 186
+
+
+def test_worked_example_frames_match_protocol_md() -> None:
+    frames = udp_payloads(samples.worked_example())
+    assert len(frames) == 6
+    times = [round((ts - EPOCH) * 1e4) for ts, _ in frames]
+    assert times == [0, 21, 25, 44, 146, 163]  # 0.1 ms units, table of section 9
+    payloads = [bytes(e.data.data.data) for _, e in frames]
+    assert payloads[0] == WORKED_F1
+    assert payloads[5] == WORKED_F6
+    for _, e in frames:
+        ip, u = e.data, e.data.data
+        req = ip.src == bytes([192, 168, 0, 1])
+        assert (u.sport, u.dport) == ((49152, 34964) if req else (34964, 49152))
+
+
+def test_worked_example_frames_2_to_5() -> None:
+    p = [bytes(e.data.data.data) for _, e in udp_payloads(samples.worked_example())]
+    # frame 2 Write.res: NDR status 0, IODWriteResHeader RecordDataLength 16, status OK
+    assert p[1][1] == 2 and struct.unpack_from("<IH", p[1], 64)[0] == 1
+    assert p[1][80:100] == struct.pack("<5I", 0, 64, 16696, 0, 64)
+    assert struct.unpack_from(">HH", p[1], 100) == (0x8008, 60)
+    assert struct.unpack_from(">I", p[1], 136)[0] == 16 and p[1][144:148] == bytes(4)
+    # frames 3 and 5 Read.req: ArgsMaximum 304, RecordDataLength 240, IOD SeqNumber 2 / 3
+    for frame, seq in ((p[2], 2), (p[4], 3)):
+        assert struct.unpack_from("<I", frame, 64)[0] == seq
+        assert struct.unpack_from("<I", frame, 80)[0] == 304
+        assert struct.unpack_from(">HHBBH", frame, 100) == (0x0009, 60, 1, 0, seq)
+        assert struct.unpack_from(">I", frame, 136)[0] == 240
+    # frame 4: the B5 answer, NDR only
+    assert p[3][80:] == bytes.fromhex("00b580de00000000300100000000000000000000")
+
+
+# ---- determinism ---------------------------------------------------------------
+
+
+def test_regeneration_is_byte_identical(tmp_path: Path) -> None:
+    assert synth_main(["synth", str(tmp_path)]) == 0
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == sorted(s.name for s in samples.SAMPLES)
+    for name in names:
+        committed = SAMPLE_DIR / name
+        assert committed.exists(), f"{name} missing from sample_pcaps/"
+        assert (tmp_path / name).read_bytes() == committed.read_bytes(), name
+
+
+def test_build_twice_identical() -> None:
+    assert samples.build_all() == samples.build_all()
+
+
+def test_readme_mentions_every_sample() -> None:
+    readme = (SAMPLE_DIR / "README.md").read_text()
+    for s in samples.SAMPLES:
+        assert f"`{s.name}`" in readme, s.name
+
+
+# ---- link layer ------------------------------------------------------------------
+
+
+def test_ethernet_vlan_stack_roundtrip() -> None:
+    payload = link.ipv4("10.0.0.1", "10.0.0.2", link.udp(1, 2, b"x" * 30), ident=7)
+    tags = (link.VlanTag(200, tpid=link.ETH_QINQ), link.VlanTag(100, pcp=6, dei=1))
+    raw = link.ethernet(
+        link.mac("02:00:00:00:00:02"), link.mac("02:00:00:00:00:01"), link.ETH_IPV4, payload, vlans=tags
+    )
+    assert raw[12:14] == b"\x88\xa8" and raw[16:18] == b"\x81\x00" and raw[20:22] == b"\x08\x00"
+    assert struct.unpack_from(">H", raw, 18)[0] == (6 << 13) | (1 << 12) | 100
+    e = dpkt.ethernet.Ethernet(raw)
+    assert [t.id for t in e.vlan_tags] == [200, 100]
+    assert isinstance(e.data, dpkt.ip.IP) and e.data.id == 7
+
+
+def test_ethernet_min_padding() -> None:
+    raw = link.ethernet(b"\xff" * 6, b"\x02" * 6, link.ETH_ARP, b"\x00" * 28)
+    assert len(raw) == 60
+
+
+def test_ipv4_udp_checksums() -> None:
+    pkt = link.ipv4(
+        "192.168.1.1",
+        "192.168.1.2",
+        link.udp(49152, 34964, b"abc", src_ip="192.168.1.1", dst_ip="192.168.1.2"),
+        ident=0x1234,
+        df=True,
+    )
+    ip = dpkt.ip.IP(pkt)
+    assert link.inet_checksum(pkt[:20]) == 0  # header checksum valid
+    assert ip.df == 1 and ip.mf == 0 and ip.offset == 0 and ip.id == 0x1234
+    u = ip.data
+    pseudo = pkt[12:20] + struct.pack("!BBH", 0, 17, len(bytes(u)))
+    assert link.inet_checksum(pseudo + bytes(u)) == 0
+    assert link.udp(1, 2, b"z")[6:8] == b"\x00\x00"  # no IPs: checksum 0
+
+
+def test_ip_fragments_offsets_and_mf() -> None:
+    dgram = link.udp(1, 2, bytes(range(256)) * 12)  # 3080 bytes
+    frags = link.ip_fragments("1.1.1.1", "2.2.2.2", dgram, ident=99, mtu=1500)
+    parsed = [dpkt.ip.IP(f) for f in frags]
+    assert [p.offset * 8 for p in parsed] == [0, 1480, 2960]  # dpkt gives 8-byte units
+    assert [p.mf for p in parsed] == [1, 1, 0]
+    assert all(p.id == 99 and link.inet_checksum(f[:20]) == 0 for p, f in zip(parsed, frags, strict=True))
+    assert b"".join(f[20:] for f in frags) == dgram
+
+
+def test_sll_and_sll2_headers() -> None:
+    a = link.sll(0x0800, b"P", pkttype=link.SLL_OUTGOING, addr=b"\x02" * 6)
+    assert struct.unpack(">HHH8sH", a[:16]) == (4, 1, 6, b"\x02" * 6 + b"\x00\x00", 0x0800) and a[16:] == b"P"
+    b = link.sll2(0x0800, b"P", ifindex=3, addr=b"\x02" * 6)
+    assert struct.unpack(">HHIHBB8s", b[:20]) == (0x0800, 0, 3, 1, 0, 6, b"\x02" * 6 + b"\x00\x00")
+
+
+# ---- DCE/RPC -----------------------------------------------------------------------
+
+ACT = uuid.UUID("11111111-2222-3333-4444-555566667777")
+
+
+@pytest.mark.parametrize("drep", [rpc.DREP_LE, rpc.DREP_BE])
+def test_rpc_header_drep_order(drep: bytes) -> None:
+    le = drep == rpc.DREP_LE
+    e = "<" if le else ">"
+    h = rpc.rpc_header(
+        ptype=0, activity=ACT, seq=0x01020304, opnum=3, drep=drep, serial=0x0A0B, frag_len=100, frag_num=2
+    )
+    assert len(h) == 80 and h[4:7] == drep
+    assert h[7] == 0x0A and h[79] == 0x0B  # serial hi / lo
+    assert h[40:56] == (ACT.bytes_le if le else ACT.bytes)
+    assert h[8:24] == (rpc.NIL_UUID.bytes)
+    assert h[24:40] == (rpc.PNIO_DEVICE_IF.bytes_le if le else rpc.PNIO_DEVICE_IF.bytes)
+    assert struct.unpack_from(e + "IIIHHHHH", h, 56) == (0, 1, 0x01020304, 3, 0xFFFF, 0xFFFF, 100, 2)
+    assert h[40:44] == (b"\x11" * 4) and h[44:46] == b"\x22\x22"
+
+
+def test_rpc_uuid_be_vs_le_first_fields() -> None:
+    u = uuid.UUID("00010203-0405-0607-0809-0a0b0c0d0e0f")
+    assert rpc.uuid_wire(u, True).hex() == "03020100050407060809" + "0a0b0c0d0e0f"
+    assert rpc.uuid_wire(u, False).hex() == "000102030405060708090a0b0c0d0e0f"
+
+
+def test_pnio_object_uuid() -> None:
+    assert str(rpc.pnio_object_uuid(1, 2, 0x2A)) == "dea00000-6c97-11d1-8271-00010002002a"
+
+
+def test_cl_fragments_flags_numbers_serials() -> None:
+    body = bytes(range(256)) * 12  # 3072 bytes -> 1384 + 1384 + 304
+    pdus = rpc.cl_fragments(body, flags1=rpc.F1_IDEMPOTENT, ptype=0, activity=ACT, seq=5, opnum=3)
+    assert [len(p) - 80 for p in pdus] == [1384, 1384, 304]
+    assert [p[2] for p in pdus] == [0x24, 0x24, 0x2E]  # frag; frag; frag+last+nofack
+    assert [struct.unpack_from("<H", p, 76)[0] for p in pdus] == [0, 1, 2]
+    assert [p[7] * 256 + p[79] for p in pdus] == [0, 1, 2]
+    assert [struct.unpack_from("<H", p, 74)[0] for p in pdus] == [1384, 1384, 304]
+    assert b"".join(p[80:] for p in pdus) == body
+    sized = rpc.cl_fragments(body, sizes=[100, 200], last_extra=0, ptype=2, activity=ACT)
+    assert [len(p) - 80 for p in sized] == [100, 200, len(body) - 300] and sized[-1][2] == 0x06
+
+
+def test_control_pdu_bodies() -> None:
+    assert rpc.status_body(0x1C010003, True) == bytes.fromhex("0300011c")
+    assert rpc.status_body(0x1C010003, False) == bytes.fromhex("1c010003")
+    fb = rpc.fack_body(little=True, serial_num=2, selack=[0x5])
+    assert struct.unpack("<BBHIIHHI", fb) == (1, 0, 1, 1464, 1464, 2, 1, 5)
+    assert rpc.cancel_ack_body(7, False) == bytes.fromhex("000000000000000701")
+
+
+# ---- NDR, IOD blocks, Write-Multiple -------------------------------------------------
+
+
+def test_ndr_status_order() -> None:
+    st = pnio.pnio_status(0xDE, 0x80, 0xB5, 0x00)
+    assert pnio.ndr_status(st, True) == bytes.fromhex("00b580de")
+    assert pnio.ndr_status(st, False) == bytes.fromhex("de80b500")
+    res = pnio.ndr_response(b"x" * 6, status=st, max_count=304, little=False)
+    assert struct.unpack_from(">4sIIII", res) == (st, 6, 304, 0, 6)
+    req = pnio.ndr_request(b"y" * 10, args_max=16696, little=True, actual_count=9)
+    assert struct.unpack_from("<IIIII", req) == (16696, 10, 16696, 0, 9)
+
+
+def test_iod_headers_fields() -> None:
+    ar = uuid.UUID("aaaaaaaa-bbbb-cccc-dddd-eeeeffff0001")
+    common = dict(seq=3, ar_uuid=ar, api=0x3A00, slot=1, subslot=2, index=0xB02E, record_len=22)
+    w = pnio.iod_write_res(status=pnio.STATUS_B5, add_val1=5, add_val2=6, **common)
+    assert len(w) == 64
+    f = struct.unpack(">HHBBH16sIHHHHIHH4s16s", w)
+    assert f == (0x8008, 60, 1, 0, 3, ar.bytes, 0x3A00, 1, 2, 0, 0xB02E, 22, 5, 6, pnio.STATUS_B5, bytes(16))
+    r = pnio.iod_read_res(add_val1=1, **common)
+    assert struct.unpack_from(">HHH", r, 0)[0] == 0x8009 and struct.unpack_from(">HH", r, 40) == (1, 0)
+    bad = pnio.iod_write_req(block_length=61, pad=0x55, rw_padding=b"\x01" * 24, **common)
+    assert struct.unpack_from(">H", bad, 2)[0] == 61 and bad[32:34] == b"\x00\x55" and bad[40:] == b"\x01" * 24
+
+
+def test_implicit_read_target_ar() -> None:
+    target = uuid.UUID("aaaaaaaa-bbbb-cccc-dddd-eeeeffff0001")
+    h = pnio.iod_read_req(
+        seq=1, ar_uuid=rpc.NIL_UUID, api=0, slot=0, subslot=1, index=0xAFF0, record_len=4096, target_ar_uuid=target
+    )
+    assert h[8:24] == bytes(16) and h[40:56] == target.bytes and h[56:64] == bytes(8)
+
+
+def test_write_multiple_alignment() -> None:
+    ar = uuid.UUID(int=1)
+    inner = [
+        pnio.InnerWrite(0xB02E, b"A" * 10, 2, ar),
+        pnio.InnerWrite(0x1000, b"B" * 5, 3, ar),
+        pnio.InnerWrite(0x1001, b"C" * 7, 4, ar),
+    ]
+    body = pnio.write_multiple_req(inner, seq=1, ar_uuid=ar)
+    assert struct.unpack_from(">H", body, 34)[0] == 0xE040
+    rec_len = struct.unpack_from(">I", body, 36)[0]
+    assert rec_len == len(body) - 64 == (74 + 2) + (69 + 3) + 71
+    pos = 64
+    for w, pad in zip(inner, (2, 3, 0), strict=True):
+        assert pos % 4 == 0 and struct.unpack_from(">HH", body, pos + 32)[1] == w.index
+        pos += 64 + len(w.data)
+        assert body[pos : pos + pad] == bytes(pad)
+        pos += pad
+    res = pnio.write_multiple_res(
+        [pnio.iod_write_res(seq=2, ar_uuid=ar, api=0, slot=0, subslot=1, index=0xB02E, record_len=0)], seq=1, ar_uuid=ar
+    )
+    assert len(res) == 128 and struct.unpack_from(">I", res, 36)[0] == 64
+
+
+# ---- PROFIdrive ------------------------------------------------------------------------
+
+
+def test_value_block_pad_rule() -> None:
+    assert profidrive.value_block(0x05, [1, 2, 3]) == bytes.fromhex("0503010203") + b"\x00"
+    assert profidrive.value_block(0x42, [0x1234]) == bytes.fromhex("42011234")
+    assert profidrive.value_block(0x09, "ABC") == b"\x09\x03ABC\x00"
+    assert profidrive.value_block(0x09, "ABC", pad=b"") == b"\x09\x03ABC"
+    assert profidrive.value_block(0x03, [-2]) == bytes.fromhex("0301fffe")
+    assert profidrive.value_block(0x08, [1.0]) == bytes.fromhex("08013f800000")
+    assert profidrive.value_block(0x27, "Hi") == bytes.fromhex("270200480069")
+    assert profidrive.value_block(0x43, [1], n_values=3) == bytes.fromhex("430300000001")
+
+
+def test_error_and_zero_blocks() -> None:
+    assert profidrive.error_block(0x14, 0) == bytes.fromhex("440200140000")
+    assert profidrive.error_block(0x00) == bytes.fromhex("44010000")
+    assert profidrive.error_block(0x02, 1, extra=[9], n_values=0) == bytes.fromhex("4400000200010009")
+    assert profidrive.zero_block() == b"\x40\x00"
+
+
+def test_requests_and_responses() -> None:
+    addr = profidrive.ParamAddress(1120)
+    req = profidrive.change_request(3, 1, [(addr, profidrive.value_block(0x08, [10.0]))])
+    assert req == bytes.fromhex("03020101100104600000080141200000")
+    assert profidrive.change_ok(3, 1, 1) == bytes.fromhex("03020101")
+    assert profidrive.pd_response(1, 0x81, 1, [profidrive.error_block(0)], n_params=2) == bytes.fromhex(
+        "0181010244010000"
+    )
+
+
+# ---- writers --------------------------------------------------------------------------------
+
+
+def test_pcap_variants_headers_and_truncation() -> None:
+    f = writers.Frame(EPOCH * 10**9 + 123_456_789, bytes(100))
+    us = writers.pcap_bytes([f], snaplen=64)
+    magic, _, _, _, _, snap, lt = struct.unpack_from("<IHHiIII", us)
+    assert (magic, snap, lt) == (0xA1B2C3D4, 64, 1)
+    assert struct.unpack_from("<IIII", us, 24) == (EPOCH, 123456, 64, 100)
+    ns = writers.pcap_bytes([f], nanosecond=True, big_endian=True, linktype=101)
+    assert ns[:4] == bytes.fromhex("a1b23c4d") and struct.unpack_from(">I", ns, 20)[0] == 101
+    assert struct.unpack_from(">II", ns, 24) == (EPOCH, 123_456_789)
+    ts, buf = next(iter(dpkt.pcap.Reader(io.BytesIO(ns))))
+    assert len(buf) == 100 and abs(float(ts) - (EPOCH + 0.123456789)) < 1e-6
+
+
+def _pcapng_blocks(data: bytes) -> list[tuple[int, bytes]]:
+    out, pos = [], 0
+    while pos < len(data):
+        btype, blen = struct.unpack_from("<II", data, pos)
+        assert struct.unpack_from("<I", data, pos + blen - 4)[0] == blen and blen % 4 == 0
+        out.append((btype, data[pos + 8 : pos + blen - 4]))
+        pos += blen
+    return out
+
+
+def test_pcapng_two_interfaces_sample() -> None:
+    blocks = _pcapng_blocks(samples.two_interfaces())
+    types = [t for t, _ in blocks]
+    assert types[:3] == [0x0A0D0D0A, 1, 1] and 3 in types and 0x0B0B in types
+    idbs = [b for t, b in blocks if t == 1]
+    assert [struct.unpack_from("<H", b)[0] for b in idbs] == [1, 113]
+    assert b"\x09\x00\x01\x00\x06" in idbs[0] and b"\x09\x00\x01\x00\x09" in idbs[1]  # if_tsresol 6 / 9
+    epbs = [b for t, b in blocks if t == 6]
+    ifaces = [struct.unpack_from("<I", b)[0] for b in epbs]
+    assert ifaces == [0] * 4 + [1] * 6
+    hi, lo = struct.unpack_from("<II", epbs[4], 4)
+    assert ((hi << 32) | lo) == EPOCH * 10**9 + 5_000_123  # nanosecond ticks on interface 1
+    hi, lo = struct.unpack_from("<II", epbs[1], 4)
+    assert ((hi << 32) | lo) == EPOCH * 10**6 + 1500  # microsecond ticks on interface 0
+
+
+def test_gzip_deterministic_and_valid() -> None:
+    data = bytes(range(256)) * 300
+    gz = writers.gzip_bytes(data)
+    assert gz[:4] == b"\x1f\x8b\x08\x00" and gz[4:8] == bytes(4)  # no FNAME, mtime 0
+    assert gzip.decompress(gz) == data
+    assert gzip.decompress(samples.gzip_pcapng_named())[:4] == b"\x0a\x0d\x0d\x0a"
+    assert gzip.decompress(samples.record_rw_le_gz()) == samples.record_rw_le()
+
+
+# ---- scenario -----------------------------------------------------------------------------
+
+
+def test_session_sequence_boot_time_and_reply_port() -> None:
+    cap = scenario.Capture()
+    ctrl, dev = samples.plant(1)
+    s = scenario.PnioSession(cap, ctrl, dev, activity=ACT, ar_uuid=uuid.UUID(int=5), reply_port=50000, seq=7)
+    calls = s.parameter_access(
+        profidrive.read_request(1, 1, [profidrive.ParamAddress(964)]), b"\x01\x01\x01\x01", b5_retries=2
+    )
+    assert [c.seq for c in calls] == [7, 8, 9, 10]
+    assert [c.opnum for c in calls] == [3, 2, 2, 2]
+    pl = [bytes(dpkt.ethernet.Ethernet(f.data).data.data.data) for f in cap.frames]
+    sports = [dpkt.ethernet.Ethernet(f.data).data.data.sport for f in cap.frames]
+    assert sports == [49152, 50000] * 4
+    assert struct.unpack_from("<I", pl[0], 56)[0] == 0  # client boot unknown in first call
+    assert all(struct.unpack_from("<I", p, 56)[0] == 0x5F000000 for p in pl[1:])
+    assert [len(p) for p in pl[3:6:2]] == [100, 100]  # B5 answers: NDR only
+    iod_seqs = [struct.unpack_from(">H", p, 106)[0] for p in pl if len(p) > 100]
+    assert iod_seqs == [1, 1, 2, 3, 4, 4]
+    ts = [f.ts_ns for f in cap.frames]
+    assert ts == sorted(ts) and ts[0] == scenario.EPOCH_NS
+
+
+def test_retransmitted_request_is_identical_rpc_pdu() -> None:
+    frames = udp_payloads(samples.other_port_response())
+    assert len(frames) == 7
+    p5, p6 = (bytes(frames[i][1].data.data.data) for i in (4, 5))
+    assert p5 == p6 and round(frames[5][0] - frames[4][0], 3) == 0.1
+
+
+def test_all_pcap_samples_parse_with_dpkt() -> None:
+    for s in samples.SAMPLES:
+        data = s.build()
+        if s.name.endswith(".gz") or data[:2] == b"\x1f\x8b":
+            data = gzip.decompress(data)
+        if data[:4] == b"\x0a\x0d\x0d\x0a":
+            assert _pcapng_blocks(data)
+            continue
+        n = sum(1 for _ in dpkt.pcap.Reader(io.BytesIO(data)))
+        assert 6 <= n <= 40, s.name
+
+
+def test_truncated_sample_caplen() -> None:
+    recs = list(dpkt.pcap.Reader(io.BytesIO(samples.truncated_snaplen())))
+    data = samples.truncated_snaplen()
+    pos, cut = 24, []
+    for _ in recs:
+        _, _, incl, orig = struct.unpack_from("<IIII", data, pos)
+        cut.append(incl < orig)
+        pos += 16 + incl
+    assert [i + 1 for i, c in enumerate(cut) if c] == [7, 11]
+
+
+def test_session_overrides_reach_the_wire() -> None:
+    cap = scenario.Capture()
+    ctrl, dev = samples.plant(1)
+    s = scenario.PnioSession(cap, ctrl, dev, activity=ACT, ar_uuid=uuid.UUID(int=5))
+    s.write(
+        0xB02E,
+        b"\x01\x01\x01\x01",
+        req_iod={"block_length": 61},
+        req_ndr={"args_len": 999},
+        req_rpc={"flags1": 0x30, "serial": 0x0102},
+        res_iod={"rw_padding": b"\x07" * 16},
+        status=bytes.fromhex("df80b500"),
+    )
+    req, res = (bytes(dpkt.ethernet.Ethernet(f.data).data.data.data) for f in cap.frames)
+    assert req[2] == 0x30 and (req[7], req[79]) == (1, 2)
+    assert struct.unpack_from("<I", req, 84)[0] == 999 and struct.unpack_from(">H", req, 102)[0] == 61
+    assert res[80:84] == bytes.fromhex("00b580df") and res[144:148] == bytes.fromhex("df80b500")
+    assert res[148:164] == b"\x07" * 16
+
+
+def test_interleaved_sessions_with_own_clocks() -> None:
+    cap = scenario.Capture()
+    a = samples.session(cap, 1, own_clock=scenario.Clock(scenario.EPOCH_NS))
+    b = samples.session(cap, 2, own_clock=scenario.Clock(scenario.EPOCH_NS + 500_000))
+    for s in (a, b):
+        samples.txn_read_one(s, 1, b5=0)
+    order = [dpkt.ethernet.Ethernet(f.data).data.src[-1] for f in cap.time_sorted()]
+    assert order[:4] == [11, 12, 21, 22]  # the two channels interleave in time
+
+
+def test_sll_packet_type_by_capturing_host() -> None:
+    m = scenario.Medium(link.LINKTYPE_LINUX_SLL, local_ip="192.168.1.11")
+    cap = scenario.Capture(medium=m)
+    samples.txn_read_one(samples.session(cap, 1, medium=m), 1, b5=0)
+    assert [struct.unpack_from(">H", f.data)[0] for f in cap.frames] == [4, 0, 4, 0]
