@@ -9,8 +9,16 @@ from pd_analyze import pdtables as pt
 from pd_analyze import profidrive as pd
 from pd_analyze import profiles
 from pd_analyze.pd_checks import Checker
-from pd_analyze.synth.profidrive import (ParamAddress, change_request, error_block, pd_request, pd_response,
-                                         read_request, value_block, zero_block)
+from pd_analyze.synth.profidrive import (
+    ParamAddress,
+    change_request,
+    error_block,
+    pd_request,
+    pd_response,
+    read_request,
+    value_block,
+    zero_block,
+)
 from tests.worked_example import FRAME1_WRITE_REQ, FRAME6_READ_RES
 
 GENERIC = Checker(profiles.generic())
