@@ -136,8 +136,9 @@ def pnio_status(status: rec.Status, opnum: int, frame: int, prefix: str) -> list
     return out
 
 
-def blocks(stub: Stub, opnum: int, frame: int, request: Stub | None) -> list[Finding]:
-    """H1-H14 on the IOD blocks of one stub."""
+def blocks(stub: Stub, opnum: int, frame: int, request: Stub | None,
+           tolerate: frozenset[str] = frozenset()) -> list[Finding]:
+    """H1-H14 on the IOD blocks of one stub (`tolerate`: the vendor profile's tolerations)."""
     out: list[Finding] = []
     expected = rec.EXPECTED_BLOCK.get((opnum, stub.response))
     if expected is None:
@@ -145,7 +146,7 @@ def blocks(stub: Stub, opnum: int, frame: int, request: Stub | None) -> list[Fin
     for block in stub.blocks:
         out += _header_form(block, expected, frame, stub.response)
         if not stub.response:
-            out += _request_header(block, opnum, frame)
+            out += _request_header(block, opnum, frame, tolerate)
         else:
             out += _response_header(block, frame)
     if stub.trailing:
@@ -188,7 +189,7 @@ def _header_form(block: Block, expected: int, frame: int, response: bool) -> lis
     return out
 
 
-def _request_header(block: Block, opnum: int, frame: int) -> list[Finding]:
+def _request_header(block: Block, opnum: int, frame: int, tolerate: frozenset[str]) -> list[Finding]:
     out = []
     v = block.values
     nil = v[rec.B_AR] == rec.NIL_UUID
@@ -204,6 +205,9 @@ def _request_header(block: Block, opnum: int, frame: int) -> list[Finding]:
         if index == INDEX_PD_DPV1:
             out.append(finding("profibus_index", frame, "iod.index", "0x002f", "0xb02e/0xb02f",
                                "PROFIdrive parameter access over the DPV1 index 47"))
+        elif v[rec.B_API] == 0 and "api_dap" in tolerate:
+            out.append(finding("api_dap_yaskawa", frame, "iod.api", "0x00000000", "0x00003a00",
+                               "API 0x0000 (device access point) on a PROFIdrive index, as Yaskawa documents"))
         elif v[rec.B_API] != API_PROFIDRIVE:
             out.append(finding("api_not_profidrive", frame, "iod.api", f"{v[rec.B_API]:#010x}",
                                "0x00003a00", "API is not the PROFIdrive API 0x3A00"))

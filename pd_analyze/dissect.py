@@ -293,7 +293,7 @@ class Dissector:
         if not response and not pdu.retransmission and pdu.request is not None:
             pdu.request.info = stub
         res.findings += checks.ndr(stub, len(body), hdr.opnum, number, request_stub)
-        res.findings += checks.blocks(stub, hdr.opnum, number, request_stub)
+        res.findings += checks.blocks(stub, hdr.opnum, number, request_stub, self.checker.tolerate)
         self._records(res, stub, hdr, dgram)
         res.summary = self._summary(hdr, stub, len(frames))
         if self.annotate:
