@@ -23,6 +23,7 @@ from pd_analyze.tables import (
     OP_WRITE,
     PROFIDRIVE_INDICES,
     PTYPE_REQUEST,
+    PTYPE_RESPONSE,
 )
 
 PD_MAX_RECORD = 240
@@ -50,7 +51,7 @@ def rpc_header(hdr: rpc.Header, frame: int, body_present: int, record_service: b
         out.append(finding("rpc_float_repr", frame, "rpc.drep", drep.hex(), "float representation 0 (IEEE)",
                            f"DREP float representation {drep[1]} is not IEEE"))
     serial = v[rpc.I_SERIAL_HI] << 8 | v[rpc.I_SERIAL_LO]
-    if serial != hdr.frag_num:
+    if serial != hdr.frag_num and hdr.ptype in (PTYPE_REQUEST, PTYPE_RESPONSE):
         out.append(finding("rpc_serial", frame, "rpc.serial_lo", serial, hdr.frag_num,
                            "serial number differs from the fragment number (a retransmission?)"))
     return out

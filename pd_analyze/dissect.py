@@ -208,8 +208,15 @@ class Dissector:
                                             "the whole IP datagram", "capture cut inside a PNIO RPC PDU "
                                                                      "(snaplen)"))
             self.accounting.malformed[MALFORMED_RPC] += 1
-            res.summary = f"{_pdu_name(hdr)} [truncated]"
-            res.pdu = self._bare_pdu(number, ts, dgram, hdr, malformed=True)
+            if hdr.ptype in (PTYPE_REQUEST, PTYPE_RESPONSE) and not hdr.flags1 & FLAG1_FRAG:
+                # decode what is present, so the transaction it belongs to is known (and malformed)
+                self._data_pdu(res, hdr, dgram, body, base + rpc.HEADER_SIZE)
+                res.summary += " [truncated]"
+            else:
+                res.summary = f"{_pdu_name(hdr)} [truncated]"
+            if res.pdu is None:
+                res.pdu = self._bare_pdu(number, ts, dgram, hdr)
+            res.pdu.malformed = True
             return res
         self.accounting.decoded += 1
         if hdr.values[rpc.I_AUTH]:
@@ -292,7 +299,8 @@ class Dissector:
         request_stub = pdu.request.info if pdu.request is not None and isinstance(pdu.request.info, rec.Stub) else None
         if not response and not pdu.retransmission and pdu.request is not None:
             pdu.request.info = stub
-        res.findings += checks.ndr(stub, len(body), hdr.opnum, number, request_stub)
+        declared = len(body) if frames else hdr.frag_len  # a cut PDU keeps its declared length
+        res.findings += checks.ndr(stub, declared, hdr.opnum, number, request_stub)
         res.findings += checks.blocks(stub, hdr.opnum, number, request_stub, self.checker.tolerate)
         self._records(res, stub, hdr, dgram)
         res.summary = self._summary(hdr, stub, len(frames))

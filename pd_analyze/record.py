@@ -178,7 +178,7 @@ def _parse_blocks(stub: bytes, out: Stub, opnum: int, response: bool, frame: int
         return
     block = _block(stub, layout, values, NDR_SIZE, len(stub), 0, response, frame, findings)
     out.blocks.append(block)
-    if block.record_offset + len(block.record) < block.record_offset + block.record_len:
+    if layout in (WRITE_REQ, READ_RES) and len(block.record) < block.record_len:
         out.truncated = True
     if opnum == OP_WRITE and block.index == INDEX_WRITE_MULTIPLE:
         end = _multi(stub, out, block, response, frame, findings)

@@ -160,6 +160,13 @@ _RULES = (
     R("Q12", "response_block_overrun", ERROR, MALFORMED, PD, "response block overruns the record"),
     R("Q13", "string_nonprintable", INFO, COMMENT, PD, "VisibleString with non-printable characters"),
     R("Q13", "boolean_value", WARNING, PROTOCOL, PD, "Boolean value not 0 or 1"),
+    # channel and transaction (protocol.md 6.5)
+    R("T1", "reference_reused", WARNING, SEQUENCE, PD, "Request Reference reused from the previous transaction"),
+    R("T2", "read_without_request", WARNING, SEQUENCE, PD, "read with no pending write on the channel"),
+    R("T3", "write_while_pending", WARNING, SEQUENCE, PD, "write while a transaction is pending"),
+    R("T4", "retry", INFO, SEQUENCE, PD, "re-write after pnio_error/timeout with the same reference"),
+    R("T5", "b5_polling", INFO, SEQUENCE, PD, "B5 retries above the threshold"),
+    R("T6", "fallback_pairing", WARNING, SEQUENCE, PD, "read paired by device, controller and AR only"),
     R("F1", "format_unsupported", WARNING, MALFORMED, PD, "format of unknown size in the last block"),
     R("F1", "format_unsupported_stop", ERROR, MALFORMED, PD, "format of unknown size before the last block"),
     R("F2", "date_padded", WARNING, PROTOCOL, PD, "Date values padded to 8 bytes"),

@@ -1,0 +1,390 @@
+"""PROFIdrive transactions (protocol.md 7): write a parameter request, poll with reads, get the response.
+
+`TransactionEngine.feed` takes the dissector's frame results in frame order and returns the
+transactions that closed, each with its verdict, figures, per-parameter results and findings.
+State is kept only for open channels and open RPC calls; a closed transaction is handed on at once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+from pd_analyze import pdtables as pt
+from pd_analyze import record as rec
+from pd_analyze.dissect import FrameResult, Pdu
+from pd_analyze.profidrive import Parsed
+from pd_analyze.record import Status
+from pd_analyze.rules import Finding, finding
+from pd_analyze.tables import (
+    INDEX_WRITE_MULTIPLE,
+    OP_READ,
+    OP_READ_IMPLICIT,
+    OP_WRITE,
+    PNIORW_STATE_CONFLICT,
+    PROFIDRIVE_INDICES,
+    PTYPE_FAULT,
+    PTYPE_REJECT,
+    PTYPE_REQUEST,
+    PTYPE_RESPONSE,
+)
+
+DEFAULT_TXN_TIMEOUT = 10.0
+DEFAULT_B5_THRESHOLD = 50
+MAX_OPEN_CALLS = 65_536
+VERDICTS = ("malformed", "pnio_error", "timeout", "reference_mismatch", "nak", "ok")
+
+Channel = tuple  # device, controller, AR, API, slot, subslot, index (protocol.md 7.2)
+
+
+@dataclass(slots=True)
+class Transaction:
+    """One parameter access: the write of a request, its reads, and how it ended."""
+
+    txn: int
+    channel: Channel
+    request: Parsed | None
+    write_req_frame: int
+    t_start: float
+    ref: int = -1
+    req_id: int = -1
+    do: int = -1
+    n_params: int = -1
+    response: Parsed | None = None
+    write_res_frame: int = 0
+    t_write_res: float | None = None
+    read_req_frames: list[int] = field(default_factory=list)
+    t_read_reqs: list[float] = field(default_factory=list)
+    read_res_frame: int = 0
+    t_read_res: float | None = None
+    b5_retries: int = 0
+    last_b5_res: float | None = None
+    rpc_retransmissions: int = 0
+    pnio_status: str = ""
+    malformed: bool = False
+    mismatch: bool = False
+    closed_by: str = ""  # "response", "pnio_error", "deadline", "superseded", "capture_end"
+    capture_ended: bool = False
+    fallback: bool = False
+    frames: list[int] = field(default_factory=list)
+    findings: list[Finding] = field(default_factory=list)
+    verdict: str = ""
+
+    @property
+    def device(self) -> bytes:
+        return self.channel[0]
+
+    @property
+    def controller(self) -> bytes:
+        return self.channel[1]
+
+    def figures(self) -> dict[str, float | None]:
+        """Timing figures of protocol.md 7.6 (seconds; None where the capture has no such frame)."""
+        res = self.t_write_res
+        final_req = self.t_read_reqs[-1] if self.t_read_reqs else None
+        done = self.t_read_res if self.closed_by == "response" else None
+        return {
+            "t_write_rtt": None if res is None else res - self.t_start,
+            "t_total": None if done is None else done - self.t_start,
+            "t_final_read_rtt": None if done is None or final_req is None else done - final_req,
+            "t_first_read_gap": None if res is None or not self.t_read_reqs else self.t_read_reqs[0] - res,
+            "t_ready_after": None if res is None or done is None else (
+                0.0 if self.last_b5_res is None else self.last_b5_res - res),
+            "t_ready_by": None if res is None or done is None or final_req is None else final_req - res,
+        }
+
+
+@dataclass(slots=True)
+class _Call:
+    """What an open write/read call is about, by its request frame."""
+
+    kind: str  # "write" or "read"
+    txns: list[Transaction | None]  # per PROFIdrive block (write), or the one read target
+    channel: Channel | None = None
+
+
+class TransactionEngine:
+    """Channel state machines over dissected frames (protocol.md 7.3)."""
+
+    def __init__(self, txn_timeout: float = DEFAULT_TXN_TIMEOUT, b5_threshold: int = DEFAULT_B5_THRESHOLD) -> None:
+        self.txn_timeout = txn_timeout
+        self.b5_threshold = b5_threshold
+        self.loose: list[Finding] = []  # findings of frames that belong to no transaction, drained by callers
+        self._next = 1
+        self._pending: dict[Channel, Transaction] = {}  # open transactions by channel, in opening order
+        self._last_done: dict[Channel, Transaction] = {}  # last closed transaction per channel (T1, T4)
+        self._calls: dict[int, _Call] = {}  # by request frame number
+        self._now = float("-inf")
+
+    # --- the frame loop ---------------------------------------------------------------------
+    def feed(self, res: FrameResult) -> list[Transaction]:
+        self._now = max(self._now, res.ts)
+        closed = self._expire()
+        owner = self._frame(res, closed)
+        if owner is not None and owner.txn:
+            owner.findings += res.findings
+            if res.frame not in owner.frames:
+                owner.frames.append(res.frame)
+        else:
+            self.loose += res.findings
+        return closed
+
+    def finish(self, last_ts: float) -> list[Transaction]:
+        """Capture end: every open transaction is a timeout, marked capture_ended if its deadline lies beyond."""
+        out = []
+        for txn in list(self._pending.values()):
+            txn.capture_ended = txn.t_start + self.txn_timeout > last_ts
+            out.append(self._close(txn, "capture_end"))
+        self._calls.clear()
+        return out
+
+    def _expire(self) -> list[Transaction]:
+        out = []
+        for txn in list(self._pending.values()):
+            if txn.t_start + self.txn_timeout >= self._now:
+                break
+            out.append(self._close(txn, "deadline"))
+        return out
+
+    def _frame(self, res: FrameResult, closed: list[Transaction]) -> Transaction | None:
+        pdu = res.pdu
+        if pdu is None or pdu.opnum not in (OP_READ, OP_WRITE, OP_READ_IMPLICIT):
+            return None
+        if pdu.ptype == PTYPE_REQUEST:
+            if pdu.retransmission:
+                return self._retransmitted(pdu)
+            return self._write_request(pdu, res, closed) if pdu.opnum == OP_WRITE else self._read_request(pdu, res)
+        if pdu.ptype in (PTYPE_RESPONSE, PTYPE_FAULT, PTYPE_REJECT) and pdu.request is not None \
+                and not pdu.retransmission:
+            call = self._calls.pop(pdu.request.frame, None)
+            if call is None:
+                return None
+            if call.kind == "write":
+                return self._write_response(pdu, call, res, closed)
+            return self._read_response(pdu, call, res, closed)
+        return None
+
+    # --- writes -----------------------------------------------------------------------------
+    def _write_request(self, pdu: Pdu, res: FrameResult, closed: list[Transaction]) -> Transaction | None:
+        stub = pdu.stub
+        if stub is None:
+            return None
+        opened: list[Transaction | None] = []
+        for block in stub.blocks:
+            if block.layout is not rec.WRITE_REQ or block.index == INDEX_WRITE_MULTIPLE:
+                continue
+            if block.index not in PROFIDRIVE_INDICES or (block.pd is None and len(block.record) == block.record_len):
+                opened.append(None)  # not PROFIdrive (or index 0x002F that is not): no transaction
+                continue
+            opened.append(self._open(pdu, block, res, closed))
+        if not any(opened):
+            return None
+        self._remember(pdu.frame, _Call("write", opened))
+        return next(t for t in opened if t is not None)
+
+    def _open(self, pdu: Pdu, block: rec.Block, res: FrameResult, closed: list[Transaction]) -> Transaction:
+        v = block.values
+        channel = (pdu.dst, pdu.src, v[rec.B_AR], v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], v[rec.B_INDEX])
+        parsed = block.pd[0] if isinstance(block.pd, tuple) else None
+        txn = Transaction(self._next, channel, parsed, pdu.frame, pdu.ts)
+        self._next += 1
+        record = block.record
+        if len(record) >= 4:
+            txn.ref, txn.req_id, txn.do, txn.n_params = record[0], record[1], record[2], record[3]
+        txn.malformed = pdu.malformed or parsed is None or not parsed.complete
+        old = self._pending.pop(channel, None)
+        if old is not None:
+            txn.findings.append(finding("write_while_pending", pdu.frame, "pd.ref", txn.ref,
+                                        f"none pending (transaction {old.txn})",
+                                        f"write while transaction {old.txn} (ref {old.ref}, frame "
+                                        f"{old.write_req_frame}) is pending: it ends as a timeout"))
+            closed.append(self._close(old, "superseded"))
+        last = self._last_done.get(channel)
+        if last is not None and last.ref == txn.ref:
+            if last.verdict in ("ok", "nak"):
+                txn.findings.append(finding("reference_reused", pdu.frame, "pd.ref", txn.ref,
+                                            f"a reference other than {last.ref}",
+                                            f"Request Reference {txn.ref} reused from transaction {last.txn}"))
+            elif last.verdict in ("pnio_error", "timeout"):
+                txn.findings.append(finding("retry", pdu.frame, "pd.ref", txn.ref, "",
+                                            f"retry of transaction {last.txn} ({last.verdict}) with the same "
+                                            "reference"))
+        self._pending[channel] = txn
+        return txn
+
+    def _write_response(self, pdu: Pdu, call: _Call, res: FrameResult,
+                        closed: list[Transaction]) -> Transaction | None:
+        statuses = _write_statuses(pdu, len(call.txns))
+        first = None
+        for txn, status in zip(call.txns, statuses, strict=False):
+            if txn is None or txn.closed_by:
+                continue
+            first = first or txn
+            txn.write_res_frame = pdu.frame
+            txn.t_write_res = pdu.ts
+            txn.malformed |= pdu.malformed
+            txn.rpc_retransmissions += pdu.request.copies if pdu.request is not None else 0
+            if pdu.ptype in (PTYPE_FAULT, PTYPE_REJECT):
+                txn.pnio_status = f"{pdu.fault_status or 0:08X}"
+                closed.append(self._close(txn, "pnio_error"))
+            elif status is not None and not status.ok:
+                txn.pnio_status = status.text()
+                closed.append(self._close(txn, "pnio_error"))
+        return first
+
+    # --- reads ------------------------------------------------------------------------------
+    def _read_request(self, pdu: Pdu, res: FrameResult) -> Transaction | None:
+        stub = pdu.stub
+        if stub is None or not stub.blocks or stub.blocks[0].index not in PROFIDRIVE_INDICES:
+            return None
+        block = stub.blocks[0]
+        v = block.values
+        ar = block.target_ar if v[rec.B_AR] == rec.NIL_UUID and block.target_ar else v[rec.B_AR]
+        channel = (pdu.dst, pdu.src, ar, v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], v[rec.B_INDEX])
+        txn = self._pending.get(channel)
+        if txn is None:
+            txn = next((t for t in self._pending.values() if t.channel[:3] == channel[:3]), None)
+            if txn is not None and not txn.fallback:
+                txn.fallback = True
+                txn.findings.append(finding(
+                    "fallback_pairing", pdu.frame, "iod.index", f"{v[rec.B_SLOT]}/{v[rec.B_SUBSLOT]}/"
+                    f"{v[rec.B_INDEX]:#06x}", f"{txn.channel[4]}/{txn.channel[5]}/{txn.channel[6]:#06x}",
+                    f"read addressed differently from the write of transaction {txn.txn} (paired by device, "
+                    "controller and AR)"))
+        if txn is None:
+            self.loose.append(finding("read_without_request", pdu.frame, "iod.index", f"{v[rec.B_INDEX]:#06x}",
+                                      "a pending parameter request", "read on a PROFIdrive index with no "
+                                                                     "pending write on the channel"))
+            self._remember(pdu.frame, _Call("read", [None], channel))
+            return None
+        txn.read_req_frames.append(pdu.frame)
+        txn.t_read_reqs.append(pdu.ts)
+        self._remember(pdu.frame, _Call("read", [txn], channel))
+        return txn
+
+    def _read_response(self, pdu: Pdu, call: _Call, res: FrameResult,
+                       closed: list[Transaction]) -> Transaction | None:
+        txn = call.txns[0]
+        if txn is None or txn.closed_by:
+            return None
+        txn.rpc_retransmissions += pdu.request.copies if pdu.request is not None else 0
+        txn.malformed |= pdu.malformed
+        if pdu.ptype in (PTYPE_FAULT, PTYPE_REJECT):
+            txn.pnio_status = f"{pdu.fault_status or 0:08X}"
+            txn.read_res_frame, txn.t_read_res = pdu.frame, pdu.ts
+            closed.append(self._close(txn, "pnio_error"))
+            return txn
+        status = pdu.stub.status if pdu.stub is not None else None
+        if status is not None and not status.ok:
+            if status.code1 == PNIORW_STATE_CONFLICT and status.decode == 0x80:
+                txn.b5_retries += 1
+                txn.last_b5_res = pdu.ts
+                if txn.b5_retries == self.b5_threshold + 1:
+                    txn.findings.append(finding("b5_polling", pdu.frame, "ndr.status.code1", txn.b5_retries,
+                                                f"<= {self.b5_threshold}", f"more than {self.b5_threshold} "
+                                                "B5 (not ready) answers"))
+                return txn
+            txn.pnio_status = status.text()
+            txn.read_res_frame, txn.t_read_res = pdu.frame, pdu.ts
+            closed.append(self._close(txn, "pnio_error"))
+            return txn
+        txn.read_res_frame, txn.t_read_res = pdu.frame, pdu.ts
+        block = next((b for b in (pdu.stub.blocks if pdu.stub else []) if b.index in PROFIDRIVE_INDICES), None)
+        parsed = block.pd[0] if block is not None and isinstance(block.pd, tuple) else None
+        txn.response = parsed
+        if parsed is None or not parsed.complete:
+            txn.malformed = True
+        else:
+            txn.findings += self._mirroring(txn, parsed, pdu.frame)
+        closed.append(self._close(txn, "response"))
+        return txn
+
+    def _mirroring(self, txn: Transaction, r: Parsed, frame: int) -> list[Finding]:
+        """Q2-Q5: the response mirrors the request (protocol.md 6.4)."""
+        out = []
+        if txn.ref >= 0 and r.ref != txn.ref:
+            out.append(finding("reference_mismatch", frame, "pd.ref", r.ref, txn.ref,
+                               f"response reference {r.ref} does not mirror the request's {txn.ref}"))
+            txn.mismatch = True
+        want = {pt.REQ_READ: (pt.RES_READ, pt.RES_READ_NAK), pt.REQ_CHANGE: (pt.RES_CHANGE, pt.RES_CHANGE_NAK)}
+        expected = want.get(txn.req_id, (pt.RES_NOT_SUPPORTED,))
+        if r.ident not in expected:
+            out.append(finding("response_id_mismatch", frame, "pd.resp_id", f"{r.ident:#04x}",
+                               "/".join(f"{e:#04x}" for e in expected),
+                               f"Response ID {r.ident:#04x} does not answer Request ID {txn.req_id:#04x}"))
+            txn.mismatch = True
+        if txn.do >= 0 and r.do != txn.do:
+            out.append(finding("do_not_mirrored", frame, "pd.do", r.do, txn.do, "DO-ID not mirrored"))
+        header_level = r.ident & 0x80 and len(r.blocks) == 1 and r.blocks[0].is_error
+        if txn.n_params >= 0 and r.n != txn.n_params and not header_level:
+            out.append(finding("n_params_not_mirrored", frame, "pd.n_params", r.n, txn.n_params,
+                               "No. of parameters not mirrored"))
+        return out
+
+    def _retransmitted(self, pdu: Pdu) -> Transaction | None:
+        call = self._calls.get(pdu.request.frame) if pdu.request is not None else None
+        if call is None:
+            return None
+        return next((t for t in call.txns if t is not None), None)
+
+    # --- closing ----------------------------------------------------------------------------
+    def _close(self, txn: Transaction, why: str) -> Transaction:
+        self._pending.pop(txn.channel, None) if self._pending.get(txn.channel) is txn else None
+        txn.closed_by = why
+        txn.verdict = _verdict(txn)
+        if why in ("deadline", "superseded", "capture_end") and not txn.pnio_status and txn.b5_retries:
+            txn.pnio_status = f"DE80{PNIORW_STATE_CONFLICT:02X}00"  # last answer was B5 (txn.last_status)
+        self._last_done[txn.channel] = txn
+        if len(self._last_done) > MAX_OPEN_CALLS:
+            del self._last_done[next(iter(self._last_done))]
+        return txn
+
+    def _remember(self, frame: int, call: _Call) -> None:
+        self._calls[frame] = call
+        if len(self._calls) > MAX_OPEN_CALLS:
+            del self._calls[next(iter(self._calls))]
+
+
+def _verdict(txn: Transaction) -> str:
+    """protocol.md 7.4: the first matching rule wins."""
+    if txn.malformed:
+        return "malformed"
+    if txn.closed_by == "pnio_error":
+        return "pnio_error"
+    if txn.closed_by in ("deadline", "superseded", "capture_end"):
+        return "timeout"
+    if txn.mismatch:
+        return "reference_mismatch"
+    if txn.response is not None and txn.response.ident & 0x80:
+        return "nak"
+    return "ok"
+
+
+def _write_statuses(pdu: Pdu, count: int) -> list[Status | None]:
+    """The status per PROFIdrive write of the call: the inner block status in a Write-Multiple."""
+    stub = pdu.stub
+    if stub is None:
+        return [None] * count
+    if len(stub.blocks) > 1:
+        inner = [b.status for b in stub.blocks[1:]]
+        if stub.status is not None and not stub.status.ok and not any(s and not s.ok for s in inner):
+            return [stub.status] * count  # the whole Write-Multiple failed
+        return inner
+    status = stub.status if stub.status is not None and not stub.status.ok else (
+        stub.blocks[0].status if stub.blocks else stub.status)
+    return [status] * count
+
+
+def param_label(txn: Transaction) -> str:
+    """P964[0] P2000[0..2]: the parameters of a transaction."""
+    if txn.request is None:
+        return ""
+    return " ".join(a.label() for a in txn.request.addresses)
+
+
+def iter_closed(engine: TransactionEngine, results: Iterator[FrameResult], last: list[float]) -> Iterator[Transaction]:
+    """Feed frame results through the engine; yields transactions as they close (then at the end)."""
+    for res in results:
+        last[0] = max(last[0], res.ts)
+        yield from engine.feed(res)
+    yield from engine.finish(last[0])
