@@ -216,6 +216,115 @@ def profiles_table(chosen: list[profiles.Profile], fmt: str) -> str:
     return "\n".join(lines)
 
 
+REPORT_EXAMPLES = """\b
+Examples:
+  pd-analyze report sample_pcaps/pd_negative.pcap
+  pd-analyze report captures/ --out report/ --format parquet --profile sinamics
+  pd-analyze report 'line3/*.pcapng' --timeout 30
+"""
+AUDIT_EXAMPLES = """\b
+Examples:
+  pd-analyze audit commissioning.pcapng
+  pd-analyze audit captures/ --fail-on warning --profile yaskawa
+"""
+
+
+def _progress() -> Callable[[str, int], None] | None:
+    """A frame counter on stderr for long files; silent when stderr is not a terminal."""
+    if not sys.stderr.isatty():
+        return None
+    from tqdm import tqdm
+
+    bars: dict[str, tqdm] = {}
+
+    def update(path: str, frames: int) -> None:
+        if frames % 4096:
+            return
+        bar = bars.get(path)
+        if bar is None:
+            bar = bars[path] = tqdm(desc=path, unit=" frames", leave=False, file=sys.stderr)
+        bar.n = frames
+        bar.refresh()
+
+    return update
+
+
+def _analyze(captures: tuple[str, ...], read: str | None, profile: str, timeout: float, rpc_timeout: float):  # noqa: ANN202
+    from pd_analyze.analysis import analyze, expand
+
+    paths = expand(_inputs(captures, read))
+    if not paths:
+        raise click.UsageError("no capture files matched")
+    _checker(profile)  # a bad profile is a usage error before any file is read
+    return analyze(paths, profile, timeout, rpc_timeout, _progress())
+
+
+def _timeouts(func: Callable) -> Callable:
+    func = click.option("--timeout", type=click.FloatRange(min=0.001), default=10.0, show_default=True,
+                        help="Seconds of capture time a transaction may take before it is a timeout.")(func)
+    return click.option("--rpc-timeout", type=click.FloatRange(min=0.001), default=DEFAULT_RPC_TIMEOUT,
+                        show_default=True, help="Seconds of capture time before an RPC call is unanswered.")(func)
+
+
+@main.command("report", epilog=REPORT_EXAMPLES)
+@click.argument("captures", nargs=-1, metavar="CAPTURE...")
+@click.option("-r", "--read", "read", metavar="FILE", help="Capture to read (as tshark -r).")
+@click.option("--out", "out_dir", default="pd-report", show_default=True, metavar="DIR",
+              help="Directory for transactions, parameters, findings and changes files.")
+@click.option("--format", "fmt", type=click.Choice(["csv", "parquet", "json"]), default="csv", show_default=True)
+@profile_option
+@_timeouts
+def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fmt: str, profile: str,
+                   timeout: float, rpc_timeout: float) -> None:
+    """Pair requests with responses; write the tables and print a summary (worst offenders first)."""
+    from pd_analyze import report
+
+    analysis = _analyze(captures, read, profile, timeout, rpc_timeout)
+    written = report.write_tables(analysis, out_dir, fmt)
+    click.echo(report.summary(analysis))
+    click.echo("\nWrote " + ", ".join(written), err=True)
+    for error in analysis.errors:
+        click.echo(f"pd-analyze: {error}", err=True)
+    sys.exit(EXIT_USAGE if analysis.errors else EXIT_OK)
+
+
+@main.command("audit", epilog=AUDIT_EXAMPLES)
+@click.argument("captures", nargs=-1, metavar="CAPTURE...")
+@click.option("-r", "--read", "read", metavar="FILE", help="Capture to read (as tshark -r).")
+@click.option("--fail-on", type=click.Choice(["error", "warning", "info", "never"]), default="error",
+              show_default=True, help="Exit 1 when a finding reaches this severity.")
+@profile_option
+@_timeouts
+def audit_command(captures: tuple[str, ...], read: str | None, fail_on: str, profile: str, timeout: float,
+                  rpc_timeout: float) -> None:
+    """Findings like a linter (file:frame: severity rule message); exit 1 at the --fail-on threshold."""
+    from pd_analyze.rules import SEVERITY_RANK
+
+    analysis = _analyze(captures, read, profile, timeout, rpc_timeout)
+    f = analysis.findings.sort_values(["capture", "frame"], kind="stable")
+    for row in f.itertuples():
+        txn = f" [txn {row.txn}]" if not _missing(row.txn) else ""
+        click.echo(dump.safe(f"{row.capture}:{row.frame}: {row.severity} {row.rule} {row.name}: {row.message}{txn}"))
+    counts = f.severity.value_counts()
+    files = len(analysis.captures)
+    click.echo(f"{len(f)} findings in {files} capture{'s' if files != 1 else ''}: "
+               + ", ".join(f"{counts.get(s, 0)} {s}" for s in ("error", "warning", "info")))
+    for error in analysis.errors:
+        click.echo(f"pd-analyze: {error}", err=True)
+    if analysis.errors:
+        sys.exit(EXIT_USAGE)
+    worst = max((SEVERITY_RANK[s] for s in f.severity.astype(str)), default=0)
+    threshold = SEVERITY_RANK.get(fail_on, 99)
+    sys.exit(EXIT_FINDINGS if worst >= threshold else EXIT_OK)
+
+
+def _missing(value: object) -> bool:
+    try:
+        return bool(value != value) or value is None or str(value) == "<NA>"
+    except TypeError:
+        return True
+
+
 @main.command("fields")
 @click.option("--format", "fmt", type=click.Choice(["text", "markdown"]), default="text", show_default=True)
 def fields_command(fmt: str) -> None:

@@ -1,0 +1,219 @@
+"""Closed transactions to rows of the four tidy tables: transactions, parameters, findings, changes.
+
+Columns are declared once here (name, pandas dtype, description); the DataFrames, the report files
+and `pd-analyze fields --tables` read the declaration. Rows are plain tuples collected per capture;
+pandas is only touched when a table is built, never in the per-frame loop.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+
+import pandas as pd
+
+from pd_analyze import pdtables as pt
+from pd_analyze.link import ip_text
+from pd_analyze.profidrive import Block, values_of
+from pd_analyze.rules import Finding
+from pd_analyze.transactions import Transaction, param_label
+
+VERDICT_DTYPE = pd.CategoricalDtype(["ok", "nak", "reference_mismatch", "timeout", "pnio_error", "malformed"])
+SEVERITY_DTYPE = pd.CategoricalDtype(["info", "warning", "error"], ordered=True)
+TIME = "datetime64[ns, UTC]"
+
+
+@dataclass(frozen=True, slots=True)
+class Column:
+    name: str
+    dtype: object
+    description: str
+
+
+def _cols(*cols: tuple[str, object, str]) -> tuple[Column, ...]:
+    return tuple(Column(*c) for c in cols)
+
+
+COLUMNS: Mapping[str, tuple[Column, ...]] = MappingProxyType({
+    "transactions": _cols(
+        ("txn", "Int64", "transaction number, 1, 2, ... in the order of the write request frames"),
+        ("capture", "category", "capture file"),
+        ("device", "category", "device (drive) IP address"),
+        ("controller", "category", "controller (PLC) IP address"),
+        ("ar", "string", "ARUUID of the channel"),
+        ("index", "category", "record index (0xb02e, 0xb02f, 0x002f)"),
+        ("api", "Int64", "API"), ("slot", "Int64", "slot"), ("subslot", "Int64", "subslot"),
+        ("ref", "Int64", "Request Reference"), ("req_id", "category", "Request ID"),
+        ("do", "Int64", "DO-ID"), ("n_params", "Int64", "No. of parameters"),
+        ("params", "string", "parameters addressed, e.g. P964[0] P2000[0..2]"),
+        ("resp_id", "category", "Response ID"),
+        ("verdict", VERDICT_DTYPE, "malformed, pnio_error, timeout, reference_mismatch, nak or ok"),
+        ("errors", "string", "PROFIdrive errors per parameter, e.g. P964[0]:0x02"),
+        ("pnio_status", "string", "PNIOStatus that closed the transaction (8 hex digits), empty when none"),
+        ("b5_retries", "Int64", "reads answered B5 (state conflict: not ready)"),
+        ("reads", "Int64", "read calls"),
+        ("rpc_retransmissions", "Int64", "duplicate request PDUs"),
+        ("write_req_frame", "Int64", "frame of the write request"),
+        ("write_res_frame", "Int64", "frame of the write response"),
+        ("read_req_frames", "string", "frames of the read requests"),
+        ("read_res_frame", "Int64", "frame of the final read response"),
+        ("t_start", TIME, "time of the write request"),
+        ("t_write_rtt", "Float64", "seconds from write request to write response"),
+        ("t_total", "Float64", "seconds from write request to the final read response"),
+        ("t_final_read_rtt", "Float64", "seconds from the final read request to its response"),
+        ("t_first_read_gap", "Float64", "seconds from write response to the first read request"),
+        ("capture_ended", "boolean", "still open when the capture ended"),
+        ("closed_by", "category", "response, pnio_error, deadline, superseded or capture_end"),
+    ),
+    "parameters": _cols(
+        ("txn", "Int64", "transaction"), ("capture", "category", "capture file"),
+        ("device", "category", "device IP address"), ("do", "Int64", "DO-ID"),
+        ("param", "string", "P<pnu>[<subindex>..]"), ("pnu", "Int64", "parameter number"),
+        ("subindex", "Int64", "first subindex"), ("elements", "Int64", "No. of elements"),
+        ("attribute", "category", "Value, Description or Text"), ("format", "category", "data type"),
+        ("values_written", "string", "values of a change request"),
+        ("values_read", "string", "values of the response"),
+        ("error", "string", "PROFIdrive error number (0x..), empty when none"),
+        ("error_text", "string", "meaning of the error number"),
+    ),
+    "findings": _cols(
+        ("capture", "category", "capture file"), ("frame", "Int64", "frame number"),
+        ("txn", "Int64", "transaction, empty when the frame belongs to none"),
+        ("severity", SEVERITY_DTYPE, "info, warning or error"), ("rule", "category", "rule id (protocol.md 6)"),
+        ("name", "category", "rule name"), ("field", "string", "field name (pd-analyze fields)"),
+        ("value", "string", "observed value"), ("expected", "string", "expected value or range"),
+        ("source", "string", "document the limit comes from"), ("message", "string", "one-line message"),
+    ),
+    "changes": _cols(
+        ("capture", "category", "capture file"), ("device", "category", "device IP address"),
+        ("do", "Int64", "DO-ID"), ("txn", "Int64", "transaction"), ("frame", "Int64", "write request frame"),
+        ("t", TIME, "time of the change request"), ("param", "string", "P<pnu>[<subindex>..]"),
+        ("pnu", "Int64", "parameter number"), ("subindex", "Int64", "first subindex"),
+        ("value_written", "string", "values written"),
+        ("result", "string", "ok, the PROFIdrive error, or the transaction verdict"),
+        ("value_before", "string", "last value read earlier in the capture, empty when unknown"),
+    ),
+})
+
+
+def block_values(block: Block | None) -> str:
+    """Values of a value block as one text cell (strings quoted, scaled types raw)."""
+    if block is None or block.is_error or block.format in (pt.FMT_ZERO, pt.FMT_AKD_ZERO):
+        return ""
+    if pt.FORMATS.get(block.format, pt.FORMATS[0x41]).kind in ("hex", "bits", "nibbles"):
+        return " ".join(f"0x{v:0{2 * block.size}x}" for _, _, v, _ in values_of(block) if isinstance(v, int))
+    return " ".join(_cell(value) for _, _, value, _ in values_of(block))
+
+
+def _cell(value: object) -> str:
+    if isinstance(value, str):
+        return repr(value) if not value.isprintable() else value if " " not in value else f'"{value}"'
+    if isinstance(value, float):
+        return f"{value:.7g}"
+    return str(value)
+
+
+def _hex(value: int) -> str:
+    return f"0x{value:02x}" if value >= 0 else ""
+
+
+@dataclass(slots=True)
+class Rows:
+    """Rows of the four tables for one or more captures."""
+
+    transactions: list[tuple] = field(default_factory=list)
+    parameters: list[tuple] = field(default_factory=list)
+    findings: list[tuple] = field(default_factory=list)
+    changes: list[tuple] = field(default_factory=list)
+    _last_read: dict[tuple, str] = field(default_factory=dict)
+
+    def add(self, capture: str, txn: Transaction, offset: int = 0) -> None:
+        number = txn.txn + offset
+        device, controller = ip_text(txn.device), ip_text(txn.controller)
+        request, response = txn.request, txn.response
+        errors = []
+        blocks = response.blocks if response is not None else []
+        addresses = request.addresses if request is not None else []
+        for i, addr in enumerate(addresses):
+            res_block = blocks[i] if i < len(blocks) else None
+            written = request.blocks[i] if request is not None and i < len(request.blocks) else None
+            err = res_block.error if res_block is not None and res_block.is_error else -1
+            label = addr.label()
+            if err >= 0:
+                errors.append(f"{label}:{_hex(err)}")
+            fmt = written if written is not None else res_block
+            self.parameters.append((
+                number, capture, device, txn.do, label, addr.pnu, addr.subindex, addr.n_elems,
+                pt.ATTRIBUTE.get(addr.attr, _hex(addr.attr)),
+                pt.FORMAT_NAME.get(fmt.format, _hex(fmt.format)) if fmt is not None and not fmt.is_error else "",
+                block_values(written), block_values(res_block), _hex(err),
+                pt.error_text(err) if err >= 0 else ""))
+            self._trail(capture, txn, number, addr, written, res_block, device)
+        if response is not None and len(blocks) == 1 and blocks[0].is_error and len(addresses) > 1:
+            errors = [f"*:{_hex(blocks[0].error)}"]  # header-level error: the whole request refused
+        fig = txn.figures()
+        v = txn.channel
+        self.transactions.append((
+            number, capture, device, controller, _uuid(v[2]), f"0x{v[6]:04x}", v[3], v[4], v[5],
+            _int(txn.ref), _hex(txn.req_id), _int(txn.do), _int(txn.n_params), param_label(txn),
+            _hex(response.ident) if response is not None else "", txn.verdict, " ".join(errors), txn.pnio_status,
+            txn.b5_retries, len(txn.read_req_frames), txn.rpc_retransmissions, txn.write_req_frame,
+            txn.write_res_frame or None, " ".join(map(str, txn.read_req_frames)), txn.read_res_frame or None,
+            txn.t_start, fig["t_write_rtt"], fig["t_total"], fig["t_final_read_rtt"], fig["t_first_read_gap"],
+            txn.capture_ended, txn.closed_by))
+        for f in txn.findings:
+            self.add_finding(capture, f, number)
+
+    def add_finding(self, capture: str, f: Finding, txn: int | None = None) -> None:
+        self.findings.append((capture, f.frame, txn, f.severity, f.rule, f.name, f.field, f.value, f.expected,
+                              f.source, f.message))
+
+    def _trail(self, capture: str, txn: Transaction, number: int, addr, written: Block | None,  # noqa: ANN001
+               res_block: Block | None, device: str) -> None:
+        """The change trail, and the last values read per element to show what a change replaced."""
+        count = max(addr.n_elems, 1)
+        keys = [(capture, device, txn.do, addr.pnu, addr.subindex + j) for j in range(count)]
+        if txn.req_id == pt.REQ_READ and txn.verdict in ("ok", "nak") and res_block is not None \
+                and addr.attr == pt.ATTR_VALUE and not res_block.is_error:
+            values = [_cell(v) for _, _, v, _ in values_of(res_block)]
+            if len(values) == len(keys):
+                self._last_read.update(zip(keys, values, strict=True))
+            elif len(values) == 1:
+                self._last_read[keys[0]] = values[0]
+        if txn.req_id != pt.REQ_CHANGE or written is None:
+            return
+        before = [self._last_read.get(k) for k in keys]
+        if res_block is not None and res_block.is_error:
+            result = f"error {_hex(res_block.error)}: {pt.error_text(res_block.error)}"
+        else:
+            result = "ok" if txn.verdict in ("ok", "nak") else txn.verdict
+        self.changes.append((capture, device, txn.do, number, txn.write_req_frame, txn.t_start, addr.label(),
+                             addr.pnu, addr.subindex, block_values(written), result,
+                             " ".join(b for b in before if b is not None) if all(before) else ""))
+
+
+def _uuid(raw: bytes) -> str:
+    import uuid
+
+    return str(uuid.UUID(bytes=raw)) if len(raw) == 16 else ""
+
+
+def _int(value: int) -> int | None:
+    return value if value >= 0 else None
+
+
+def frame_of(name: str, rows: Iterable[tuple]) -> pd.DataFrame:
+    """A typed DataFrame of one table from its rows."""
+    cols = COLUMNS[name]
+    df = pd.DataFrame.from_records(list(rows), columns=[c.name for c in cols])
+    for c in cols:
+        if c.dtype == TIME:  # capture times to the microsecond (float seconds carry no more)
+            micros = (df[c.name].astype("float64") * 1e6).round().astype("Int64")
+            df[c.name] = pd.to_datetime(micros, unit="us", utc=True).astype(TIME)
+        else:
+            df[c.name] = df[c.name].astype(c.dtype)
+    order = {"transactions": ["txn"], "parameters": ["txn"], "findings": ["frame"], "changes": ["txn"]}[name]
+    if len(df):
+        df = df.sort_values(order, kind="stable").reset_index(drop=True)
+    return df
