@@ -82,11 +82,7 @@ class Analysis:
         if row.empty:
             raise KeyError(f"no transaction {txn}")
         capture = str(row.capture.iloc[0])
-        frames = {int(row.write_req_frame.iloc[0])}
-        for col in ("write_res_frame", "read_res_frame"):
-            if pd.notna(row[col].iloc[0]):
-                frames.add(int(row[col].iloc[0]))
-        frames |= {int(n) for n in str(row.read_req_frames.iloc[0]).split()}
+        frames = {int(n) for n in str(row.frames.iloc[0]).split()}
         checker = Checker(profiles.generic(), profiles.load(self.profile))
         out = []
         d = Dissector(annotate=True, rpc_timeout=self.rpc_timeout, checker=checker)

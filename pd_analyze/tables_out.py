@@ -58,6 +58,7 @@ COLUMNS: Mapping[str, tuple[Column, ...]] = MappingProxyType({
         ("write_res_frame", "Int64", "frame of the write response"),
         ("read_req_frames", "string", "frames of the read requests"),
         ("read_res_frame", "Int64", "frame of the final read response"),
+        ("frames", "string", "every frame of the transaction (requests, responses, B5 answers)"),
         ("t_start", TIME, "time of the write request"),
         ("t_write_rtt", "Float64", "seconds from write request to write response"),
         ("t_total", "Float64", "seconds from write request to the final read response"),
@@ -160,6 +161,7 @@ class Rows:
             _hex(response.ident) if response is not None else "", txn.verdict, " ".join(errors), txn.pnio_status,
             txn.b5_retries, len(txn.read_req_frames), txn.rpc_retransmissions, txn.write_req_frame,
             txn.write_res_frame or None, " ".join(map(str, txn.read_req_frames)), txn.read_res_frame or None,
+            " ".join(map(str, sorted(txn.frames))),
             txn.t_start, fig["t_write_rtt"], fig["t_total"], fig["t_final_read_rtt"], fig["t_first_read_gap"],
             txn.capture_ended, txn.closed_by))
         for f in txn.findings:
