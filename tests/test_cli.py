@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 SAMPLE = "sample_pcaps/worked_example.pcap"
 
@@ -23,7 +24,7 @@ def test_dump_text_and_accounting_line():
 
 
 def test_dump_json_lines_and_stdin():
-    data = open(SAMPLE, "rb").read()
+    data = Path(SAMPLE).read_bytes()
     r = run("dump", "-", "--format", "json", stdin=data)
     lines = [json.loads(line) for line in r.stdout.decode().splitlines()]
     assert r.returncode == 0 and [o["frame"] for o in lines] == [1, 2, 3, 4, 5, 6]
@@ -54,7 +55,7 @@ def test_bad_usage_exit_2():
 
 def test_unreadable_input_exit_2(tmp_path):
     bad = tmp_path / "cut.pcap"
-    bad.write_bytes(open(SAMPLE, "rb").read()[:300])
+    bad.write_bytes(Path(SAMPLE).read_bytes()[:300])
     r = run("dump", str(bad))
     assert r.returncode == 2
     assert r.stdout.decode().count("Frame ") == 1
