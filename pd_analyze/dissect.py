@@ -128,7 +128,8 @@ class Dissector:
         self.rpc_timeout = rpc_timeout
         self.checker = checker or Checker(profiles.generic())
         self.records_not_profidrive = 0
-        self._pd_requests: dict[tuple, profidrive.Parsed] = {}  # last parameter request per channel
+        # the last parameter request per channel and its frame, to label the blocks of responses
+        self._pd_requests: dict[tuple, tuple[profidrive.Parsed, int]] = {}
         self.link = link.LinkDecoder()
         self.frags = rpc.FragmentTable()
         self.calls = rpc.CallTable()
@@ -414,16 +415,18 @@ class Dissector:
                 continue
             key = _channel(dgram, v, block.target_ar, response)
             if response:
-                request = self._pd_requests.get(key)
+                request, request_frame = self._pd_requests.get(key, (None, 0))
                 parsed = profidrive.parse_response(block.record, number, res.findings)
                 res.findings += self.checker.response(parsed, number, request)
                 block.pd = (parsed, request)
+                if self.annotate and request_frame:
+                    res.layers.append(Layer("Parameter access", 0, [derived("pd.request_frame", request_frame)]))
             else:
                 parsed = profidrive.parse_request(block.record, number, res.findings)
                 res.findings += self.checker.request(parsed, number)
                 block.pd = (parsed, None)
                 self._pd_requests.pop(key, None)
-                self._pd_requests[key] = parsed
+                self._pd_requests[key] = (parsed, number)
                 if len(self._pd_requests) > MAX_CHANNELS:
                     del self._pd_requests[next(iter(self._pd_requests))]
 

@@ -180,6 +180,7 @@ _FIELDS = _defs(
     F("dpv1.slot", UINT, "DP-V1 slot"),
     F("dpv1.index", UINT, "DP-V1 index (47 = PROFIdrive parameter channel)"),
     F("dpv1.length", UINT, "DP-V1 data length"),
+    F("pd.request_frame", FRAMEREF, "Frame of the parameter request (Write) this response answers"),
     F("pd.echo", BYTES, "Parameter address echoed before the first block (AKD manual layout)"),
     F("pd.trailing", BYTES, "Bytes after the parsed parameter request/response"),
     F("record.trailing", BYTES, "Bytes after the record that RecordDataLength does not cover"),
