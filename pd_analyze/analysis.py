@@ -11,18 +11,20 @@ from __future__ import annotations
 
 import glob
 import os
-from collections.abc import Callable, Iterable
+from bisect import bisect_right
+from collections import Counter
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from functools import cached_property
 
 import pandas as pd
 
-from pd_analyze import profiles
+from pd_analyze import capture, profiles
 from pd_analyze.capture import CaptureError
-from pd_analyze.dissect import DEFAULT_RPC_TIMEOUT, Accounting, Dissector, dissect
+from pd_analyze.dissect import DEFAULT_RPC_TIMEOUT, Accounting, Dissector, dissect, dissect_frames
 from pd_analyze.pd_checks import Checker
 from pd_analyze.tables_out import Rows, frame_of
-from pd_analyze.transactions import DEFAULT_TXN_TIMEOUT, TransactionEngine, iter_closed
+from pd_analyze.transactions import DEFAULT_TXN_TIMEOUT, Transaction, TransactionEngine, iter_closed
 
 CAPTURE_SUFFIXES = (".pcap", ".pcapng", ".cap", ".pcap.gz", ".pcapng.gz", ".gz")
 
@@ -112,55 +114,125 @@ def expand(paths: str | Iterable[str]) -> list[str]:
 
 def analyze(paths: str | Iterable[str], profile: str = profiles.DEFAULT, timeout: float = DEFAULT_TXN_TIMEOUT,
             rpc_timeout: float = DEFAULT_RPC_TIMEOUT, progress: Callable[[str, int], None] | None = None,
-            ) -> Analysis:
+            jobs: int = 1, chain: bool = False) -> Analysis:
     """Analyse captures (files, directories or globs) and return the tables as an Analysis.
 
+    `jobs` > 1 analyses files in parallel processes; the tables are identical to one process
+    (transactions numbered in file order). `chain` treats the files as one capture continued across
+    files (a ring-buffer set, as `mergecap -a` would join them): frame numbers run on across the set
+    and a transaction split over two files is still paired.
     A damaged capture keeps every result before the damage; its error is in `Analysis.errors`
     and in the `error` column of `Analysis.accounting`.
     """
-    checker = Checker(profiles.generic(), profiles.load(profile))
+    profiles.load(profile)  # an unknown profile fails here, before any work
+    files = expand(paths)
+    settings = (profile, timeout, rpc_timeout)
+    if chain:
+        rows, results = _analyze_chain(files, settings, progress)
+        return Analysis(rows, results, profile, timeout, rpc_timeout)
+    if jobs > 1 and len(files) > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=min(jobs, len(files))) as pool:
+            parts = list(pool.map(_analyze_file, files, [settings] * len(files)))
+    else:
+        parts = [_analyze_file(path, settings, progress) for path in files]
     rows = Rows()
     results = []
-    offset = 0
-    for path in expand(paths):
-        result = analyze_one(path, checker, rows, offset, timeout, rpc_timeout, progress)
-        offset += result.transactions
+    for part_rows, result in parts:  # merged in file order: numbering does not depend on scheduling
+        rows.extend(part_rows, sum(r.transactions for r in results))
         results.append(result)
     return Analysis(rows, results, profile, timeout, rpc_timeout)
 
 
-def analyze_one(path: str, checker: Checker, rows: Rows, offset: int, timeout: float, rpc_timeout: float,
-                progress: Callable[[str, int], None] | None = None) -> CaptureResult:
-    """One capture into `rows`; transaction numbers continue after `offset`."""
+def _analyze_file(path: str, settings: tuple[str, float, float],
+                  progress: Callable[[str, int], None] | None = None) -> tuple[Rows, CaptureResult]:
+    """One capture, numbered from transaction 1 (a process-pool task: arguments and result pickle)."""
+    profile, timeout, rpc_timeout = settings
+    checker = Checker(profiles.generic(), profiles.load(profile))
+    rows = Rows()
     d = Dissector(annotate=False, rpc_timeout=rpc_timeout, checker=checker)
-    engine = TransactionEngine(timeout)
     result = CaptureResult(path, d.accounting)
+    _run(capture.frames(path), d, TransactionEngine(timeout), rows, lambda _frame: path, [result], progress)
+    return rows, result
+
+
+def _analyze_chain(files: list[str], settings: tuple[str, float, float],
+                   progress: Callable[[str, int], None] | None) -> tuple[Rows, list[CaptureResult]]:
+    profile, timeout, rpc_timeout = settings
+    checker = Checker(profiles.generic(), profiles.load(profile))
+    d = Dissector(annotate=False, rpc_timeout=rpc_timeout, checker=checker)
+    rows = Rows()
+    results: list[CaptureResult] = []
+    starts: list[int] = []  # first global frame number of each file
+
+    def frames() -> Iterator[capture.RawFrame]:
+        offset = 0
+        for path in files:
+            before = _snapshot(d.accounting)
+            starts.append(offset + 1)
+            result = CaptureResult(path, Accounting())
+            results.append(result)
+            try:
+                for frame in capture.frames(path):
+                    offset += 1
+                    yield frame._replace(number=offset)
+            except CaptureError as exc:
+                result.error = _error_text(exc)
+            result.accounting = _difference(d.accounting, before)
+
+    def capture_of(frame: int) -> str:
+        return files[max(0, bisect_right(starts, frame) - 1)] if files else ""
+
+    _run(frames(), d, TransactionEngine(timeout), rows, capture_of, results, progress)
+    return rows, results
+
+
+def _run(source: Iterable[capture.RawFrame], d: Dissector, engine: TransactionEngine, rows: Rows,
+         capture_of: Callable[[int], str], results: list[CaptureResult],
+         progress: Callable[[str, int], None] | None) -> None:
+    """The frame loop: dissector -> transaction engine -> rows."""
     last = [float("-inf")]
 
-    def frames():  # noqa: ANN202 - the dissector's results, with progress and loose findings drained
-        for res in dissect(path, dissector=d):
+    def frames() -> Iterator:
+        for res in dissect_frames(source, d):
             if progress is not None:
-                progress(path, d.accounting.read)
+                progress(results[-1].path, d.accounting.read)
             yield res
-            _drain(engine, d, rows, path)
+            _drain(engine, d, rows, capture_of)
+
+    def add(txn: Transaction) -> None:
+        path = capture_of(txn.write_req_frame)
+        rows.add(path, txn)
+        next(r for r in results if r.path == path).transactions += 1
 
     try:
         for txn in iter_closed(engine, frames(), last):
-            rows.add(path, txn, offset)
-            result.transactions += 1
+            add(txn)
     except CaptureError as exc:
-        result.error = exc.reason if exc.offset is None else f"byte {exc.offset}: {exc.reason}"
+        results[-1].error = _error_text(exc)
         for txn in engine.finish(last[0]):
-            rows.add(path, txn, offset)
-            result.transactions += 1
-    _drain(engine, d, rows, path)
-    return result
+            add(txn)
+    _drain(engine, d, rows, capture_of)
 
 
-def _drain(engine: TransactionEngine, d: Dissector, rows: Rows, path: str) -> None:
+def _error_text(exc: CaptureError) -> str:
+    return exc.reason if exc.offset is None else f"byte {exc.offset}: {exc.reason}"
+
+
+def _snapshot(acc: Accounting) -> Accounting:
+    return Accounting(acc.read, acc.decoded, Counter(acc.skipped), Counter(acc.malformed))
+
+
+def _difference(acc: Accounting, before: Accounting) -> Accounting:
+    return Accounting(acc.read - before.read, acc.decoded - before.decoded, acc.skipped - before.skipped,
+                      acc.malformed - before.malformed)
+
+
+def _drain(engine: TransactionEngine, d: Dissector, rows: Rows, capture_of: Callable[[int], str]) -> None:
     for f in engine.loose:
-        rows.add_finding(path, f)
+        rows.add_finding(capture_of(f.frame), f)
     engine.loose.clear()
     for f in d.loose_findings:
-        rows.add_finding(path, f)
+        rows.add_finding(capture_of(f.frame), f)
     d.loose_findings.clear()

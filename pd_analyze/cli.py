@@ -249,17 +249,22 @@ def _progress() -> Callable[[str, int], None] | None:
     return update
 
 
-def _analyze(captures: tuple[str, ...], read: str | None, profile: str, timeout: float, rpc_timeout: float):  # noqa: ANN202
+def _analyze(captures: tuple[str, ...], read: str | None, profile: str, timeout: float, rpc_timeout: float,  # noqa: ANN202
+             jobs: int, chain: bool):
     from pd_analyze.analysis import analyze, expand
 
     paths = expand(_inputs(captures, read))
     if not paths:
         raise click.UsageError("no capture files matched")
     _checker(profile)  # a bad profile is a usage error before any file is read
-    return analyze(paths, profile, timeout, rpc_timeout, _progress())
+    return analyze(paths, profile, timeout, rpc_timeout, _progress() if jobs == 1 else None, jobs, chain)
 
 
 def _timeouts(func: Callable) -> Callable:
+    func = click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
+                        help="Analyse files in N parallel processes (same tables as one process).")(func)
+    func = click.option("--chain", is_flag=True,
+                        help="The files continue one another (ring buffer): pair across file boundaries.")(func)
     func = click.option("--timeout", type=click.FloatRange(min=0.001), default=10.0, show_default=True,
                         help="Seconds of capture time a transaction may take before it is a timeout.")(func)
     return click.option("--rpc-timeout", type=click.FloatRange(min=0.001), default=DEFAULT_RPC_TIMEOUT,
@@ -275,11 +280,11 @@ def _timeouts(func: Callable) -> Callable:
 @profile_option
 @_timeouts
 def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fmt: str, profile: str,
-                   timeout: float, rpc_timeout: float) -> None:
+                   timeout: float, rpc_timeout: float, jobs: int, chain: bool) -> None:
     """Pair requests with responses; write the tables and print a summary (worst offenders first)."""
     from pd_analyze import report
 
-    analysis = _analyze(captures, read, profile, timeout, rpc_timeout)
+    analysis = _analyze(captures, read, profile, timeout, rpc_timeout, jobs, chain)
     written = report.write_tables(analysis, out_dir, fmt)
     click.echo(report.summary(analysis))
     click.echo("\nWrote " + ", ".join(written), err=True)
@@ -296,11 +301,11 @@ def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fm
 @profile_option
 @_timeouts
 def audit_command(captures: tuple[str, ...], read: str | None, fail_on: str, profile: str, timeout: float,
-                  rpc_timeout: float) -> None:
+                  rpc_timeout: float, jobs: int, chain: bool) -> None:
     """Findings like a linter (file:frame: severity rule message); exit 1 at the --fail-on threshold."""
     from pd_analyze.rules import SEVERITY_RANK
 
-    analysis = _analyze(captures, read, profile, timeout, rpc_timeout)
+    analysis = _analyze(captures, read, profile, timeout, rpc_timeout, jobs, chain)
     f = analysis.findings.sort_values(["capture", "frame"], kind="stable")
     for row in f.itertuples():
         txn = f" [txn {row.txn}]" if not _missing(row.txn) else ""

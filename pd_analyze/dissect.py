@@ -11,7 +11,7 @@ field objects are built and nothing is held.
 from __future__ import annotations
 
 from collections import Counter, deque
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
 from pd_analyze import capture, checks, link, profidrive, profiles, rpc
@@ -560,9 +560,13 @@ def _pdu_name(hdr: rpc.Header) -> str:
 def dissect(path: str, annotate: bool = False, rpc_timeout: float = DEFAULT_RPC_TIMEOUT,
             dissector: Dissector | None = None) -> Iterator[FrameResult]:
     """Every PNIO RPC frame of a capture, in frame order. CaptureError after the good frames."""
-    d = dissector or Dissector(annotate, rpc_timeout)
+    return dissect_frames(capture.frames(path), dissector or Dissector(annotate, rpc_timeout))
+
+
+def dissect_frames(frames: Iterable[capture.RawFrame], d: Dissector) -> Iterator[FrameResult]:
+    """The frame loop over any frame source (one file, or a chain of files numbered as one)."""
     try:
-        for frame in capture.frames(path):
+        for frame in frames:
             yield from d.feed(frame)
     except capture.CaptureError:
         yield from d.finish()  # the frames before the damage are complete results

@@ -36,11 +36,22 @@ def write_tables(analysis: Analysis, out_dir: str, fmt: str) -> list[str]:
                     safe[col] = safe[col].astype("object").map(neutralise)
             safe.to_csv(path, index=False)
         elif fmt == "parquet":
-            df.to_parquet(path, index=False)
+            path = _parquet_dataset(df, os.path.join(out_dir, name))
         else:
             df.to_json(path, orient="records", lines=True, date_format="iso", date_unit="us")
         written.append(path)
     return written
+
+
+def _parquet_dataset(df: pd.DataFrame, path: str) -> str:
+    """A Hive-partitioned dataset DIR/<table>/capture=<file>/part-0.parquet (DuckDB, Spark, Dask read it)."""
+    os.makedirs(path, exist_ok=True)
+    if df.empty:  # no partition to write: one file keeps the schema
+        df.to_parquet(os.path.join(path, "part-0.parquet"), index=False)
+        return path
+    df.to_parquet(path, index=False, partition_cols=["capture"], existing_data_behavior="delete_matching",
+                  basename_template="part-{i}.parquet")
+    return path
 
 
 def _ms(seconds: float) -> str:

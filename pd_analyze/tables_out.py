@@ -129,6 +129,18 @@ class Rows:
     changes: list[tuple] = field(default_factory=list)
     _last_read: dict[tuple, str] = field(default_factory=dict)
 
+    def extend(self, other: Rows, offset: int) -> None:
+        """Append another capture's rows, its transaction numbers shifted by `offset`."""
+        def shift(rows: list[tuple], col: int) -> list[tuple]:
+            if not offset:
+                return rows
+            return [r[:col] + ((r[col] + offset if r[col] is not None else None),) + r[col + 1:] for r in rows]
+
+        self.transactions += shift(other.transactions, 0)
+        self.parameters += shift(other.parameters, 0)
+        self.findings += shift(other.findings, 2)
+        self.changes += shift(other.changes, 3)
+
     def add(self, capture: str, txn: Transaction, offset: int = 0) -> None:
         number = txn.txn + offset
         device, controller = ip_text(txn.device), ip_text(txn.controller)

@@ -1,0 +1,80 @@
+"""Many captures: --jobs gives the same tables as one process, --chain pairs across files,
+Parquet datasets are partitioned by capture, and the Dask API runs on a local two-worker cluster."""
+
+import struct
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+import pd_analyze
+from pd_analyze.capture import frames
+
+SAMPLES = Path("sample_pcaps")
+
+
+def split_pcap(src: Path, cut: int, a: Path, b: Path) -> None:
+    """Write frames 1..cut to a and the rest to b (a ring buffer's two files)."""
+    raw = src.read_bytes()
+    header, pos, records = raw[:24], 24, []
+    while pos < len(raw):
+        caplen = struct.unpack_from("<I", raw, pos + 8)[0]
+        records.append(raw[pos:pos + 16 + caplen])
+        pos += 16 + caplen
+    a.write_bytes(header + b"".join(records[:cut]))
+    b.write_bytes(header + b"".join(records[cut:]))
+
+
+def test_jobs_gives_identical_tables():
+    files = sorted(str(p) for p in SAMPLES.glob("*.pcap*"))[:8]
+    one = pd_analyze.analyze(files)
+    two = pd_analyze.analyze(files, jobs=2)
+    for name in ("transactions", "parameters", "findings", "changes"):
+        pd.testing.assert_frame_equal(getattr(one, name), getattr(two, name))
+    assert one.transactions.txn.tolist() == list(range(1, len(one.transactions) + 1))
+
+
+def test_chain_pairs_a_transaction_split_over_two_files(tmp_path):
+    a, b = tmp_path / "ring_00001.pcap", tmp_path / "ring_00002.pcap"
+    split_pcap(SAMPLES / "worked_example.pcap", 3, a, b)
+    assert [f.number for f in frames(str(b))] == [1, 2, 3]
+    apart = pd_analyze.analyze([str(a), str(b)])
+    assert apart.transactions.verdict.tolist() == ["timeout"]
+    assert bool(apart.transactions.capture_ended.iloc[0])
+    assert "read_without_request" in apart.findings.name.tolist()
+    chained = pd_analyze.analyze([str(a), str(b)], chain=True)
+    (t,) = chained.transactions.itertuples()
+    assert (t.verdict, t.capture, t.write_req_frame, t.read_res_frame, t.b5_retries) == ("ok", str(a), 1, 6, 1)
+    acc = chained.accounting
+    assert acc.read.tolist() == [3, 3] and acc.balanced.all()
+    assert chained.findings.empty
+
+
+def test_parquet_dataset_partitioned_by_capture(tmp_path):
+    from pd_analyze import report
+
+    files = [str(SAMPLES / "record_rw_le.pcap"), str(SAMPLES / "worked_example.pcap")]
+    analysis = pd_analyze.analyze(files)
+    report.write_tables(analysis, str(tmp_path), "parquet")
+    parts = sorted(p.parent.name for p in (tmp_path / "transactions").rglob("*.parquet"))
+    assert len(parts) == 2 and all(p.startswith("capture=") for p in parts)
+    back = pd.read_parquet(tmp_path / "transactions")
+    assert sorted(back.txn.tolist()) == [1, 2, 3, 4, 5]
+    assert set(back.capture.astype(str)) == set(files)
+
+
+def test_dask_api_on_a_local_two_worker_cluster():
+    distributed = pytest.importorskip("distributed")
+    import pd_analyze.dask as pdd
+
+    files = [str(SAMPLES / "record_rw_le.pcap"), str(SAMPLES / "worked_example.pcap"),
+             str(SAMPLES / "vlan_stacked.pcap")]
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+    with cluster, distributed.Client(cluster):
+        tables = pdd.analyze(files)
+        assert tables.transactions.npartitions == 3
+        got = tables.transactions.compute()
+        acc = tables.accounting.compute()
+    assert got.groupby("capture", observed=True).size().to_dict() == {files[0]: 4, files[1]: 1, files[2]: 3}
+    assert got.verdict.astype(str).tolist() == ["ok"] * 8
+    assert acc.read.tolist() == [30, 6, 14]
