@@ -304,8 +304,8 @@ class Dissector:
         res.findings += checks.ndr(stub, declared, hdr.opnum, number, request_stub)
         res.findings += checks.blocks(stub, hdr.opnum, number, request_stub, self.checker.tolerate)
         self._records(res, stub, hdr, dgram)
-        res.summary = self._summary(hdr, stub, len(frames))
         if self.annotate:
+            res.summary = self._summary(hdr, stub, len(frames))
             self._annotate_stub(res, stub, body, stub_base, hdr.opnum)
 
     def _request(self, res: FrameResult, hdr: rpc.Header, dgram: link.Datagram, key: tuple,

@@ -9,6 +9,7 @@ memory bounded.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from socket import inet_ntoa
 from typing import NamedTuple
 
 from pd_analyze import rules
@@ -56,7 +57,7 @@ class Datagram(NamedTuple):
 
 
 def ip_text(addr: bytes) -> str:
-    return ".".join(str(b) for b in addr)
+    return inet_ntoa(addr)
 
 
 def l3_offset(linktype: int, data: bytes) -> int:

@@ -6,8 +6,6 @@ profile adds its narrower limits as warnings, each finding naming the seed manua
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 from pd_analyze import pdtables as pt
 from pd_analyze.profidrive import Block, Parsed
 from pd_analyze.profiles import Limit, Profile
@@ -22,6 +20,11 @@ class Checker:
     def __init__(self, generic: Profile, vendor: Profile | None = None) -> None:
         self.generic = generic
         self.vendor = vendor if vendor is not None and vendor.name != generic.name else None
+        by_key: dict[str, list[tuple[Profile, Limit]]] = {}
+        for profile in (self.generic, self.vendor):
+            for lim in profile.limits if profile is not None else ():
+                by_key.setdefault(lim.key, []).append((profile, lim))
+        self._by_key = {key: tuple(pairs) for key, pairs in by_key.items()}  # looked up per field
 
     @property
     def tolerate(self) -> frozenset[str]:
@@ -31,15 +34,12 @@ class Checker:
     def error_texts(self) -> dict[int, str]:
         return dict(self.vendor.error_texts) if self.vendor else {}
 
-    def _limits(self, key: str) -> Iterator[tuple[Profile, Limit]]:
-        for profile in (self.generic, self.vendor):
-            if profile is not None:
-                for lim in profile.limits_for(key):
-                    yield profile, lim
+    def _limits(self, key: str) -> tuple[tuple[Profile, Limit], ...]:
+        return self._by_key.get(key, ())
 
     def limit(self, key: str, name: str, value: int, frame: int, out: list[Finding]) -> None:
         """Findings for every profile limit of `key` that `value` breaks."""
-        for profile, lim in self._limits(key):
+        for profile, lim in self._by_key.get(key, ()):
             if not lim.allows(value):
                 out.append(finding(lim.rule, frame, name, _fmt(value), lim.text(),
                                    f"{name} = {_fmt(value)} outside the {profile.name} limit {lim.text()} "
