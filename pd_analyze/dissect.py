@@ -407,7 +407,7 @@ class Dissector:
                 continue
             if response and stub.status is not None and not stub.status.ok:
                 continue
-            if block.index == INDEX_PD_DPV1 and not profidrive.plausible(block.record):
+            if block.index == INDEX_PD_DPV1 and not profidrive.plausible(block.record, response):
                 res.findings.append(finding("not_profidrive", number, "iod.index", "0x002f",
                                             "a plausible PROFIdrive header", "record at index 0x002F is not a "
                                                                              "PROFIdrive parameter block"))

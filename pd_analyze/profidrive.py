@@ -131,7 +131,10 @@ def parse_response(data: bytes, frame: int, findings: list[Finding]) -> Parsed:
         p.complete = True
         return p
     if p.ident not in (pt.RES_READ, pt.RES_READ_NAK, pt.RES_CHANGE_NAK, pt.RES_NOT_SUPPORTED):
-        return p  # unknown Response ID: Q1 reports it, the body is not guessed at
+        # Unknown Response ID: Q1 reports it and the body is not guessed at. A header-only record is
+        # still completely decoded (its verdict comes from Q3, protocol.md 7.4); a body is not.
+        p.complete = len(data) == 4
+        return p
     count = 1 if p.ident == pt.RES_NOT_SUPPORTED and p.n == 0 else p.n
     trial: list[Finding] = []
     blocks, end, ok = _blocks(data, 4, count, frame, trial, True)
@@ -207,7 +210,7 @@ def _take_pad(block: Block, data: bytes, pos: int, i: int, frame: int, findings:
 def _greedy_ok(data: bytes, pos: int, count: int, response: bool) -> bool:
     """Whether `count` blocks parse from `pos` to exactly the end, always taking pad bytes."""
     for i in range(count):
-        block, problem = _block(data, pos, i, count, 0, response)
+        block, problem = _block(data, pos, i, count, 0, response, trial=True)
         if block is None or problem is not None:
             return False
         pos = block.end
@@ -216,7 +219,7 @@ def _greedy_ok(data: bytes, pos: int, count: int, response: bool) -> bool:
     return pos == len(data)
 
 
-def _block(data: bytes, pos: int, i: int, count: int, frame: int, response: bool
+def _block(data: bytes, pos: int, i: int, count: int, frame: int, response: bool, trial: bool = False
            ) -> tuple[Block | None, Finding | None]:
     if pos + 2 > len(data):
         return None, finding("response_block_overrun" if response else "block_overrun", frame,
@@ -237,7 +240,7 @@ def _block(data: bytes, pos: int, i: int, count: int, frame: int, response: bool
                               f"format {fmt:#04x} has no known size before the last block: decode stopped")
     size = spec.size
     if fmt == pt.FMT_DATE:
-        size = _date_size(data, pos, m)
+        size = 7 if trial else _date_size(data, pos, m, count - i - 1, response)
     need = m * size
     if pos + 2 + need > len(data):
         return None, finding("response_block_overrun" if response else "block_overrun", frame,
@@ -253,10 +256,25 @@ def _block(data: bytes, pos: int, i: int, count: int, frame: int, response: bool
     return block, None
 
 
-def _date_size(data: bytes, pos: int, m: int) -> int:
-    """Date values are 7 bytes; one implementation pads them to 8 (protocol.md 4.3)."""
+def _date_size(data: bytes, pos: int, m: int, rest: int, response: bool) -> int:
+    """Date values are 7 bytes; one implementation pads them to 8 (protocol.md 4.3): take 8 only when
+    the record does not add up with 7 (plus the 3.2 pad byte after an odd count) and does with 8.
+
+    `rest` blocks follow this one. The look-ahead parses them with 7-byte Dates (no nested
+    look-ahead, so the cost stays linear per Date block); when neither size adds up, the parity of
+    the bytes left decides as a last guess.
+    """
     left = len(data) - pos - 2
-    return 8 if m and left >= 8 * m and (left - 7 * m) % 2 and not (left - 8 * m) % 2 else 7
+    if not m or left < 8 * m:
+        return 7
+    end7 = pos + 2 + 7 * m
+    if m % 2 and (rest or len(data) - end7 == 1):
+        end7 += 1  # pad byte after an odd value list
+    if _greedy_ok(data, end7, rest, response):
+        return 7
+    if _greedy_ok(data, pos + 2 + 8 * m, rest, response):
+        return 8
+    return 8 if (left - 7 * m) % 2 and not (left - 8 * m) % 2 else 7
 
 
 # --- presentation -----------------------------------------------------------------------------
@@ -459,15 +477,29 @@ def _is_text(block: Block) -> bool:
     return spec is None or block.unknown_size or spec.kind in ("string", "octets", "unicode")
 
 
-def plausible(data: bytes) -> bool:
-    """Index 0x002F carries PROFIdrive only if the header is plausible (protocol.md 1.4)."""
+def plausible(data: bytes, response: bool | None = None) -> bool:
+    """Index 0x002F carries PROFIdrive only if the header is plausible (protocol.md 1.4): Request or
+    Response ID valid, 1 <= n <= 39, reference != 0, lengths consistent.
+
+    `response` names the direction (False: parameter request of a write, True: parameter response
+    of a read); None accepts either reading, for callers that do not pass it. Request and Response
+    IDs 0x01/0x02 coincide, so the direction decides which length rule applies.
+    """
     if len(data) < 4:
         return False
     ref, ident, _do, n = data[0], data[1], data[2], data[3]
     if ref == 0 or not 1 <= n <= 39:
         return False
-    if ident == pt.REQ_READ:
-        return len(data) == 4 + 6 * n
-    if ident == pt.REQ_CHANGE:
-        return len(data) > 4 + 6 * n
-    return ident in (pt.RES_READ, pt.RES_CHANGE, pt.RES_READ_NAK, pt.RES_CHANGE_NAK, pt.RES_NOT_SUPPORTED)
+    if response is None:
+        return plausible(data, False) or plausible(data, True)
+    if not response:
+        if ident == pt.REQ_READ:
+            return len(data) == 4 + 6 * n
+        return ident == pt.REQ_CHANGE and len(data) > 4 + 6 * n
+    if ident == pt.RES_CHANGE:
+        return len(data) == 4
+    if ident not in (pt.RES_READ, pt.RES_READ_NAK, pt.RES_CHANGE_NAK, pt.RES_NOT_SUPPORTED):
+        return False
+    found: list[Finding] = []
+    p = parse_response(data, 0, found)
+    return p.complete and p.end == len(data) and not p.echo

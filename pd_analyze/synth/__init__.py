@@ -5,3 +5,6 @@ writers (pcap, pcapng, gzip), scenario (clock, hosts, PNIO sessions),
 samples (the files in sample_pcaps/). `python -m pd_analyze.synth [OUTDIR]`
 regenerates every sample byte for byte.
 """
+
+# The PROFIdrive samples (pd_*.pcap) register themselves in samples.SAMPLES on import.
+from . import pd_samples as pd_samples

@@ -1,11 +1,12 @@
-"""python -m pd_analyze.synth [OUTDIR]: regenerate every sample capture."""
+"""python -m pd_analyze.synth [OUTDIR]: regenerate every sample capture and
+the expected findings of the PROFIdrive samples (OUTDIR/expected/*.json)."""
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
 
-from .samples import build_all
+from .samples import build_all, build_expected
 
 
 def main(argv: list[str]) -> int:
@@ -14,6 +15,10 @@ def main(argv: list[str]) -> int:
     for name, data in build_all().items():
         (outdir / name).write_bytes(data)
         print(f"{name}: {len(data)} bytes")
+    (outdir / "expected").mkdir(exist_ok=True)
+    for name, text in build_expected().items():
+        (outdir / "expected" / f"{name}.json").write_text(text)
+        print(f"expected/{name}.json")
     return 0
 
 

@@ -175,3 +175,57 @@ def change_request(ref: int, do: int, items: Sequence[tuple[ParamAddress, bytes]
 def change_ok(ref: int, do: int, n_params: int) -> bytes:
     """Positive change response: the 4-byte header only."""
     return pd_response(ref, RES_CHANGE_OK, do, (), n_params=n_params)
+
+
+# ---- composite values (protocol.md 4.3, 4.4) -----------------------------------------------------
+
+
+def date_value(
+    year: int, month: int, day: int, hour: int = 0, minute: int = 0, ms: int = 0, *, weekday: int = 0
+) -> bytes:
+    """One Date (0x32, BinaryDate) value, 7 bytes: ms within the minute
+    (U16), minute, hour, day (weekday in bits 5-7, 1 = Monday), month,
+    year - 1900 or - 2000 (< 50 means 20xx)."""
+    return struct.pack(">HBBBBB", ms, minute, hour, (weekday << 5) | day, month, year % 100)
+
+
+def time_value(ms: int, days: int | None = None) -> bytes:
+    """TimeOfDay / TimeDifference: ms (U32) plus days (U16) for the 'with
+    date indication' formats 0x0C / 0x35 (6 bytes); 4 bytes without."""
+    return struct.pack(">I", ms) + (b"" if days is None else struct.pack(">H", days))
+
+
+DESCRIPTION_SIZE: Final = 46
+
+
+def description(
+    identifier: int,
+    elements: int,
+    name: str,
+    *,
+    std_factor: float = 1.0,
+    var_attr: int = 0,
+    low: bytes = bytes(4),
+    high: bytes = bytes(4),
+    id_ext: int = 0,
+    ref_param: int = 0,
+    normalisation: int = 0,
+) -> bytes:
+    """The complete description (attribute 0x20, subindex 0): 46 octets in
+    the layout of protocol.md 4.4; `name` is cut/padded to 16 characters."""
+    out = struct.pack(">HHfHI", identifier, elements, std_factor, var_attr, 0)
+    out += name.encode("latin-1")[:16].ljust(16) + low + high
+    out += struct.pack(">HHHH", 0, id_ext, ref_param, normalisation)
+    assert len(out) == DESCRIPTION_SIZE
+    return out
+
+
+def text_entries(texts: Sequence[str]) -> str:
+    """Text array entries (attribute 0x30): 16 characters each, space-padded."""
+    return "".join(t[:16].ljust(16) for t in texts)
+
+
+def akd_echo_response(ref: int, resp_id: int, do: int, address: ParamAddress, block: bytes) -> bytes:
+    """A one-parameter response in the AKD manual's layout: the 6-byte
+    parameter address repeated before Format (protocol.md 5.3)."""
+    return bytes([ref, resp_id, do, 1]) + address.encode() + block

@@ -548,3 +548,147 @@ def truncated_snaplen() -> bytes:
     s.parameter_access(req, change_ok(2, 1, 1))  # frames 7-10, frame 7 cut
     cap.send_udp(s.controller, 50010, other, 50020, bytes(400))  # frame 11, cut
     return pcap_of(cap, snaplen=256)
+
+
+# ---- expected findings -----------------------------------------------------------------------------------
+# The intent of the files above, as sample_pcaps/README.md states it (frame numbers are the README's).
+# Clean files expect no finding; the pd_*.pcap files record theirs while they are built (pd_samples.py).
+STATIC_EXPECTED: dict[str, list[tuple[int, str]]] = {
+    "worked_example.pcap": [],
+    "record_rw_le.pcap": [],
+    "record_rw_be.pcap": [],
+    "record_rw_le.pcap.gz": [],
+    "vlan_stacked.pcap": [],
+    "ip_fragments.pcap": [],
+    "cl_fragments_fack.pcapng": [(6, "rpc_retransmission")],  # frag 1 again, identical: dropped and counted
+    "implicit_read.pcap": [],
+    "write_multiple.pcap": [],
+    "other_port_response.pcap": [(6, "rpc_retransmission")],  # identical request 100 ms later
+    "two_interfaces.pcapng": [],
+    "gzip_pcapng_named.pcap": [],
+    "linux_sll.pcap": [],
+    "linux_sll2.pcap": [],
+    "raw_ipv4.pcap": [],
+    "pcap_nsec_be.pcap": [],
+    "rpc_control_pdus.pcap": [
+        (14, "rpc_nocall"),  # nocall: W on the call
+        (15, "rpc_retransmission"),  # identical request again
+        (17, "pnio_interface"),  # Read to the Supervisor interface: I
+        (18, "rpc_fault"),  # fault 0x1C010003
+        (20, "rpc_fault"),  # reject 0x1C010002
+        (22, "rpc_cancel"),  # cl_cancel: I on the call
+        (24, "rpc_fault"),  # fault nca_s_fault_cancel
+    ],
+    "truncated_snaplen.pcap": [
+        (7, "rpc_truncated"),  # R1: RPC body 134 of 176 bytes
+        (7, "record_truncated"),  # H5: 50 of 92 record bytes present
+        (7, "truncated_capture_pnio"),  # E: cut inside a PNIO RPC PDU
+        (11, "truncated_capture"),  # I: cut outside PNIO
+    ],
+}
+
+
+def build_expected() -> dict[str, str]:
+    """sample name -> text of sample_pcaps/expected/<name>.json."""
+    from . import pd_samples
+    from .expect import dumps
+
+    out = {}
+    for name, findings in STATIC_EXPECTED.items():
+        doc = {"file": name, "profiles": [{"profile": "generic", "findings": [list(f) for f in sorted(findings)]}]}
+        out[name] = dumps(doc)
+    for name, render in pd_samples.EXPECTED.items():
+        out[name] = dumps(render())
+    return out
+
+
+# ---- fault_trace.pcap: three drives interleaved, for the notebook and the HTML report -------------------
+
+
+@sample("fault_trace.pcap")
+def fault_trace() -> bytes:
+    """Commissioning of three drives by three controllers at once (own clocks,
+    merged by time): change trails preceded by reads, NAKs with several error
+    numbers, B5 polling, a write refused with DF 80 B1 00, a timeout and its
+    retry. sample_pcaps/README.md lists what the analyser must find."""
+    import random
+
+    from .profidrive import error_block
+
+    cap = Capture()
+    f32, w16, u16 = 0x08, 0x42, 0x06
+    df_b1 = pnio.pnio_status(0xDF, 0x80, 0xB1, 0x00)
+    refs: dict[str, int] = {}  # last Request Reference per device
+    pauses: dict[str, random.Random] = {}  # the controllers' idle times between transactions
+
+    def drive(n: int, start_ms: int, rtt_us: float, jitter_us: float) -> PnioSession:
+        s = session(cap, n, own_clock=Clock(EPOCH_NS + start_ms * 1_000_000), rtt_us=rtt_us, gap_us=1500,
+                    jitter_us=jitter_us, rng=random.Random(n))
+        refs[s.device.ip], pauses[s.device.ip] = 0, random.Random(10 + n)
+        return s
+
+    def nxt(s: PnioSession) -> int:
+        refs[s.device.ip] += 1
+        return refs[s.device.ip]
+
+    def access(s: PnioSession, request: bytes, response: bytes | None, pause_ms: float, **kw: Any) -> None:
+        """One transaction, then the controller's idle time before the next one."""
+        s.parameter_access(request, response, **kw)
+        s.clock.advance_us(pauses[s.device.ip].uniform(0.6, 1.4) * pause_ms * 1000)
+
+    def read1(s: PnioSession, pnu: int, fmt: int, value: float, pause_ms: float, **kw: Any) -> None:
+        r = nxt(s)
+        access(s, read_request(r, 1, [P(pnu)]), pd_response(r, 0x01, 1, [value_block(fmt, [value])]), pause_ms, **kw)
+
+    def change1(s: PnioSession, pnu: int, fmt: int, value: float, pause_ms: float, error: int = -1,
+                ref: int = 0, **kw: Any) -> None:
+        r = ref or nxt(s)
+        block = error_block(error, 0) if error in (0x01, 0x02, 0x14) else error_block(error)  # with subindex
+        res = change_ok(r, 1, 1) if error < 0 else pd_response(r, 0x82, 1, [block])
+        access(s, change_request(r, 1, [(P(pnu), value_block(fmt, [value]))]), res, pause_ms, **kw)
+
+    # drive 1 (.21): quick (1.2 ms RTT), one change below the limit, one PNU that does not exist
+    d1 = drive(1, 0, 1200, 400)
+    read1(d1, 1082, f32, 1500.0, 300)  # max. speed, read before the change
+    change1(d1, 1082, f32, 3000.0, 300, b5_retries=1)
+    read1(d1, 1120, f32, 10.0, 300)  # ramp-up time
+    change1(d1, 1120, f32, 5.0, 300)
+    read1(d1, 1121, f32, 10.0, 300)  # ramp-down time
+    change1(d1, 1121, f32, 0.001, 300, error=0x02)  # below the lower limit
+    change1(d1, 1121, f32, 2.0, 300)
+    r = nxt(d1)  # three parameters at once, one of them does not exist
+    access(d1, read_request(r, 1, [P(964), P(9999), P(2000)]),
+           pd_response(r, 0x81, 1, [value_block(w16, [0x1234]), error_block(0x00), value_block(f32, [3000.0])]),
+           300, b5_retries=1)
+    for k in range(16):  # monitoring: actual speed
+        read1(d1, 63, f32, 2950.0 + 5 * k, 1200, b5_retries=int(k % 3 == 0))
+
+    # drive 2 (.22): slow (4 ms RTT, B5 polling 20 ms apart), refuses changes while running
+    d2 = drive(2, 120, 4000, 2500)
+    slow = {"read_gap_us": 20_000}
+    read1(d2, 2, u16, 7, 400)
+    change1(d2, 2, u16, 1, 400, error=0x01)  # P2 is read-only
+    read1(d2, 1300, u16, 20, 400)  # control mode
+    change1(d2, 1300, u16, 21, 400, error=0x11, b5_retries=2, **slow)  # not while the drive runs
+    change1(d2, 971, u16, 1, 400, b5_retries=12, **slow)  # save to non-volatile memory: long B5 polling
+    for k in range(16):
+        read1(d2, 63, f32, 1400.0 + k, 1200, b5_retries=2 + k % 4, **slow)
+    change1(d2, 1300, u16, 21, 400, error=0x11)
+
+    # drive 3 (.23): a refused write, a timeout and its retry, NAKs on subindex and data type
+    d3 = drive(3, 260, 1800, 600)
+    read1(d3, 964, w16, 0x1234, 500)
+    r = nxt(d3)  # a 20-parameter read the device's parameter buffer cannot take
+    access(d3, read_request(r, 1, [P(2000 + i) for i in range(20)]), None, 500, write_status=df_b1)
+    read1(d3, 1082, f32, 1500.0, 500)
+    r = nxt(d3)  # after three B5 the drive stops answering: a timeout (10 s deadline)
+    access(d3, change_request(r, 1, [(P(1082), value_block(f32, [2800.0]))]), None, 12_000, b5_retries=3)
+    change1(d3, 1082, f32, 2800.0, 500, ref=r, b5_retries=1)  # the controller retries with the same reference
+    r = nxt(d3)
+    access(d3, read_request(r, 1, [P(945, 40)]), pd_response(r, 0x81, 1, [error_block(0x03, 40)]), 500)
+    change1(d3, 1120, w16, 5, 500, error=0x05)  # Word written to a Float32 parameter
+    change1(d3, 1120, f32, 5.0, 500)
+    for k in range(8):
+        read1(d3, 63, f32, 2790.0 + k, 1000)
+    cap.frames = cap.time_sorted()
+    return pcap_of(cap)

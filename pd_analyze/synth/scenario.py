@@ -507,15 +507,19 @@ class PnioSession:
         *,
         respond: bool = True,
         args_max: int = WRITE_ARGS_MAX,
+        fault: tuple[int, int] | None = None,
         stub_kw: Overrides = None,
         **call_kw: Any,
     ) -> Call:
         """Record write (opnum 3) + IODWriteResHeader answer. stub_kw goes to
         write_stubs (status, api, slot, req_iod, ...); the rest to call().
         For brevity status/api/slot/subslot/ar_uuid/add_val*/req_*/res_* may
-        also be given directly."""
+        also be given directly. fault=(ptype, NCA status): the server answers
+        with that fault (3) or reject (6) PDU instead of a response."""
         kw = _split_stub_kw(call_kw, stub_kw)
         req, res = self.write_stubs(index, data, args_max=args_max, **kw)
+        if fault is not None:
+            res, call_kw["res_ptype"] = rpc.status_body(fault[1], self.little), fault[0]
         return self.call(3, req, res if respond else None, args_max=args_max, **call_kw)
 
     def read(
@@ -525,12 +529,15 @@ class PnioSession:
         *,
         opnum: int = 2,
         respond: bool = True,
+        fault: tuple[int, int] | None = None,
         stub_kw: Overrides = None,
         **call_kw: Any,
     ) -> Call:
-        """Record read (opnum 2; 5 for implicit). Stub keywords as write()."""
+        """Record read (opnum 2; 5 for implicit). Stub keywords and fault as write()."""
         kw = _split_stub_kw(call_kw, stub_kw)
         req, res, amax = self.read_stubs(index, data, **kw)
+        if fault is not None:
+            res, call_kw["res_ptype"] = rpc.status_body(fault[1], self.little), fault[0]
         return self.call(opnum, req, res if respond else None, args_max=amax, **call_kw)
 
     def read_implicit(self, index: int, data: bytes | None = None, *, target_ar_uuid: Any = None, **kw: Any) -> Call:
@@ -595,22 +602,39 @@ class PnioSession:
         index: int = 0xB02E,
         b5_retries: int = 0,
         write_status: bytes = pnio.STATUS_OK,
+        read_status: bytes = pnio.STATUS_OK,
+        write_fault: tuple[int, int] | None = None,
+        read_fault: tuple[int, int] | None = None,
         read_gap_us: float | None = None,
+        common_kw: Overrides = None,
         write_kw: Overrides = None,
         read_kw: Overrides = None,
     ) -> list[Call]:
         """PROFIdrive transaction: write the parameter request, then read
         until the response comes: b5_retries "DE 80 B5 00" answers first,
         each a new RPC call. response None: stop after the B5 reads (the
-        transaction stays open)."""
-        calls = [self.write(index, request, status=write_status, **dict(write_kw or {}))]
-        if write_status != pnio.STATUS_OK:
+        transaction stays open).
+
+        The transaction ends early when the write is answered with an error
+        status (write_status) or a fault/reject (write_fault = (ptype, NCA
+        status)); the final read may be answered with an error status
+        (read_status, no record) or a fault/reject (read_fault) instead of
+        the response. common_kw goes to the write and every read (api, slot,
+        ...), write_kw / read_kw to one side only."""
+        wkw = _merge(dict(common_kw or {}), write_kw)
+        rkw = _merge(dict(common_kw or {}), read_kw)
+        calls = [self.write(index, request, status=write_status, fault=write_fault, **wkw)]
+        if write_status != pnio.STATUS_OK or write_fault is not None:
             return calls
         for _ in range(b5_retries):
-            kw = _merge(dict(gap_us=read_gap_us), read_kw)
+            kw = _merge(dict(gap_us=read_gap_us), rkw)
             calls.append(self.read(index, status=pnio.STATUS_B5, **kw))
-        if response is not None:
-            calls.append(self.read(index, response, **dict(read_kw or {})))
+        if read_fault is not None:
+            calls.append(self.read(index, fault=read_fault, **rkw))
+        elif read_status != pnio.STATUS_OK:
+            calls.append(self.read(index, status=read_status, **rkw))
+        elif response is not None:
+            calls.append(self.read(index, response, **rkw))
         return calls
 
     def cm_call(
