@@ -220,9 +220,6 @@ class Dissector:
             res.pdu.malformed = True
             return res
         self.accounting.decoded += 1
-        if hdr.values[rpc.I_AUTH]:
-            res.summary = f"{_pdu_name(hdr)} [authenticated, not decoded]"
-            return res
         if hdr.ptype in (PTYPE_REQUEST, PTYPE_RESPONSE):
             self._data_pdu(res, hdr, dgram, body, base + rpc.HEADER_SIZE)
         elif hdr.ptype in (PTYPE_FAULT, PTYPE_REJECT):
@@ -266,13 +263,16 @@ class Dissector:
         frames: tuple[int, ...] = ()
         if hdr.flags1 & FLAG1_FRAG:
             fkey = (hdr.activity, hdr.seq, hdr.ptype, dgram.src, dgram.dst)
-            if not response and self.frags.seen(fkey, hdr.frag_num, body):
+            if self.frags.seen(fkey, hdr.frag_num, body):
                 call = self.calls.open.get(key)
-                if call is not None:
+                if call is not None and not response:
                     call.copies += 1
                 res.findings.append(finding("rpc_retransmission", number, "rpc.frag_num", hdr.frag_num,
                                             "a new fragment", "fragment retransmitted (identical copy)"))
                 res.summary = f"{_pdu_name(hdr)}, fragment {hdr.frag_num} [retransmission]"
+                done = self.frags.reassembled_in(fkey)
+                if self.annotate and done:
+                    res.layers.append(Layer("Fragment", 0, [derived("rpc.reassembled_in", done)]))
                 return
             whole = self.frags.add(fkey, number, res.ts, hdr, body, res.findings)
             if self.annotate:
@@ -294,19 +294,25 @@ class Dissector:
             self._response(res, hdr, dgram, key, body, pdu)
         else:
             self._request(res, hdr, dgram, key, body, pdu)
-        stub = rec.parse_stub(body, hdr.little, response, hdr.opnum, number, res.findings)
+        if hdr.values[rpc.I_AUTH]:
+            res.summary = f"{_pdu_name(hdr)} [authenticated, body not decoded]"
+            return
+        # a response is decoded as an answer to its request's operation (R4 reports a differing opnum)
+        opnum = pdu.request.opnum if response and pdu.request is not None else hdr.opnum
+        pdu.opnum = opnum
+        stub = rec.parse_stub(body, hdr.little, response, opnum, number, res.findings)
         pdu.stub = stub
         pdu.malformed = stub.truncated
         request_stub = pdu.request.info if pdu.request is not None and isinstance(pdu.request.info, rec.Stub) else None
         if not response and not pdu.retransmission and pdu.request is not None:
             pdu.request.info = stub
         declared = len(body) if frames else hdr.frag_len  # a cut PDU keeps its declared length
-        res.findings += checks.ndr(stub, declared, hdr.opnum, number, request_stub)
-        res.findings += checks.blocks(stub, hdr.opnum, number, request_stub, self.checker.tolerate)
+        res.findings += checks.ndr(stub, declared, opnum, number, request_stub)
+        res.findings += checks.blocks(stub, opnum, number, request_stub, self.checker.tolerate)
         self._records(res, stub, hdr, dgram)
         if self.annotate:
-            res.summary = self._summary(hdr, stub, len(frames))
-            self._annotate_stub(res, stub, body, stub_base, hdr.opnum)
+            res.summary = self._summary(hdr, stub, len(frames), opnum)
+            self._annotate_stub(res, stub, body, stub_base, opnum)
 
     def _request(self, res: FrameResult, hdr: rpc.Header, dgram: link.Datagram, key: tuple,
                  body: bytes, pdu: Pdu) -> None:
@@ -430,8 +436,8 @@ class Dissector:
                 if len(self._pd_requests) > MAX_CHANNELS:
                     del self._pd_requests[next(iter(self._pd_requests))]
 
-    def _summary(self, hdr: rpc.Header, stub: rec.Stub, fragments: int) -> str:
-        op = PNIO_OPNUM.get(hdr.opnum, f"opnum {hdr.opnum}")
+    def _summary(self, hdr: rpc.Header, stub: rec.Stub, fragments: int, opnum: int) -> str:
+        op = PNIO_OPNUM.get(opnum, f"opnum {opnum}")
         kind = "response" if hdr.ptype == PTYPE_RESPONSE else "request"
         parts = [f"{op} {kind}", f"seq {hdr.seq}"]
         if stub.status is not None and not stub.status.ok:
@@ -452,7 +458,9 @@ class Dissector:
 
     def _annotate_stub(self, res: FrameResult, stub: rec.Stub, body: bytes, base: int, opnum: int) -> None:
         if not stub.ndr:
-            res.layers.append(Layer("NDR stub (truncated)", 0, [plain("rpc.body", 0, body, len(body), body, base)]))
+            title = "NDR stub (truncated)" if opnum in PNIO_OPNUM else \
+                f"Stub of opnum {opnum} (not a PNIO operation: not decoded)"
+            res.layers.append(Layer(title, 0, [plain("rpc.body", 0, body, len(body), body, base)]))
             return
         layout = stub.ndr_layout
         res.layers.append(Layer(layout.title, 0, layout.annotate(body, 0, stub.ndr, base)))
