@@ -78,30 +78,31 @@ def ndr(stub: Stub, stub_len: int, opnum: int, frame: int, request: Stub | None)
     if not stub.ndr:
         return []
     out = []
-    v = dict(zip(stub.ndr_layout.names, stub.ndr, strict=True))
-    args_len = v["ndr.args_len"]
+    args_len = stub.args_len
     if args_len != stub_len - rec.NDR_SIZE:
         out.append(finding("ndr_args_len", frame, "ndr.args_len", args_len, stub_len - rec.NDR_SIZE,
                            "ArgsLength differs from the stub length - 20"))
-    if v["ndr.actual_count"] != args_len or v["ndr.offset"] != 0:
-        bad = "ndr.offset" if v["ndr.offset"] else "ndr.actual_count"
-        out.append(finding("ndr_array", frame, bad, v[bad], 0 if bad == "ndr.offset" else args_len,
+    if stub.actual_count != args_len or stub.offset != 0:
+        bad, value, want = (("ndr.offset", stub.offset, 0) if stub.offset
+                            else ("ndr.actual_count", stub.actual_count, args_len))
+        out.append(finding("ndr_array", frame, bad, value, want,
                            "NDR array ActualCount must equal ArgsLength and Offset must be 0"))
     if not stub.response:
-        if v["ndr.max_count"] != v["ndr.args_max"]:
-            out.append(finding("ndr_max_count", frame, "ndr.max_count", v["ndr.max_count"],
-                               v["ndr.args_max"], "MaximumCount differs from ArgsMaximum"))
+        if stub.max_count != stub.args_max:
+            out.append(finding("ndr_max_count", frame, "ndr.max_count", stub.max_count, stub.args_max,
+                               "MaximumCount differs from ArgsMaximum"))
         read = stub.blocks[0] if stub.blocks and opnum in (OP_READ, OP_READ_IMPLICIT) else None
-        if read is not None and v["ndr.args_max"] < rec.IOD_SIZE + read.record_len:
-            out.append(finding("ndr_args_max_small", frame, "ndr.args_max", v["ndr.args_max"],
+        if read is not None and stub.args_max < rec.IOD_SIZE + read.record_len:
+            out.append(finding("ndr_args_max_small", frame, "ndr.args_max", stub.args_max,
                                f">= {rec.IOD_SIZE + read.record_len}",
                                "ArgsMaximum cannot hold the read header plus the requested record"))
         return out
     if request is not None and request.ndr:
-        args_max = dict(zip(request.ndr_layout.names, request.ndr, strict=True))["ndr.args_max"]
-        if v["ndr.max_count"] != args_max or args_len > args_max:
-            bad = "ndr.max_count" if v["ndr.max_count"] != args_max else "ndr.args_len"
-            out.append(finding("ndr_response_max", frame, bad, v[bad], args_max if bad == "ndr.max_count"
+        args_max = request.args_max
+        if stub.max_count != args_max or args_len > args_max:
+            bad, value = (("ndr.max_count", stub.max_count) if stub.max_count != args_max
+                          else ("ndr.args_len", args_len))
+            out.append(finding("ndr_response_max", frame, bad, value, args_max if bad == "ndr.max_count"
                                else f"<= {args_max}", "response NDR header inconsistent with the "
                                                       "request's ArgsMaximum"))
     status = stub.status

@@ -83,13 +83,21 @@ class Pdu:
 class FrameResult:
     frame: int
     ts: float
-    src: str
-    dst: str
+    src_ip: bytes
+    dst_ip: bytes
     summary: str
     ptype: int
     layers: list[Layer] = field(default_factory=list)
     findings: list[Finding] = field(default_factory=list)
     pdu: Pdu | None = None
+
+    @property
+    def src(self) -> str:
+        return link.ip_text(self.src_ip)
+
+    @property
+    def dst(self) -> str:
+        return link.ip_text(self.dst_ip)
 
     def fields(self) -> Iterator[Field]:
         for layer in self.layers:
@@ -190,7 +198,7 @@ class Dissector:
             self._skip_udp(number, dgram, rpc.SKIP_NOT_PNIO)
             return None
         self._remember(hdr.activity)
-        res = FrameResult(number, ts, link.ip_text(dgram.src), link.ip_text(dgram.dst), "", hdr.ptype)
+        res = FrameResult(number, ts, dgram.src, dgram.dst, "", hdr.ptype)
         base = dgram.payload_offset if dgram.payload_offset >= 0 else 0
         if self.annotate:
             res.layers += [Layer(title, 0, fields) for title, fields in link.annotate(linktype, data, dgram)]

@@ -124,6 +124,11 @@ class Stub:
     blocks: list[Block] = field(default_factory=list)
     trailing: int = 0  # bytes after the last block/record
     truncated: bool = False
+    args_max: int = -1  # requests only
+    args_len: int = -1
+    max_count: int = -1
+    offset: int = -1
+    actual_count: int = -1
 
     @property
     def ndr_layout(self) -> Layout:
@@ -146,12 +151,12 @@ def parse_stub(stub: bytes, little: bool, response: bool, opnum: int, frame: int
         findings.append(rules.finding("ndr_truncated", frame, "ndr.args_len", len(stub), f">= {NDR_SIZE}",
                                       f"stub of {len(stub)} bytes has no complete NDR header"))
         return out
-    out.ndr = layout.unpack(stub)
+    out.ndr = v = layout.unpack(stub)
     if response:
-        names = layout.names
-        v = dict(zip(names, out.ndr, strict=False))
-        out.status = Status(v["ndr.status.code"], v["ndr.status.decode"], v["ndr.status.code1"],
-                            v["ndr.status.code2"])
+        out.status = Status(v[3], v[2], v[1], v[0]) if little else Status(v[0], v[1], v[2], v[3])
+        out.args_len, out.max_count, out.offset, out.actual_count = v[4:]
+    else:
+        out.args_max, out.args_len, out.max_count, out.offset, out.actual_count = v
     if (opnum, response) not in EXPECTED_BLOCK or len(stub) == NDR_SIZE:
         out.trailing = 0
         return out

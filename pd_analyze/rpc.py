@@ -211,12 +211,12 @@ class FragmentTable:
         self._bytes -= entry.size
         have = sorted(entry.bodies)
         top = entry.last if entry.last >= 0 else (have[-1] if have else 0)
-        absent = [n for n in range(top + 1) if n not in entry.bodies]
+        absent = _gaps(have, top)  # ranges, not numbers: a set may name up to 65,536 fragments
+        missing = f"[{_spans(absent)}]" if absent else "the last fragment"
         expect = f"fragments 0..{entry.last}" if entry.last >= 0 else "a last fragment"
         return rules.finding(
-            "rpc_frag_missing", entry.first_frame, "rpc.frag_num", ",".join(map(str, have)), expect,
-            f"fragment set of seq {key[1]} incomplete (missing {absent or 'the last fragment'}; "
-            f"noticed at frame {number})")
+            "rpc_frag_missing", entry.first_frame, "rpc.frag_num", _spans(_runs(have), ","), expect,
+            f"fragment set of seq {key[1]} incomplete (missing {missing}; noticed at frame {number})")
 
     def _evict(self, number: int, findings: list[Finding], incoming: int) -> None:
         while self._sets and (len(self._sets) >= MAX_FRAG_SETS
@@ -234,6 +234,39 @@ class FragmentTable:
         self._sets.clear()
         self._bytes = 0
         return out
+
+
+def _runs(numbers: list[int]) -> list[tuple[int, int]]:
+    """Sorted numbers as (first, last) runs of consecutive numbers."""
+    runs: list[tuple[int, int]] = []
+    for n in numbers:
+        if runs and n == runs[-1][1] + 1:
+            runs[-1] = (runs[-1][0], n)
+        else:
+            runs.append((n, n))
+    return runs
+
+
+def _gaps(have: list[int], top: int) -> list[tuple[int, int]]:
+    """The runs of 0..top missing from the sorted numbers `have`."""
+    gaps, expect = [], 0
+    for n in have:
+        if n > top:
+            break
+        if n > expect:
+            gaps.append((expect, n - 1))
+        expect = n + 1
+    if expect <= top:
+        gaps.append((expect, top))
+    return gaps
+
+
+def _spans(runs: list[tuple[int, int]], sep: str = ", ", limit: int = 8) -> str:
+    """'0, 2-5, 9' for runs; past `limit` runs the rest is counted, so the text stays short."""
+    parts = [str(lo) if lo == hi else f"{lo}-{hi}" for lo, hi in runs[:limit]]
+    if len(runs) > limit:
+        parts.append(f"... ({sum(hi - lo + 1 for lo, hi in runs[limit:])} more)")
+    return sep.join(parts)
 
 
 @dataclass(slots=True)
@@ -294,6 +327,8 @@ class CallTable:
 
     def expire(self, now: float, timeout: float) -> list[tuple[tuple[bytes, int], Call]]:
         """Calls opened more than `timeout` seconds of capture time before `now`."""
+        if not self.open or next(iter(self.open.values())).ts + timeout >= now:
+            return []  # the common case, checked for every frame: nothing is due
         out = []
         for key, call in self.open.items():
             if call.ts + timeout >= now:

@@ -139,12 +139,12 @@ class TransactionEngine:
         return out
 
     def _expire(self) -> list[Transaction]:
-        out = []
-        for txn in list(self._pending.values()):
+        due = []
+        for txn in self._pending.values():  # in opening order: stop at the first not yet due
             if txn.t_start + self.txn_timeout >= self._now:
                 break
-            out.append(self._close(txn, "deadline"))
-        return out
+            due.append(txn)
+        return [self._close(txn, "deadline") for txn in due]
 
     def _frame(self, res: FrameResult, closed: list[Transaction]) -> Transaction | None:
         pdu = res.pdu
