@@ -45,7 +45,7 @@ def json_value(value: object) -> object:
 class Layout:
     """A fixed-size structure: fields in wire order with struct codes, one byte order."""
 
-    __slots__ = ("codes", "names", "offsets", "order", "size", "sizes", "struct", "title")
+    __slots__ = ("codes", "names", "offsets", "order", "positions", "size", "sizes", "struct", "title")
 
     def __init__(self, title: str, order: str, fields: tuple[tuple[str, str], ...]) -> None:
         self.title = title
@@ -62,6 +62,7 @@ class Layout:
             pos += size
         self.offsets = tuple(offsets)
         self.sizes = tuple(sizes)
+        self.positions = {name: i for i, name in enumerate(self.names)}
         for name in self.names:
             registry.field(name)  # a typo in a declaration fails at import, not at run time
 
@@ -69,7 +70,7 @@ class Layout:
         return self.struct.unpack_from(buf, offset)
 
     def index(self, name: str) -> int:
-        return self.names.index(name)
+        return self.positions[name]
 
     def annotate(self, buf: bytes, offset: int, values: tuple, base: int = 0) -> list[Field]:
         """Fields of the structure at `offset` in `buf`; `base` is added to shown offsets."""
