@@ -23,7 +23,7 @@ from pd_analyze import capture, profiles
 from pd_analyze.capture import CaptureError
 from pd_analyze.dissect import DEFAULT_RPC_TIMEOUT, Accounting, Dissector, dissect, dissect_frames
 from pd_analyze.pd_checks import Checker
-from pd_analyze.tables_out import Rows, frame_of
+from pd_analyze.tables_out import COLUMNS, Rows, frame_of
 from pd_analyze.transactions import DEFAULT_TXN_TIMEOUT, Transaction, TransactionEngine, iter_closed
 
 CAPTURE_SUFFIXES = (".pcap", ".pcapng", ".cap", ".pcap.gz", ".pcapng.gz", ".gz")
@@ -130,6 +130,10 @@ def analyze(paths: str | Iterable[str], profile: str = profiles.DEFAULT, timeout
     if chain:
         rows, results = _analyze_chain(files, settings, progress)
         return Analysis(rows, results, profile, timeout, rpc_timeout)
+    if jobs > 1 and len(files) == 1:
+        split = _analyze_split(files[0], settings, jobs)
+        if split is not None:
+            return Analysis(split[0], [split[1]], profile, timeout, rpc_timeout)
     if jobs > 1 and len(files) > 1:
         from concurrent.futures import ProcessPoolExecutor
 
@@ -154,6 +158,85 @@ def _analyze_file(path: str, settings: tuple[str, float, float],
     d = Dissector(annotate=False, rpc_timeout=rpc_timeout, checker=checker)
     result = CaptureResult(path, d.accounting)
     _run(capture.frames(path), d, TransactionEngine(timeout), rows, lambda _frame: path, [result], progress)
+    return rows, result
+
+
+LEAD_IN = 60.0  # seconds of capture time a split part replays before its range to warm up the state
+
+
+def _analyze_split(path: str, settings: tuple[str, float, float], jobs: int) -> tuple[Rows, CaptureResult] | None:
+    """One large capture in `jobs` processes: each part analyses a range of frames, replaying LEAD_IN
+    seconds before it (so calls and channels that cross the split are known) and reading past its
+    end until everything opened in its range has closed; parts are stitched in frame order.
+
+    The result equals one process whenever no dependency reaches further back than LEAD_IN (a
+    Request Reference reused after a longer idle channel is the one known exception)."""
+    points = capture.pcap_split_points(path, jobs)
+    if points is None:
+        return None
+    step = len(points) // jobs
+    bounds = [points[i * step] for i in range(jobs)]
+    tasks = []
+    for k, (first, _offset, ts) in enumerate(bounds):
+        lead = next((p for p in reversed(points) if p[2] <= ts - LEAD_IN and p[0] <= first), points[0])
+        end = bounds[k + 1][0] if k + 1 < len(bounds) else None
+        tasks.append((path, lead[1], lead[0], first, end, settings))
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        parts = list(pool.map(_analyze_range, tasks))
+    rows = Rows()
+    total = CaptureResult(path, Accounting())
+    for part_rows, result in parts:
+        rows.extend(part_rows, total.transactions)
+        total.transactions += result.transactions
+        acc = total.accounting
+        acc.read += result.accounting.read
+        acc.decoded += result.accounting.decoded
+        acc.skipped += result.accounting.skipped
+        acc.malformed += result.accounting.malformed
+        total.error = total.error or result.error
+    return rows, total
+
+
+def _analyze_range(task: tuple) -> tuple[Rows, CaptureResult]:
+    """Frames [first, end) of a split capture (a process-pool task)."""
+    path, offset, lead_frame, first, end, (profile, timeout, rpc_timeout) = task
+    checker = Checker(profiles.generic(), profiles.load(profile))
+    d = Dissector(annotate=False, rpc_timeout=rpc_timeout, checker=checker)
+    engine = TransactionEngine(timeout)
+    engine.number_from = first
+    result = CaptureResult(path, Accounting())
+    marks: dict[str, Accounting] = {}
+    horizon = [float("inf")]
+
+    def source() -> Iterator[capture.RawFrame]:
+        for frame in capture.pcap_frames_from(path, offset, lead_frame):
+            if frame.number == first:
+                marks["start"] = _snapshot(d.accounting)
+            if end is not None and frame.number == end:
+                marks["end"] = _snapshot(d.accounting)
+                horizon[0] = frame.ts + timeout + rpc_timeout
+            if frame.ts > horizon[0]:
+                return  # everything opened in the range has closed by now
+            yield frame
+
+    rows = Rows()
+    part = Rows()
+
+    def in_range(frame: int) -> bool:
+        return frame >= first and (end is None or frame < end)
+
+    _run(source(), d, engine, part, lambda _frame: path, [result], None)
+    closing = marks.get("end", _snapshot(d.accounting))
+    result.accounting = _difference(closing, marks.get("start", Accounting()))
+    write_frame = [c.name for c in COLUMNS["transactions"]].index("write_req_frame")
+    rows.transactions = [r for r in part.transactions if r[0] and in_range(r[write_frame])]  # txn 0: lead-in
+    numbered = {r[0] for r in rows.transactions}
+    rows.parameters = [r for r in part.parameters if r[0] in numbered]
+    rows.changes = [r for r in part.changes if r[3] in numbered]
+    rows.findings = [r for r in part.findings if (r[2] in numbered) or (r[2] is None and in_range(r[1]))]
+    result.transactions = len(rows.transactions)
     return rows, result
 
 

@@ -79,7 +79,12 @@ def frames(path: str, info: CaptureInfo | None = None) -> Iterator[RawFrame]:
             except (OSError, EOFError, zlib.error) as exc:
                 raise CaptureError(path, f"gzip data unreadable ({exc})", 0) from None
         reader = _reader_for(path, head, info)
-        yield from reader(path, stream, info)
+        try:
+            yield from reader(path, stream, info)
+        except CaptureError as exc:
+            if not info.compressed or exc.offset is None:
+                raise
+            raise CaptureError(path, f"{exc.reason} (offset in the decompressed data)", exc.offset) from None
     finally:
         stream.close()
 
@@ -187,13 +192,42 @@ def _gzip_reason(exc: BaseException) -> str:
     return f"corrupt compressed data: {text}" if isinstance(exc, zlib.error) else text
 
 
-def _pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[RawFrame]:
+def pcap_split_points(path: str, parts: int) -> list[tuple[int, int, float]] | None:
+    """(frame number, byte offset, time) of every 512th record of an uncompressed classic pcap, to
+    split it among processes; None for any other file (those are analysed in one process)."""
+    with open(path, "rb") as f:
+        head = f.read(24)
+        if head[:4] not in _PCAP_MAGICS or len(head) < 24:
+            return None
+        f.seek(0)
+        info = CaptureInfo(path)
+        points = []
+        try:
+            for frame in _pcap_frames(path, f, info, with_offsets=True):
+                if frame.number % 512 == 1:
+                    points.append((frame.number, frame.iface, frame.ts))  # iface carries the offset here
+        except CaptureError:
+            return None
+    return points if len(points) >= 2 * parts else None
+
+
+def pcap_frames_from(path: str, offset: int, first_number: int) -> Iterator[RawFrame]:
+    """The frames of a classic pcap from a record at `offset`, numbered from `first_number`."""
+    with open(path, "rb") as f:
+        head = f.read(24)
+        f.seek(offset)
+        for frame in _pcap_frames(path, f, CaptureInfo(path), head=head, base=offset):
+            yield frame._replace(number=frame.number + first_number - 1)
+
+
+def _pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, with_offsets: bool = False,
+                 head: bytes | None = None, base: int = 24) -> Iterator[RawFrame]:
     """Classic pcap: dpkt parses the file header; records are cut from large chunks.
 
     dpkt's record loop builds a header object per frame (about 1.7 us) and reads whatever length a
     record claims; this loop costs a fraction of that, and bounds every length before reading.
     """
-    head = stream.read(24)
+    head = head if head is not None else stream.read(24)
     try:
         fh = dpkt.pcap.FileHdr(head)
         if fh.magic in (dpkt.pcap.PMUDPCT_MAGIC, dpkt.pcap.PMUDPCT_MAGIC_NANO):
@@ -206,8 +240,7 @@ def _pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[Raw
     info.linktypes = [linktype]
     unpack = struct.Struct("<IIII" if little else ">IIII").unpack_from
     buf = b""
-    pos = 0  # in buf
-    base = 24  # file offset of buf[0]
+    pos = 0  # in buf; base is the file offset of buf[0]
     number = 0
     while True:
         if len(buf) - pos < 16:
@@ -231,7 +264,10 @@ def _pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[Raw
                 raise CaptureError(path, f"record data truncated ({len(buf) - 16} of {caplen} bytes present)",
                                    base)
         number += 1
-        yield RawFrame(number, sec + frac / divisor, linktype, buf[pos + 16:end])
+        if with_offsets:
+            yield RawFrame(number, sec + frac / divisor, linktype, b"", base + pos)
+        else:
+            yield RawFrame(number, sec + frac / divisor, linktype, buf[pos + 16:end])
         pos = end
 
 

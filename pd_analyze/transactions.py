@@ -110,6 +110,7 @@ class TransactionEngine:
         self.txn_timeout = txn_timeout
         self.b5_threshold = b5_threshold
         self.loose: list[Finding] = []  # findings of frames that belong to no transaction, drained by callers
+        self.number_from = 0  # frames before this only warm up the state (a split capture's lead-in): txn 0
         self._next = 1
         self._pending: dict[Channel, Transaction] = {}  # open transactions by channel, in opening order
         self._last_done: dict[Channel, Transaction] = {}  # last closed transaction per channel (T1, T4)
@@ -186,8 +187,8 @@ class TransactionEngine:
         v = block.values
         channel = (pdu.dst, pdu.src, v[rec.B_AR], v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], v[rec.B_INDEX])
         parsed = block.pd[0] if isinstance(block.pd, tuple) else None
-        txn = Transaction(self._next, channel, parsed, pdu.frame, pdu.ts)
-        self._next += 1
+        txn = Transaction(self._next if pdu.frame >= self.number_from else 0, channel, parsed, pdu.frame, pdu.ts)
+        self._next += 1 if txn.txn else 0
         record = block.record
         if len(record) >= 4:
             txn.ref, txn.req_id, txn.do, txn.n_params = record[0], record[1], record[2], record[3]

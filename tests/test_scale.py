@@ -78,3 +78,20 @@ def test_dask_api_on_a_local_two_worker_cluster():
     assert got.groupby("capture", observed=True).size().to_dict() == {files[0]: 4, files[1]: 1, files[2]: 3}
     assert got.verdict.astype(str).tolist() == ["ok"] * 8
     assert acc.read.tolist() == [30, 6, 14]
+
+
+def test_jobs_splits_one_large_capture_identically(tmp_path, monkeypatch):
+    from pd_analyze import analysis
+    from pd_analyze.synth.mixed import make_capture
+
+    path = tmp_path / "mixed.pcap"
+    count = make_capture(path, 12_000)
+    # a short lead-in, so the second part really starts mid-stream with calls and channels open
+    monkeypatch.setattr(analysis, "LEAD_IN", 0.5)
+    one = pd_analyze.analyze(str(path))
+    two = pd_analyze.analyze(str(path), jobs=2)
+    assert int(one.accounting.read.iloc[0]) == int(two.accounting.read.iloc[0]) == count
+    assert two.accounting.balanced.all()
+    assert len(one.transactions) > 1000
+    for name in ("transactions", "parameters", "findings", "changes"):
+        pd.testing.assert_frame_equal(getattr(one, name), getattr(two, name))

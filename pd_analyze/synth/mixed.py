@@ -1,0 +1,66 @@
+"""A large mixed PROFIdrive capture for benchmarks and scale tests, generated deterministically.
+
+Eight drives answer reads, changes, multi-parameter requests and NAKs with some B5 polling, among
+cyclic PN-RT frames and other UDP traffic; frames are written as they are made (bounded memory).
+"""
+
+from __future__ import annotations
+
+import random
+import struct
+from pathlib import Path
+
+from . import link
+from .profidrive import ParamAddress as P
+from .profidrive import change_ok, change_request, error_block, pd_response, read_request, value_block
+from .samples import pn_rt, session
+from .scenario import Capture, PnioSession
+
+
+def make_capture(path: Path, frames: int, seed: int = 1) -> int:
+    """A mixed capture of about `frames` frames; returns the exact count."""
+    rng = random.Random(seed)
+    cap = Capture()
+    sessions = [session(cap, n) for n in range(1, 9)]
+    refs = [0] * len(sessions)
+    written = 0
+    with path.open("wb") as out:
+        out.write(struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 262144, 1))
+        while written < frames:
+            n = rng.randrange(len(sessions))
+            s = sessions[n]
+            refs[n] = refs[n] % 255 + 1
+            _transaction(s, refs[n], rng)
+            for _ in range(rng.randrange(2, 9)):  # cyclic traffic between parameter accesses
+                ctrl, dev = s.controller, s.device
+                pn_rt(cap, dev, ctrl, written & 0xFFFF)
+            if rng.random() < 0.1:
+                cap.send_ip(s.controller, s.device, link.udp(50010, 50020, bytes(64)))
+            for f in cap.frames:
+                sec, ns = divmod(f.ts_ns, 1_000_000_000)
+                out.write(struct.pack("<IIII", sec, ns // 1000, len(f.data), len(f.data)) + f.data)
+            written += len(cap.frames)
+            cap.frames.clear()
+    return written
+
+
+def _transaction(s: PnioSession, ref: int, rng: random.Random) -> None:
+    kind = rng.random()
+    b5 = rng.choice((0, 0, 0, 1, 1, 2, 3))
+    if kind < 0.55:
+        req = read_request(ref, 1, [P(rng.randrange(1, 3000))])
+        res = pd_response(ref, 1, 1, [value_block(0x42, [rng.randrange(65536)])])
+    elif kind < 0.7:
+        addrs = [P(964), P(2000, n_elems=3), P(107, n_elems=3)]
+        req = read_request(ref, 1, addrs)
+        res = pd_response(ref, 1, 1, [value_block(0x08, [1.5]), value_block(0x43, [1, 2, 3]),
+                                      value_block(0x05, [1, 2, 3])])
+    elif kind < 0.9:
+        req = change_request(ref, 1, [(P(1120), value_block(0x08, [rng.random() * 100]))])
+        res = change_ok(ref, 1, 1)
+    else:
+        req = read_request(ref, 1, [P(rng.randrange(1, 3000)), P(5)])
+        res = pd_response(ref, 0x81, 1, [value_block(0x06, [1]), error_block(0x00)])
+    s.parameter_access(req, res, b5_retries=b5)
+
+
