@@ -9,11 +9,12 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 from pd_analyze import pdtables as pt
 from pd_analyze import record as rec
 from pd_analyze.dissect import FrameResult, Pdu
-from pd_analyze.profidrive import Parsed
+from pd_analyze.profidrive import Parsed, footprint
 from pd_analyze.record import Status
 from pd_analyze.rules import Finding, finding
 from pd_analyze.tables import (
@@ -32,6 +33,10 @@ from pd_analyze.tables import (
 DEFAULT_TXN_TIMEOUT = 10.0
 DEFAULT_B5_THRESHOLD = 50
 MAX_OPEN_CALLS = 65_536
+MAX_PENDING = 16_384  # open transactions (the oldest ends as a timeout, closed_by "evicted")
+MAX_PENDING_BYTES = 32 * 1024 * 1024  # what they keep alive, by _cost
+MAX_TXN_FRAMES = 10_000  # frames of one transaction (10 s of B5 polling every millisecond)
+FRAME_COST = 1024  # bytes a transaction keeps per frame (frame lists, its RPC calls)
 VERDICTS = ("malformed", "pnio_error", "timeout", "reference_mismatch", "nak", "ok")
 
 Channel = tuple  # device, controller, AR, API, slot, subslot, index (protocol.md 7.2)
@@ -60,6 +65,7 @@ class Transaction:
     b5_retries: int = 0
     last_b5_res: float | None = None
     rpc_retransmissions: int = 0
+    rpc_calls: list = field(default_factory=list)  # the RPC calls of its requests: their copies are its retransmissions
     pnio_status: str = ""
     malformed: bool = False
     mismatch: bool = False
@@ -94,6 +100,19 @@ class Transaction:
         }
 
 
+class _Last(NamedTuple):
+    """What T1/T4 need of the last closed transaction of a channel."""
+
+    txn: int
+    ref: int
+    verdict: str
+
+
+def _cost(txn: Transaction) -> int:
+    """Bytes a pending transaction keeps alive beyond its frames: the parsed request, findings."""
+    return 1024 + (footprint(txn.request) if txn.request is not None else 0)
+
+
 @dataclass(slots=True)
 class _Call:
     """What an open write/read call is about, by its request frame."""
@@ -113,7 +132,9 @@ class TransactionEngine:
         self.number_from = 0  # frames before this only warm up the state (a split capture's lead-in): txn 0
         self._next = 1
         self._pending: dict[Channel, Transaction] = {}  # open transactions by channel, in opening order
-        self._last_done: dict[Channel, Transaction] = {}  # last closed transaction per channel (T1, T4)
+        self._by_ar: dict[tuple, dict[Channel, Transaction]] = {}  # the same by device, controller, AR
+        self._pending_bytes = 0
+        self._last_done: dict[Channel, _Last] = {}  # last closed transaction per channel (T1, T4)
         self._calls: dict[int, _Call] = {}  # by request frame number
         self._now = float("-inf")
 
@@ -124,8 +145,12 @@ class TransactionEngine:
         owner = self._frame(res, closed)
         if owner is not None and owner.txn:
             owner.findings += res.findings
-            if res.frame not in owner.frames:
-                owner.frames.append(res.frame)
+            if not owner.frames or (owner.frames[-1] < res.frame or res.frame not in owner.frames):
+                owner.frames.append(res.frame)  # results come in frame order: one comparison, as a rule
+                if not owner.closed_by:
+                    self._pending_bytes += FRAME_COST
+                    if len(owner.frames) > MAX_TXN_FRAMES:
+                        closed.append(self._evict(owner, res.frame, f"more than {MAX_TXN_FRAMES} frames"))
         else:
             self.loose += res.findings
         return closed
@@ -188,12 +213,13 @@ class TransactionEngine:
         channel = (pdu.dst, pdu.src, v[rec.B_AR], v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], v[rec.B_INDEX])
         parsed = block.pd[0] if isinstance(block.pd, tuple) else None
         txn = Transaction(self._next if pdu.frame >= self.number_from else 0, channel, parsed, pdu.frame, pdu.ts)
+        txn.rpc_calls.append(pdu.request)
         self._next += 1 if txn.txn else 0
         record = block.record
         if len(record) >= 4:
             txn.ref, txn.req_id, txn.do, txn.n_params = record[0], record[1], record[2], record[3]
         txn.malformed = pdu.malformed or parsed is None or not parsed.complete
-        old = self._pending.pop(channel, None)
+        old = self._pending.get(channel)
         if old is not None:
             txn.findings.append(finding("write_while_pending", pdu.frame, "pd.ref", txn.ref,
                                         f"none pending (transaction {old.txn})",
@@ -211,6 +237,11 @@ class TransactionEngine:
                                             f"retry of transaction {last.txn} ({last.verdict}) with the same "
                                             "reference"))
         self._pending[channel] = txn
+        self._by_ar.setdefault(channel[:3], {})[channel] = txn
+        self._pending_bytes += _cost(txn)
+        while len(self._pending) > 1 and (len(self._pending) > MAX_PENDING or self._pending_bytes > MAX_PENDING_BYTES):
+            oldest = next(iter(self._pending.values()))
+            closed.append(self._evict(oldest, pdu.frame, "transaction table full"))
         return txn
 
     def _write_response(self, pdu: Pdu, call: _Call, res: FrameResult,
@@ -224,7 +255,6 @@ class TransactionEngine:
             txn.write_res_frame = pdu.frame
             txn.t_write_res = pdu.ts
             txn.malformed |= pdu.malformed
-            txn.rpc_retransmissions += pdu.request.copies if pdu.request is not None else 0
             if pdu.ptype in (PTYPE_FAULT, PTYPE_REJECT):
                 txn.pnio_status = f"{pdu.fault_status or 0:08X}"
                 closed.append(self._close(txn, "pnio_error"))
@@ -244,7 +274,7 @@ class TransactionEngine:
         channel = (pdu.dst, pdu.src, ar, v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], v[rec.B_INDEX])
         txn = self._pending.get(channel)
         if txn is None:
-            txn = next((t for t in self._pending.values() if t.channel[:3] == channel[:3]), None)
+            txn = next(iter(self._by_ar.get(channel[:3], {}).values()), None)  # the oldest pending there
             if txn is not None and not txn.fallback:
                 txn.fallback = True
                 txn.findings.append(finding(
@@ -260,6 +290,7 @@ class TransactionEngine:
             return None
         txn.read_req_frames.append(pdu.frame)
         txn.t_read_reqs.append(pdu.ts)
+        txn.rpc_calls.append(pdu.request)
         self._remember(pdu.frame, _Call("read", [txn], channel))
         return txn
 
@@ -268,7 +299,6 @@ class TransactionEngine:
         txn = call.txns[0]
         if txn is None or txn.closed_by:
             return None
-        txn.rpc_retransmissions += pdu.request.copies if pdu.request is not None else 0
         txn.malformed |= pdu.malformed
         if pdu.ptype in (PTYPE_FAULT, PTYPE_REJECT):
             txn.pnio_status = f"{pdu.fault_status or 0:08X}"
@@ -329,16 +359,40 @@ class TransactionEngine:
         return next((t for t in call.txns if t is not None), None)
 
     # --- closing ----------------------------------------------------------------------------
+    def _evict(self, txn: Transaction, frame: int, why: str) -> Transaction:
+        """Close a pending transaction the caps cannot hold any longer: a timeout, closed_by "evicted"."""
+        txn.findings.append(finding("txn_evicted", frame, "pd.ref", txn.ref,
+                                    f"<= {MAX_PENDING} pending, {MAX_TXN_FRAMES} frames each",
+                                    f"{why}: transaction {txn.txn} (frame {txn.write_req_frame}) ends as a timeout"))
+        return self._close(txn, "evicted")
+
     def _close(self, txn: Transaction, why: str) -> Transaction:
-        self._pending.pop(txn.channel, None) if self._pending.get(txn.channel) is txn else None
+        if self._pending.get(txn.channel) is txn:
+            del self._pending[txn.channel]
+            self._pending_bytes -= _cost(txn) + FRAME_COST * len(txn.frames)
+            same_ar = self._by_ar.get(txn.channel[:3], {})
+            same_ar.pop(txn.channel, None)
+            if not same_ar:
+                self._by_ar.pop(txn.channel[:3], None)
+            self._forget_calls(txn)
         txn.closed_by = why
         txn.verdict = _verdict(txn)
-        if why in ("deadline", "superseded", "capture_end") and not txn.pnio_status and txn.b5_retries:
+        # copies seen so far, of answered and unanswered calls alike (protocol.md 7.6)
+        txn.rpc_retransmissions = sum(c.copies for c in txn.rpc_calls if c is not None)
+        if why in ("deadline", "superseded", "capture_end", "evicted") and not txn.pnio_status and txn.b5_retries:
             txn.pnio_status = f"DE80{PNIORW_STATE_CONFLICT:02X}00"  # last answer was B5 (txn.last_status)
-        self._last_done[txn.channel] = txn
+        self._last_done.pop(txn.channel, None)
+        self._last_done[txn.channel] = _Last(txn.txn, txn.ref, txn.verdict)  # not the transaction: it is handed on
         if len(self._last_done) > MAX_OPEN_CALLS:
             del self._last_done[next(iter(self._last_done))]
         return txn
+
+    def _forget_calls(self, txn: Transaction) -> None:
+        """A closed transaction's calls need no state: a late answer to them belongs to no transaction."""
+        for frame in (txn.write_req_frame, *txn.read_req_frames):
+            call = self._calls.get(frame)
+            if call is not None and all(t is None or t is txn or t.closed_by for t in call.txns):
+                del self._calls[frame]
 
     def _remember(self, frame: int, call: _Call) -> None:
         self._calls[frame] = call
@@ -352,7 +406,7 @@ def _verdict(txn: Transaction) -> str:
         return "malformed"
     if txn.closed_by == "pnio_error":
         return "pnio_error"
-    if txn.closed_by in ("deadline", "superseded", "capture_end"):
+    if txn.closed_by in ("deadline", "superseded", "capture_end", "evicted"):
         return "timeout"
     if txn.mismatch:
         return "reference_mismatch"

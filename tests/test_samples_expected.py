@@ -30,6 +30,16 @@ EXPECTED_DIR = SAMPLE_DIR / "expected"
 
 # (file, profile) -> the analyser fix the case waits for. Empty: the analyser agrees with every intent.
 KNOWN_ANALYSER_GAPS: dict[tuple[str, str], str] = {}
+# file -> the analyser fix its transactions wait for (strict xfail, as above).
+KNOWN_TRANSACTION_GAPS: dict[str, str] = {
+    "ip_fragments.pcap": (
+        "protocol.md 7.6 times a request at its first frame: the Write-Multiple request is IP fragments 5 (sent "
+        "first) and 6, so the transaction starts at frame 5 and t_write_rtt/t_total are 20 us longer than from "
+        "frame 6. link.py must hand the reassembled datagram on with its first frame (number and time), "
+        "dissect.py put them on the Pdu (a CL-fragmented request needs the same: rpc.py collects its fragment "
+        "frames, but the Pdu is timed at the completing one) and the transaction engine open the transaction "
+        "there; until then the engine reports frames 6-9 timed from frame 6."),
+}
 
 # Rules the transaction engine reports (protocol.md 6.4 Q2-Q5 pairing, 6.5 T1-T6): profile-independent.
 TXN_RULES = frozenset({
@@ -88,7 +98,7 @@ def test_expected_files_are_well_formed() -> None:
         for txn in doc.get("transactions", []):
             assert txn["verdict"] in VERDICTS
             first, last = txn["frames"]
-            assert 1 <= first < last
+            assert 1 <= first <= last  # a write never answered is a transaction of one frame
             assert all(rule in TXN_RULES for _, rule in txn.get("findings", []))
     assert set(RULES) >= TXN_RULES
 
@@ -96,7 +106,7 @@ def test_expected_files_are_well_formed() -> None:
 def test_every_pd_sample_and_readme_sample_has_expectations() -> None:
     names = {p.name[: -len(".json")] for p in _expected_files()}
     pd_files = {p.name for p in SAMPLE_DIR.glob("pd_*.pcap")}
-    assert pd_files <= names and len(pd_files) == 7
+    assert pd_files <= names and len(pd_files) == 10
     readme = (SAMPLE_DIR / "README.md").read_text()
     for name in names:
         assert f"`{name}`" in readme, name
@@ -125,38 +135,56 @@ def test_vendor_profiles_add_only_their_findings() -> None:
 
 
 @cache
-def transactions(name: str) -> tuple[list[dict], list[tuple[int, str]]]:
+def transactions(name: str) -> tuple[list[dict], list[list]]:
     """The analyser's transactions of a sample (generic profile) in the expected files' form, and the
     transaction-level findings that belong to no transaction."""
     engine = TransactionEngine()
     closed = list(iter_closed(engine, dissect(str(SAMPLE_DIR / name)), [float("-inf")]))
     out = []
     for t in sorted(closed, key=lambda t: t.write_req_frame):
-        item = {"ref": t.ref, "frames": [t.write_req_frame, max(t.frames)], "verdict": t.verdict}
-        if t.read_req_frames:
-            item |= {"reads": len(t.read_req_frames), "b5_retries": t.b5_retries}
+        fig = t.figures()
+        item = {"ref": t.ref, "frames": [t.write_req_frame, max(t.frames)], "verdict": t.verdict,
+                "reads": len(t.read_req_frames), "b5_retries": t.b5_retries,
+                "rpc_retransmissions": t.rpc_retransmissions, "pnio_status": t.pnio_status,
+                "capture_ended": t.capture_ended,
+                "t_write_rtt": fig["t_write_rtt"], "t_total": fig["t_total"]}
         found = sorted([f.frame, f.name] for f in t.findings if f.name in TXN_RULES)
         if found:
             item["findings"] = found
         out.append(item)
-    return out, sorted((f.frame, f.name) for f in engine.loose if f.name in TXN_RULES)
+    return out, sorted([f.frame, f.name] for f in engine.loose if f.name in TXN_RULES)
+
+
+FIGURES = ("t_write_rtt", "t_total")
 
 
 def _txn_cases() -> list:
-    return [pytest.param(p.name[: -len(".json")], id=p.name[: -len(".json")]) for p in _expected_files()
-            if "transactions" in json.loads(p.read_text())]  # fmt: skip
+    out = []
+    for path in _expected_files():
+        name = path.name[: -len(".json")]
+        gap = KNOWN_TRANSACTION_GAPS.get(name)
+        marks = [pytest.mark.xfail(strict=True, reason=gap)] if gap else []
+        out.append(pytest.param(name, id=name, marks=marks))
+    return out
 
 
 @pytest.mark.parametrize("name", _txn_cases())
 def test_transactions_exactly_as_intended(name: str) -> None:
-    """Each transaction: first/last frame, reference, verdict (protocol.md 7.4), reads, B5 answers and
-    the transaction-level findings; no transaction-level finding outside a transaction."""
+    """Every sample, every transaction: first/last frame, reference, verdict (protocol.md 7.4), reads, B5
+    answers, duplicate requests, closing PNIOStatus, capture_ended, t_write_rtt and t_total to the
+    microsecond (7.6; the expected figures are exact, in the file's resolution) and the transaction-level
+    findings; the transaction-level findings outside any transaction (T2) exactly as listed under "loose"."""
     doc = json.loads((EXPECTED_DIR / f"{name}.json").read_text())
     want = [{k: v for k, v in t.items() if k != "note"} for t in doc["transactions"]]
     got, loose = transactions(name)
-    assert loose == []
-    assert len(got) == len(want)
+    assert loose == doc.get("loose", [])
+    assert [(g["ref"], g["frames"], g["verdict"]) for g in got] == [(w["ref"], w["frames"], w["verdict"])
+                                                                    for w in want]  # fmt: skip
     for g, w in zip(got, want, strict=True):
+        g, w = dict(g), dict(w)
+        for key in FIGURES:  # within half a microsecond of the generator's time (float seconds near 1.7e9)
+            g_fig, w_fig = g.pop(key), w.pop(key)
+            assert (g_fig is None) == (w_fig is None) and (g_fig is None or abs(g_fig - w_fig) <= 5e-7), (key, w)
         assert g == w, w
 
 

@@ -28,7 +28,9 @@ import calendar
 import functools
 import math
 import os
+import re
 import shutil
+import struct
 import subprocess
 import tempfile
 import time
@@ -37,6 +39,7 @@ from collections import defaultdict
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 from pd_analyze import registry
 from pd_analyze.capture import CaptureError
@@ -72,6 +75,7 @@ LENGTH_ONLY = frozenset({"pn.padding"})
 TS_REL_TOL = 5e-16
 TS_ABS_TOL = 1e-9
 RTT_ABS_TOL = 5e-7
+FLOAT_REL_TOL = 1e-6  # value_float is rounded text (protocol.md 8.1)
 
 
 # --- tshark -------------------------------------------------------------------------------------
@@ -125,6 +129,8 @@ class TsField:
     size: int
     scope: str
     block_pos: int = -1  # start of the enclosing IOD header block (scope iod)
+    pd_record: int = -1  # scope pd: ordinal of the IOD header block (in the frame) whose record holds it
+    pd_block: int = -1  # scope pd: value/error block of the record (-1: header and addresses)
 
 
 @dataclass(slots=True)
@@ -181,6 +187,7 @@ def _int_attr(elem: ET.Element, name: str) -> int:
 
 def _packet(elem: ET.Element) -> TsFrame:
     frame = TsFrame(0)
+    position = _PdPosition()
     for proto in elem.findall("proto"):
         name = proto.get("name", "")
         frame.protos.append(name)
@@ -194,7 +201,7 @@ def _packet(elem: ET.Element) -> TsFrame:
             if name == "frame":
                 frame.number = next(int(f.show) for f in frame.fields if f.name == "frame.number")
         elif name.startswith("pn_io"):
-            _pnio(proto, frame.fields, "ndr", -1)
+            _pnio(proto, frame.fields, "ndr", -1, position)
     return frame
 
 
@@ -211,7 +218,20 @@ def _block_type(block: ET.Element) -> int | None:
     return None
 
 
-def _pnio(elem: ET.Element, out: list[TsField], scope: str, block_pos: int) -> None:
+@dataclass(slots=True)
+class _PdPosition:
+    """Where the PROFIdrive fields of a frame are: the IOD header whose record is being decoded
+    (its ordinal in the frame, as the analyser's stub blocks) and the value block in that record
+    (one more at each `format`)."""
+
+    record: int = -1
+    block: int = -1
+
+
+PD_FORMAT = "pn_io.profidrive.parameter.format"
+
+
+def _pnio(elem: ET.Element, out: list[TsField], scope: str, block_pos: int, at: _PdPosition) -> None:
     """Fields of a PNIO protocol subtree, each with the scope of its nearest enclosing block."""
     for child in elem:
         if child.tag != "field":
@@ -222,14 +242,22 @@ def _pnio(elem: ET.Element, out: list[TsField], scope: str, block_pos: int) -> N
         if name == "pn_io.block":
             kind = _block_type(child)
             if kind in IOD_HEADER_TYPES:
-                _pnio(child, out, "iod", _int_attr(child, "pos"))
+                at.record, at.block = at.record + 1, -1
+                _pnio(child, out, "iod", _int_attr(child, "pos"), at)
             else:
-                _pnio(child, out, "record", -1)  # record content / Connect blocks (protocol.md 1.1)
+                _pnio(child, out, "record", -1, at)  # record content / Connect blocks (protocol.md 1.1)
             continue
-        if name:
-            inner = "pd" if name.startswith("pn_io.profidrive.") else scope
-            out.append(_field(child, inner, block_pos))
-        _pnio(child, out, scope, block_pos)
+        if name.startswith("pn_io.profidrive.parameter."):
+            if name == PD_FORMAT:
+                at.block += 1
+            f = _field(child, "pd", block_pos)
+            f.pd_record, f.pd_block = at.record, at.block
+            out.append(f)
+        elif name.startswith("pn_io.profidrive."):
+            out.append(_field(child, "pd", block_pos))
+        elif name:
+            out.append(_field(child, scope, block_pos))
+        _pnio(child, out, scope, block_pos, at)
 
 
 # --- normalisation ------------------------------------------------------------------------------
@@ -253,6 +281,8 @@ def normalise_ts(name: str, f: TsField) -> object:
     """One tshark occurrence as the analyser value of the field `name` (a registry name)."""
     if f.name in LENGTH_ONLY:
         return f.size
+    if f.name in PD_VALUE_KIND:
+        return _pd_ts_value(f)
     kind = registry.field(name).type
     if kind in (registry.UINT, registry.HEX, registry.INT, registry.FLAGS, registry.FRAMEREF, registry.LIST):
         if f.name == "dcerpc.dg_server_boot":
@@ -279,12 +309,87 @@ def normalise_analyser(name: str, value: object, length: int) -> object:
 
 
 def values_equal(name: str, a: object, b: object) -> bool:
+    if isinstance(a, PdValue) and isinstance(b, PdValue) and a.kind == b.kind == "value_float":
+        x, y = float(a.value), float(b.value)
+        return (math.isnan(x) and math.isnan(y)) or math.isclose(x, y, rel_tol=FLOAT_REL_TOL)
     if name == "frame.ts":
         return isinstance(a, float) and isinstance(b, float) and math.isclose(
             a, b, rel_tol=TS_REL_TOL, abs_tol=TS_ABS_TOL)
     if name == "rpc.rtt":
         return isinstance(a, float) and isinstance(b, float) and abs(a - b) <= RTT_ABS_TOL
     return a == b
+
+
+# --- PROFIdrive values (protocol.md 8.1, 8.2) ---------------------------------------------------
+#
+# tshark has one value field per size class; the analyser has one value field per value
+# (`pd.val[i].value[j]`), one per string (`pd.val[i].value`) and the elements of a complete
+# description (`pd.val[i].desc.*`, attribute 0x20 subindex 0: OctetString x 46). Both sides become
+# PdValue(kind, raw unsigned value) items in wire order: `pd.val[i].value[j]` is compared with the
+# value_b/value_w/value_dw/value_float occurrences, `pd.val[i].value` with value_str. The analyser
+# item is made from the field's raw bytes and its block's Format (8.1: "compare the analyser's raw
+# value, not its signed/scaled presentation"); formats tshark has no field for give no item (8.2,
+# 8.3 #2). A one-byte OctetString (0x0A) is a 1-byte format: one value_b per octet.
+
+_PD = "pn_io.profidrive.parameter"
+VALUE_FIELD_OF_FORMAT = {
+    **dict.fromkeys((0x01, 0x02, 0x05, 0x0A, 0x41), "value_b"),
+    **dict.fromkeys((0x03, 0x06, 0x42, 0x73), "value_w"),
+    **dict.fromkeys((0x04, 0x07, 0x43), "value_dw"),
+    0x08: "value_float", 0x09: "value_str"}
+FMT_ERROR = 0x44  # its third and later words (analyser pd.val[i].value[k]) are words: value_w
+PD_VALUE_KIND = {f"{_PD}.{kind}": kind for kind in ("value_b", "value_w", "value_dw", "value_float", "value_str")}
+VALUE_SIZE = {"value_b": 1, "value_w": 2, "value_dw": 4, "value_float": 4}
+PD_VALUES, PD_STRING = "pd.val[i].value[j]", "pd.val[i].value"
+_PD_VALUE_SOURCES = (PD_VALUES, PD_STRING)
+_PD_DESC = "pd.val[i].desc."
+
+
+class PdValue(NamedTuple):
+    """One PROFIdrive value as tshark's field `kind` holds it: the unsigned raw value (a float for
+    value_float)."""
+
+    kind: str
+    value: int | float
+
+    def __repr__(self) -> str:
+        if isinstance(self.value, int):
+            return f"{self.kind}={self.value:#x}"
+        return f"{self.kind}={self.value!r}"
+
+
+def pd_values(fmt: object, raw: bytes) -> list[tuple[str, object]]:
+    """(registry name, item) of the analyser value bytes `raw` of a block of Format `fmt`."""
+    kind = "value_w" if fmt == FMT_ERROR else VALUE_FIELD_OF_FORMAT.get(fmt) if isinstance(fmt, int) else None
+    if kind is None:
+        return []
+    if kind == "value_str":
+        return [(PD_STRING, raw.decode("latin-1"))]
+    size = VALUE_SIZE[kind]
+    out: list[tuple[str, object]] = []
+    for k in range(0, len(raw) - size + 1, size):
+        chunk = raw[k:k + size]
+        value = struct.unpack(">f", chunk)[0] if kind == "value_float" else int.from_bytes(chunk, "big")
+        out.append((PD_VALUES, PdValue(kind, value)))
+    return out
+
+
+def _pd_ts_value(f: TsField) -> object:
+    """A tshark value_* occurrence: numbers from the shown value (hex or float text), the string
+    from its bytes (tshark escapes non-printable characters in `show`)."""
+    kind = PD_VALUE_KIND[f.name]
+    if kind == "value_str":
+        return bytes.fromhex(f.value).decode("latin-1")
+    return PdValue(kind, float(f.show) if kind == "value_float" else parse_int(f.show))
+
+
+_BLOCK_INDEX = re.compile(r"^pd\.val\[(\d+)\]")
+
+
+def pd_block(name: str) -> int:
+    """The value block of a concrete analyser field name (pd.val[3].format -> 3); -1 otherwise."""
+    m = _BLOCK_INDEX.match(name)
+    return int(m.group(1)) if m else -1
 
 
 # --- the analyser side --------------------------------------------------------------------------
@@ -297,11 +402,14 @@ def template(name: str) -> str:
 
 @dataclass(slots=True)
 class AnFrame:
-    """One analyser frame: every field's values by registry name, in emission order."""
+    """One analyser frame: every field's values by registry name, in emission order. For pd.*
+    fields, `where` gives each value's (record, block): the ordinal of the IOD header block whose
+    record holds it (as tshark's TsField.pd_record) and its value block (-1: header, addresses)."""
 
     number: int
     result: FrameResult
     values: dict[str, list[object]]
+    where: dict[str, list[tuple[int, int]]] = field(default_factory=dict)
 
     def one(self, name: str) -> object:
         found = self.values.get(name)
@@ -351,14 +459,28 @@ def _an_frame(result: FrameResult) -> AnFrame:
     """All field values of one frame by registry name. frame.no and frame.ts are FrameResult
     attributes, eth.vlan_ids is the list of the per-tag vlan.id fields (outer first)."""
     values: dict[str, list[object]] = defaultdict(list)
+    where: dict[str, list[tuple[int, int]]] = defaultdict(list)
     values["frame.no"].append(result.frame)
     values["frame.ts"].append(result.ts)
+    record, formats = -1, {}  # IOD header ordinal; Format of each value block of its record
     for f in result.fields():
         if f.name == "vlan.id":  # eth.vlan_ids: one entry per tag, outer first
             values["eth.vlan_ids"].append(f.value)
+        if f.name == "iod.block_type":
+            record, formats = record + 1, {}
         name = template(f.name)
+        if name.startswith("pd."):
+            block = pd_block(f.name)
+            if name == "pd.val[i].format":
+                formats[block] = f.value
+            if name in _PD_VALUE_SOURCES or name.startswith(_PD_DESC):
+                for target, item in pd_values(formats.get(block), f.raw):
+                    values[target].append(item)
+                    where[target].append((record, block))
+                continue
+            where[name].append((record, block))
         values[name].append(normalise_analyser(name, f.value, f.length))
-    return AnFrame(result.frame, result, dict(values))
+    return AnFrame(result.frame, result, dict(values), dict(where))
 
 
 def tshark_occurrences(frame: TsFrame, name: str) -> list[TsField]:
@@ -367,7 +489,11 @@ def tshark_occurrences(frame: TsFrame, name: str) -> list[TsField]:
     assert fdef.tshark, name
     if name == "eth.vlan_ids":
         return [f for f in frame.fields if f.scope == "vlan" and f.name in VLAN_ID_FIELDS]
-    found = frame.values(SCOPE_OF_PREFIX[name.split(".")[0]], fdef.tshark)
+    scope = SCOPE_OF_PREFIX[name.split(".")[0]]
+    if "|" in fdef.tshark:  # one analyser field, several tshark fields: all of them in wire order
+        names = set(fdef.tshark.split("|"))
+        return [f for f in frame.fields if f.scope == scope and f.name in names]
+    found = frame.values(scope, fdef.tshark)
     if fdef.tshark == "pn.padding" and name.startswith("iod."):
         # iod.pad and iod.rw_pad are both pn.padding: told apart by their offset in the block.
         pad = name == "iod.pad"
@@ -387,9 +513,11 @@ class Mismatch:
     field: str
     analyser: list[object]
     tshark: list[object]
+    record: int | None = None  # pd.* fields: compared per record (IOD header ordinal in the frame)
 
     def __str__(self) -> str:
-        return f"frame {self.frame} {self.field}: analyser {self.analyser!r} != tshark {self.tshark!r}"
+        where = f" (record {self.record})" if self.record is not None else ""
+        return f"frame {self.frame} {self.field}{where}: analyser {self.analyser!r} != tshark {self.tshark!r}"
 
 
 def compare_lists(name: str, ours: list[object], theirs: list[object]) -> bool:
@@ -443,8 +571,34 @@ class Conformance:
         return direct | linked
 
     def mismatches(self, number: int) -> list[Mismatch]:
-        theirs = {name: self.theirs(number, name) for name in self.names}
-        return list(compare_frame(number, self.an[number].values, theirs, self.names))
+        """Differences per field; pd.* fields per record (so a rule for one record's tshark bug
+        leaves the others compared in full)."""
+        out = []
+        for name in self.names:
+            if not name.startswith("pd."):
+                out += compare_frame(number, self.an[number].values, {name: self.theirs(number, name)}, [name])
+                continue
+            for record, (ours, theirs) in sorted(self.pd_records(number, name).items()):
+                if not compare_lists(name, ours, theirs):
+                    out.append(Mismatch(number, name, ours, theirs, record))
+        return out
+
+    def pd_records(self, number: int, name: str) -> dict[int, tuple[list[object], list[object]]]:
+        """Both sides' values of a pd.* field, split by record."""
+        ours, theirs = self.ours(number, name), self.theirs(number, name)
+        groups: dict[int, tuple[list[object], list[object]]] = {}
+        for (record, _), value in zip(self.an[number].where.get(name, []), ours, strict=True):
+            groups.setdefault(record, ([], []))[0].append(value)
+        for f, value in zip(tshark_occurrences(self.ts[number], name), theirs, strict=True):
+            groups.setdefault(f.pd_record, ([], []))[1].append(value)
+        return groups
+
+    def pd_blocks(self, number: int, name: str, record: int) -> tuple[list[int], list[int]]:
+        """The value block of each of the record's values of `name`, analyser and tshark side
+        (parallel to the lists of pd_records)."""
+        ours = [b for r, b in self.an[number].where.get(name, []) if r == record]
+        theirs = [f.pd_block for f in tshark_occurrences(self.ts[number], name) if f.pd_record == record]
+        return ours, theirs
 
 
 LINK_FIELDS = frozenset({"dcerpc.request_in", "dcerpc.response_in", "dcerpc.reassembled_in"})

@@ -8,3 +8,4 @@ regenerates every sample byte for byte.
 
 # The PROFIdrive samples (pd_*.pcap) register themselves in samples.SAMPLES on import.
 from . import pd_samples as pd_samples
+from . import txn_samples as txn_samples

@@ -9,26 +9,36 @@ expectations follow the frames if a sample grows.
 The result is written to sample_pcaps/expected/<file>.json:
 
     {"file": ..., "profiles": [{"profile": "generic", "findings": [[frame, rule], ...]}, ...],
-     "transactions": [{"ref": .., "frames": [first, last], "verdict": .., ...}, ...]}
+     "transactions": [{"ref": .., "frames": [first, last], "verdict": .., ...}, ...],
+     "loose": [[frame, rule], ...]}
 
 "profiles" holds the frame-level rules of protocol.md 6.1-6.4 (rule names of
 pd_analyze/rules.py), per vendor profile; "transactions" the transaction
-model (7.3, 7.4) for each PROFIdrive transaction: first/last frame, verdict,
-reads, B5 answers, and the transaction-level findings (Q2-Q5, T1-T6, which
-do not depend on the profile). Nothing here consults the analyser.
+model (7.3, 7.4, 7.6) for each PROFIdrive transaction, in the order of the
+write requests: first/last frame, reference, verdict, read calls, B5
+answers, duplicate request PDUs, the PNIOStatus that ended it (or DE80B500
+when it timed out after a B5), whether it was still open at capture end,
+t_write_rtt and t_total in seconds as written to the file (µs or ns; null
+where the transaction has no such frame), and the transaction-level findings (Q2-Q5,
+T1-T6, which do not depend on the profile). "loose" lists the
+transaction-level findings on frames of no transaction (T2). The figures
+come from the generator's own frame times and answers (`Call.status`,
+`Call.fault`, `Call.retransmits`); nothing here consults the analyser.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from .pnio import STATUS_B5, STATUS_OK
 from .scenario import Call, Capture
 from .writers import Frame
 
 GENERIC = "generic"
+B5_TEXT = STATUS_B5.hex().upper()
 
 
 @dataclass
@@ -47,8 +57,10 @@ class Intent:
 
     cap: Capture
     profiles: tuple[str, ...] = (GENERIC,)
+    resolution_ns: int | Mapping[int, int] = 1000  # timestamp unit as written (per interface for pcapng)
     _findings: list[tuple[Frame, str, tuple[str, ...]]] = field(default_factory=list)
     _txns: list[_Txn] = field(default_factory=list)
+    _loose: list[tuple[Frame, str]] = field(default_factory=list)
 
     def on(self, frames: Frame | Iterable[Frame], rule: str, *, profiles: Sequence[str] | None = None) -> None:
         """Rule `rule` fires once on each frame given, under `profiles`
@@ -71,12 +83,19 @@ class Intent:
         **extra: Any,
     ) -> list[Call]:
         """One PROFIdrive transaction: its calls (write, reads), reference
-        and verdict; reads and b5_retries (all reads but the last) are
-        counted from the calls, `extra` adds or overrides figures.
-        `findings` are the transaction-level rules (protocol.md 6.4 Q2-Q5,
-        6.5 T1-T6) the pairing must report, as (frame, rule)."""
+        and verdict; reads, b5_retries (reads answered DE 80 B5 00),
+        rpc_retransmissions, pnio_status and the figures are derived from
+        the calls, `extra` adds or overrides (e.g. capture_ended=True for a
+        transaction still open at capture end). `findings` are the
+        transaction-level rules (protocol.md 6.4 Q2-Q5, 6.5 T1-T6) the
+        pairing must report, as (frame, rule)."""
         self._txns.append(_Txn(list(calls), ref, verdict, note, list(findings), extra))
         return list(calls)
+
+    def loose(self, frames: Frame | Iterable[Frame], rule: str) -> None:
+        """A transaction-level rule (e.g. T2 read_without_request) on a frame of no transaction."""
+        for f in [frames] if isinstance(frames, Frame) else list(frames):
+            self._loose.append((f, rule))
 
     # ---- frame selectors for the usual places of a finding -------------------------------------------
     @staticmethod
@@ -101,19 +120,51 @@ class Intent:
         txns = []
         for t in self._txns:
             frames = [num(f) for c in t.calls for f in c.request + c.response]
-            reads = t.calls[1:]
             item: dict[str, Any] = {"ref": t.ref, "frames": [min(frames), max(frames)], "verdict": t.verdict}
-            if reads:
-                # every read but the last is a B5 answer (the last delivers the response or ends the txn)
-                item["reads"] = len(reads)
-                item["b5_retries"] = len(reads) - 1
+            item.update(self._figures(t))
             item.update(t.extra)
             if t.findings:
                 item["findings"] = sorted([num(f), rule] for f, rule in t.findings)
             if t.note:
                 item["note"] = t.note
             txns.append(item)
-        return {"file": name, "profiles": profiles, "transactions": txns}
+        txns.sort(key=lambda item: item["frames"][0])  # the order of the write requests
+        out: dict[str, Any] = {"file": name, "profiles": profiles, "transactions": txns}
+        if self._loose:
+            out["loose"] = sorted([num(f), rule] for f, rule in self._loose)
+        return out
+
+    def _ticks(self, frame: Frame) -> int:
+        """The frame time as written to the file, in ns (truncated to the file's resolution)."""
+        res = self.resolution_ns if isinstance(self.resolution_ns, int) else self.resolution_ns[frame.iface]
+        return (frame.ts_ns or 0) // res * res
+
+    def _figures(self, t: _Txn) -> dict[str, Any]:
+        """protocol.md 7.6 from the calls: a request is timed at its first frame, a response at its last."""
+        write, reads = t.calls[0], t.calls[1:]
+        start = self._ticks(write.request[0])
+        b5 = sum(1 for c in reads if c.status == STATUS_B5)
+        ending = next((c for c in t.calls if c.fault is not None or c.status not in (None, STATUS_OK, STATUS_B5)), None)
+        status = ""
+        if ending is not None:
+            status = f"{ending.fault:08X}" if ending.fault is not None else (ending.status or b"").hex().upper()
+        elif t.verdict == "timeout" and b5:
+            status = B5_TEXT  # the last answer was B5 (txn.last_status)
+        final = reads[-1] if reads else None
+        delivered = final is not None and final.response and final.status == STATUS_OK and t.verdict != "timeout"
+
+        def seconds(frame: Frame) -> float:
+            return round((self._ticks(frame) - start) / 1e9, 9)
+
+        return {
+            "reads": len(reads),
+            "b5_retries": b5,
+            "rpc_retransmissions": sum(c.retransmits for c in t.calls),
+            "pnio_status": status,
+            "capture_ended": False,
+            "t_write_rtt": seconds(write.response[-1]) if write.response else None,
+            "t_total": seconds(final.response[-1]) if delivered and final is not None else None,
+        }
 
 
 def dumps(expected: dict[str, Any]) -> str:
@@ -125,12 +176,14 @@ def dumps(expected: dict[str, Any]) -> str:
         items = [f"      {json.dumps(x)}" for x in p["findings"]]
         lines += [s + ("," if k < len(items) - 1 else "") for k, s in enumerate(items)]
         lines.append("    ]}" + ("," if i < len(profs) - 1 else ""))
+    lines.append("  ],")
     txns = expected.get("transactions", [])
-    lines.append("  ]," if txns else "  ]")
-    if txns:
-        lines.append('  "transactions": [')
-        items = [f"    {json.dumps(t, ensure_ascii=False)}" for t in txns]
-        lines += [s + ("," if k < len(items) - 1 else "") for k, s in enumerate(items)]
-        lines.append("  ]")
+    loose = expected.get("loose", [])
+    lines.append('  "transactions": [')
+    items = [f"    {json.dumps(t, ensure_ascii=False)}" for t in txns]
+    lines += [s + ("," if k < len(items) - 1 else "") for k, s in enumerate(items)]
+    lines.append("  ]," if loose else "  ]")
+    if loose:
+        lines.append(f'  "loose": {json.dumps(loose)}')
     lines.append("}")
     return "\n".join(lines) + "\n"

@@ -15,11 +15,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from . import link, pnio, rpc
+from .expect import Intent
 from .link import ETH_ARP, ETH_PNRT, LINKTYPE_ETHERNET, LINKTYPE_LINUX_SLL, LINKTYPE_LINUX_SLL2, LINKTYPE_RAW, VlanTag
 from .pnio import InnerWrite
 from .profidrive import ParamAddress as P
 from .profidrive import change_ok, change_request, pd_response, read_request, value_block
-from .scenario import EPOCH_NS, Capture, Clock, Host, Medium, PnioSession, host
+from .scenario import EPOCH_NS, Call, Capture, Clock, Host, Medium, PnioSession, host
 from .writers import Frame, Pcapng, gzip_bytes, pcap_bytes
 
 BROADCAST = b"\xff" * 6
@@ -44,6 +45,22 @@ def sample(name: str) -> Callable[[Callable[[], bytes]], Callable[[], bytes]]:
 
 def build_all() -> dict[str, bytes]:
     return {s.name: s.build() for s in SAMPLES}
+
+
+# file name -> the transactions the file is built to contain (the README's description of the file, recorded
+# by its builder); the frame-level findings of these files are STATIC_EXPECTED below.
+INTENTS: dict[str, Callable[[], Intent]] = {}
+
+
+def intent_of(*names: str) -> Callable[[Callable[..., tuple[Capture, Intent]]], Callable[..., tuple[Capture, Intent]]]:
+    """Register a builder returning (capture, intent) as the transaction intent of the files named."""
+
+    def register(build: Callable[..., tuple[Capture, Intent]]) -> Callable[..., tuple[Capture, Intent]]:
+        for name in names:
+            INTENTS[name] = lambda: build()[1]
+        return build
+
+    return register
 
 
 # ---- shared fixtures ---------------------------------------------------------
@@ -121,19 +138,19 @@ def pcapng_of(frames: list[Frame], linktype: int = LINKTYPE_ETHERNET) -> bytes:
 # Standard PROFIdrive exchanges reused by several files ---------------------
 
 
-def txn_read_one(s: PnioSession, ref: int, *, b5: int = 1) -> None:
+def txn_read_one(s: PnioSession, ref: int, *, b5: int = 1) -> list[Call]:
     """Read P964[0] (Word 0x1234)."""
-    s.parameter_access(
+    return s.parameter_access(
         read_request(ref, 1, [P(964)]), pd_response(ref, 0x01, 1, [value_block(0x42, [0x1234])]), b5_retries=b5
     )
 
 
-def txn_change_float(s: PnioSession, ref: int) -> None:
+def txn_change_float(s: PnioSession, ref: int) -> list[Call]:
     """Change P1120[0] (ramp-up time) to 10.0 s; positive change response."""
-    s.parameter_access(change_request(ref, 1, [(P(1120), value_block(0x08, [10.0]))]), change_ok(ref, 1, 1))
+    return s.parameter_access(change_request(ref, 1, [(P(1120), value_block(0x08, [10.0]))]), change_ok(ref, 1, 1))
 
 
-def txn_read_multi(s: PnioSession, ref: int, *, b5: int = 2) -> None:
+def txn_read_multi(s: PnioSession, ref: int, *, b5: int = 2) -> list[Call]:
     """Read P2000[0] (Float32), P2001[0..1] (Double word), P107[0..2]
     (Unsigned8 x3: odd count -> pad byte after the last list)."""
     req = read_request(ref, 1, [P(2000), P(2001, n_elems=2), P(107, n_elems=3)])
@@ -143,12 +160,12 @@ def txn_read_multi(s: PnioSession, ref: int, *, b5: int = 2) -> None:
         1,
         [value_block(0x08, [1500.0]), value_block(0x43, [0x000186A0, 0x00000001]), value_block(0x05, [1, 2, 3])],
     )
-    s.parameter_access(req, res, b5_retries=b5)
+    return s.parameter_access(req, res, b5_retries=b5)
 
 
-def txn_global_do(s: PnioSession, ref: int) -> None:
+def txn_global_do(s: PnioSession, ref: int) -> list[Call]:
     """Global access (0xB02F) to DO 2: read P10[0] (Unsigned16 1)."""
-    s.parameter_access(
+    return s.parameter_access(
         read_request(ref, 2, [P(10)]), pd_response(ref, 0x01, 2, [value_block(0x06, [1])]), index=0xB02F, b5_retries=0
     )
 
@@ -159,7 +176,8 @@ WORKED_REQUEST = read_request(1, 1, [P(964, n_elems=1), P(2000, n_elems=3)])
 WORKED_RESPONSE = pd_response(1, 0x01, 1, [value_block(0x42, [0x1234]), value_block(0x43, [1, 2, 3])])
 
 
-def worked_example_capture() -> Capture:
+@intent_of("worked_example.pcap")
+def worked_example_capture() -> tuple[Capture, Intent]:
     """protocol.md section 9: frames and times exactly as its table."""
     cap = Capture(Clock(EPOCH_NS))
     ctrl = host("02:00:00:00:01:01", "192.168.0.1")
@@ -172,45 +190,54 @@ def worked_example_capture() -> Capture:
         ar_uuid=uuid.UUID("aaaaaaaa-bbbb-cccc-dddd-eeeeffff0001"),
         object_uuid=rpc.pnio_object_uuid(1, 0x0002, 0x0002),
     )
-    s.write(0xB02E, WORKED_REQUEST, rtt_us=2100, gap_us=400)  # frames 1, 2
-    s.read(0xB02E, status=pnio.STATUS_B5, rtt_us=1900, gap_us=10200)  # frames 3, 4
-    s.read(0xB02E, WORKED_RESPONSE, rtt_us=1700)  # frames 5, 6
-    return cap
+    x = Intent(cap)
+    calls = [
+        s.write(0xB02E, WORKED_REQUEST, rtt_us=2100, gap_us=400),  # frames 1, 2
+        s.read(0xB02E, status=pnio.STATUS_B5, rtt_us=1900, gap_us=10200),  # frames 3, 4
+        s.read(0xB02E, WORKED_RESPONSE, rtt_us=1700),  # frames 5, 6
+    ]
+    x.txn(calls, 1, "ok", "protocol.md 9: t_write_rtt 2.1 ms, t_total 16.3 ms")
+    return cap, x
 
 
 @sample("worked_example.pcap")
 def worked_example() -> bytes:
-    return pcap_of(worked_example_capture())
+    return pcap_of(worked_example_capture()[0])
 
 
 # ---- 2./3. record read/write with background traffic ------------------------
 
 
-def record_rw_capture(drep: bytes) -> Capture:
+def record_rw_capture(drep: bytes) -> tuple[Capture, Intent]:
     cap = Capture()
+    x = Intent(cap)
     s = session(cap, 1, drep=drep, rtt_us=1800, gap_us=900)
     other = host("02:00:00:00:03:01", "192.168.1.50")
     arp_exchange(cap, s.controller, s.device)
     epm_lookup(cap, s.controller, s.device, drep)
     pn_rt(cap, s.device, s.controller, 0x0100)
-    txn_read_one(s, 1, b5=1)
+    x.txn(txn_read_one(s, 1, b5=1), 1, "ok", "P964[0], one B5")
     pn_rt(cap, s.device, s.controller, 0x0180)
-    txn_change_float(s, 2)
+    x.txn(txn_change_float(s, 2), 2, "ok", "change P1120[0]")
     udp_noise(cap, s.controller, other)
-    txn_read_multi(s, 3, b5=2)
+    x.txn(txn_read_multi(s, 3, b5=2), 3, "ok", "three parameters, two B5, final pad")
     pn_rt(cap, s.device, s.controller, 0x0200)
-    txn_global_do(s, 4)
-    return cap
+    x.txn(txn_global_do(s, 4), 4, "ok", "0xB02F DO 2")
+    return cap, x
+
+
+intent_of("record_rw_le.pcap", "record_rw_le.pcap.gz")(lambda: record_rw_capture(rpc.DREP_LE))
+intent_of("record_rw_be.pcap")(lambda: record_rw_capture(rpc.DREP_BE))
 
 
 @sample("record_rw_le.pcap")
 def record_rw_le() -> bytes:
-    return pcap_of(record_rw_capture(rpc.DREP_LE))
+    return pcap_of(record_rw_capture(rpc.DREP_LE)[0])
 
 
 @sample("record_rw_be.pcap")
 def record_rw_be() -> bytes:
-    return pcap_of(record_rw_capture(rpc.DREP_BE))
+    return pcap_of(record_rw_capture(rpc.DREP_BE)[0])
 
 
 @sample("record_rw_le.pcap.gz")
@@ -221,25 +248,32 @@ def record_rw_le_gz() -> bytes:
 # ---- 4. VLAN tags ------------------------------------------------------------
 
 
-@sample("vlan_stacked.pcap")
-def vlan_stacked() -> bytes:
+@intent_of("vlan_stacked.pcap")
+def vlan_stacked_capture() -> tuple[Capture, Intent]:
     cap = Capture()
+    x = Intent(cap)
     single = Medium(vlans=(VlanTag(100, pcp=6),))
     stacked = Medium(vlans=(VlanTag(200, tpid=link.ETH_QINQ), VlanTag(100, pcp=6)))
     s1 = session(cap, 1, medium=single)
     s2 = session(cap, 2, medium=stacked)
-    txn_read_one(s1, 1, b5=1)
-    txn_read_one(s2, 1, b5=0)
-    txn_change_float(s2, 2)
-    return pcap_of(cap)
+    x.txn(txn_read_one(s1, 1, b5=1), 1, "ok", "VLAN 100")
+    x.txn(txn_read_one(s2, 1, b5=0), 1, "ok", "VLAN 200/100")
+    x.txn(txn_change_float(s2, 2), 2, "ok", "VLAN 200/100")
+    return cap, x
+
+
+@sample("vlan_stacked.pcap")
+def vlan_stacked() -> bytes:
+    return pcap_of(vlan_stacked_capture()[0])
 
 
 # ---- 5. IP fragments ---------------------------------------------------------
 
 
-@sample("ip_fragments.pcap")
-def ip_fragments() -> bytes:
+@intent_of("ip_fragments.pcap")
+def ip_fragments_capture() -> tuple[Capture, Intent]:
     cap = Capture()
+    x = Intent(cap)
     # No CL fragmentation: the big bodies travel as one RPC PDU and IP cuts them.
     s = session(cap, 1, max_frag_body=None)
     s.write(0x1000, bytes(i & 0xFF for i in range(3000)))  # 3 fragments in order
@@ -248,9 +282,16 @@ def ip_fragments() -> bytes:
         (0xB02E, read_request(1, 1, [P(964)])),
         (0x1001, bytes(1500)),
     ]
-    s.write_multiple(inner, req_ip={"fragment_order": [1, 0]})
-    s.read(0xB02E, pd_response(1, 0x01, 1, [value_block(0x42, [0x1234])]))
-    return pcap_of(cap)
+    write = s.write_multiple(inner, req_ip={"fragment_order": [1, 0]})
+    read = s.read(0xB02E, pd_response(1, 0x01, 1, [value_block(0x42, [0x1234])]))
+    # the write request is frames 5 (last piece, sent first) and 6: timed at frame 5 (protocol.md 7.6)
+    x.txn([write, read], 1, "ok", "opened by the inner B02E write of the Write-Multiple in IP fragments 5-6")
+    return cap, x
+
+
+@sample("ip_fragments.pcap")
+def ip_fragments() -> bytes:
+    return pcap_of(ip_fragments_capture()[0])
 
 
 # ---- 6. CL fragments with FACKs ----------------------------------------------
@@ -311,22 +352,30 @@ def im0_record() -> bytes:
     return pnio.block(0x0020, body)
 
 
-@sample("implicit_read.pcap")
-def implicit_read() -> bytes:
+@intent_of("implicit_read.pcap")
+def implicit_read_capture() -> tuple[Capture, Intent]:
     cap = Capture()
+    x = Intent(cap)
     s = session(cap, 1)
     s.read_implicit(0xAFF0, im0_record(), api=0, slot=0, subslot=1, max_len=4096)  # frames 1, 2
-    s.write(0xB02E, read_request(5, 1, [P(964)]))  # frames 3, 4
-    s.read_implicit(0xB02E, pd_response(5, 0x01, 1, [value_block(0x42, [0x1234])]))  # frames 5, 6
-    return pcap_of(cap)
+    write = s.write(0xB02E, read_request(5, 1, [P(964)]))  # frames 3, 4
+    read = s.read_implicit(0xB02E, pd_response(5, 0x01, 1, [value_block(0x42, [0x1234])]))  # frames 5, 6
+    x.txn([write, read], 5, "ok", "read through ReadImplicit (TargetARUUID)")
+    return cap, x
+
+
+@sample("implicit_read.pcap")
+def implicit_read() -> bytes:
+    return pcap_of(implicit_read_capture()[0])
 
 
 # ---- 8. Write-Multiple ---------------------------------------------------------
 
 
-@sample("write_multiple.pcap")
-def write_multiple() -> bytes:
+@intent_of("write_multiple.pcap")
+def write_multiple_capture() -> tuple[Capture, Intent]:
     cap = Capture()
+    x = Intent(cap)
     s = session(cap, 1)
     ar = s.ar_uuid
     pd_req = read_request(7, 1, [P(964)])  # 10 bytes: 64 + 10 -> 2 pad bytes
@@ -336,33 +385,49 @@ def write_multiple() -> bytes:
         InnerWrite(0x1000, bytes([1, 2, 3, 4, 5]), 12, ar, api=0, slot=2, subslot=1),  # 64 + 5 -> 3 pad bytes
         InnerWrite(0x1001, bytes(range(8)), 13, ar, api=0, slot=2, subslot=1),  # last: no pad
     ]
-    s.write_multiple(writes)  # frames 1, 2 (outer SeqNumber 10)
+    calls = [s.write_multiple(writes)]  # frames 1, 2 (outer SeqNumber 10)
     s.iod_seq = 14
-    s.read(0xB02E, status=pnio.STATUS_B5)  # frames 3, 4
-    s.read(0xB02E, pd_response(7, 0x01, 1, [value_block(0x42, [0x0815])]))  # frames 5, 6
-    return pcap_of(cap)
+    calls.append(s.read(0xB02E, status=pnio.STATUS_B5))  # frames 3, 4
+    calls.append(s.read(0xB02E, pd_response(7, 0x01, 1, [value_block(0x42, [0x0815])])))  # frames 5, 6
+    x.txn(calls, 7, "ok", "opened by the inner B02E write of a Write-Multiple")
+    return cap, x
+
+
+@sample("write_multiple.pcap")
+def write_multiple() -> bytes:
+    return pcap_of(write_multiple_capture()[0])
 
 
 # ---- 9. response from another port, retransmitted request --------------------
 
 
+@intent_of("other_port_response.pcap")
+def other_port_response_capture() -> tuple[Capture, Intent]:
+    cap = Capture()
+    x = Intent(cap)
+    s = session(cap, 1, reply_port=49153)
+    calls = [s.write(0xB02E, read_request(9, 1, [P(964)]))]  # 1, 2
+    calls.append(s.read(0xB02E, status=pnio.STATUS_B5))  # 3, 4
+    # final read: request lost from the controller's view, sent again after 100 ms
+    calls.append(s.read(0xB02E, pd_response(9, 0x01, 1, [value_block(0x42, [0x4711])]),
+                        retransmit_after_us=[100_000]))  # 5, 6, 7  # fmt: skip
+    x.txn(calls, 9, "ok", "answers from port 49153; final read request retransmitted")
+    return cap, x
+
+
 @sample("other_port_response.pcap")
 def other_port_response() -> bytes:
-    cap = Capture()
-    s = session(cap, 1, reply_port=49153)
-    s.write(0xB02E, read_request(9, 1, [P(964)]))  # 1, 2
-    s.read(0xB02E, status=pnio.STATUS_B5)  # 3, 4
-    # final read: request lost from the controller's view, sent again after 100 ms
-    s.read(0xB02E, pd_response(9, 0x01, 1, [value_block(0x42, [0x4711])]), retransmit_after_us=[100_000])  # 5, 6, 7
-    return pcap_of(cap)
+    return pcap_of(other_port_response_capture()[0])
 
 
 # ---- 10. pcapng with two interfaces --------------------------------------------
 
 
-@sample("two_interfaces.pcapng")
-def two_interfaces() -> bytes:
+@intent_of("two_interfaces.pcapng")
+def two_interfaces_capture() -> tuple[Capture, Intent]:
+    """The frames in file order: the SPB (no timestamp) is frame 5."""
     cap = Capture()
+    x = Intent(cap, resolution_ns={0: 1000, 1: 1})  # if_tsresol 6 and 9
     eth = Medium(LINKTYPE_ETHERNET, iface=0)
     a = session(cap, 1, medium=eth)
     ctrl_b, dev_b = plant(2)
@@ -371,16 +436,22 @@ def two_interfaces() -> bytes:
         cap, ctrl_b, dev_b, activity=fixed_uuid(0xAC, 2), ar_uuid=fixed_uuid(0xA2, 2), medium=cooked,
         rtt_us=1234.567, gap_us=765.433,
     )  # fmt: skip
-    txn_read_one(a, 1, b5=0)  # iface 0, file frames 1-4
+    x.txn(txn_read_one(a, 1, b5=0), 1, "ok", "interface 0, µs")  # iface 0, file frames 1-4
     cap.clock.advance_us(0.123)  # make interface-1 times need nanoseconds
-    txn_read_one(b, 1, b5=1)  # iface 1, file frames 6-11 (the SPB is frame 5)
+    x.txn(txn_read_one(b, 1, b5=1), 1, "ok", "interface 1 (SLL), ns")  # iface 1, file frames 6-11
     spb_frame = Frame(
         None,
         link.ethernet(
             BROADCAST, a.controller.mac, ETH_ARP, link.arp(1, a.controller.mac, a.controller.ip, bytes(6), a.device.ip)
         ),
     )
+    cap.frames.insert(4, spb_frame)
+    return cap, x
 
+
+@sample("two_interfaces.pcapng")
+def two_interfaces() -> bytes:
+    cap = two_interfaces_capture()[0]
     ng = Pcapng()
     ng.section_header()
     ng.interface(LINKTYPE_ETHERNET, tsresol=6, name="eth0")
@@ -389,61 +460,83 @@ def two_interfaces() -> bytes:
         if i == 2:
             # unknown block type between packets; readers must skip it by length
             ng.block(0x0000_0B0B, b"unknown block: skip me\x00\x00")
-        if i == 4:
-            ng.spb(spb_frame)
-        ng.epb(f)
+        if f.ts_ns is None:
+            ng.spb(f)  # frame 5: a Simple Packet Block has no timestamp
+        else:
+            ng.epb(f)
     return ng.tobytes()
 
 
 # ---- 11. gzip-compressed pcapng named .pcap -----------------------------------
 
 
+@intent_of("gzip_pcapng_named.pcap")
+def gzip_pcapng_named_capture() -> tuple[Capture, Intent]:
+    cap = Capture()
+    x = Intent(cap)
+    s = session(cap, 1)
+    x.txn(txn_read_one(s, 1, b5=1), 1, "ok")
+    x.txn(txn_change_float(s, 2), 2, "ok")
+    return cap, x
+
+
 @sample("gzip_pcapng_named.pcap")
 def gzip_pcapng_named() -> bytes:
-    cap = Capture()
-    s = session(cap, 1)
-    txn_read_one(s, 1, b5=1)
-    txn_change_float(s, 2)
-    return gzip_bytes(pcapng_of(cap.frames))
+    return gzip_bytes(pcapng_of(gzip_pcapng_named_capture()[0].frames))
 
 
 # ---- 12. other link types --------------------------------------------------------
 
 
-def _one_link(medium: Medium) -> bytes:
+def _one_link(medium: Medium) -> tuple[Capture, Intent]:
     cap = Capture(medium=medium)
+    x = Intent(cap)
     s = session(cap, 1, medium=medium)
     if medium.linktype != LINKTYPE_RAW:
         arp_exchange(cap, s.controller, s.device)
-    txn_read_one(s, 1, b5=1)
-    txn_read_multi(s, 2, b5=0)
-    return pcap_of(cap)
+    x.txn(txn_read_one(s, 1, b5=1), 1, "ok")
+    x.txn(txn_read_multi(s, 2, b5=0), 2, "ok", "final pad byte")
+    return cap, x
+
+
+SLL = Medium(LINKTYPE_LINUX_SLL, local_ip="192.168.1.11")
+SLL2 = Medium(LINKTYPE_LINUX_SLL2, local_ip="192.168.1.11")
+RAW = Medium(LINKTYPE_RAW)
+intent_of("linux_sll.pcap")(lambda: _one_link(SLL))
+intent_of("linux_sll2.pcap")(lambda: _one_link(SLL2))
+intent_of("raw_ipv4.pcap")(lambda: _one_link(RAW))
 
 
 @sample("linux_sll.pcap")
 def linux_sll() -> bytes:
-    return _one_link(Medium(LINKTYPE_LINUX_SLL, local_ip="192.168.1.11"))
+    return pcap_of(_one_link(SLL)[0])
 
 
 @sample("linux_sll2.pcap")
 def linux_sll2() -> bytes:
-    return _one_link(Medium(LINKTYPE_LINUX_SLL2, local_ip="192.168.1.11"))
+    return pcap_of(_one_link(SLL2)[0])
 
 
 @sample("raw_ipv4.pcap")
 def raw_ipv4() -> bytes:
-    return _one_link(Medium(LINKTYPE_RAW))
+    return pcap_of(_one_link(RAW)[0])
 
 
 # ---- 13. nanosecond big-endian pcap ----------------------------------------------
 
 
+@intent_of("pcap_nsec_be.pcap")
+def pcap_nsec_be_capture() -> tuple[Capture, Intent]:
+    cap = Capture(Clock(EPOCH_NS + 123_456_789))
+    x = Intent(cap, resolution_ns=1)
+    s = session(cap, 1, rtt_us=1111.111, gap_us=2222.222)
+    x.txn(txn_read_one(s, 1, b5=1), 1, "ok", "ns timestamps")
+    return cap, x
+
+
 @sample("pcap_nsec_be.pcap")
 def pcap_nsec_be() -> bytes:
-    cap = Capture(Clock(EPOCH_NS + 123_456_789))
-    s = session(cap, 1, rtt_us=1111.111, gap_us=2222.222)
-    txn_read_one(s, 1, b5=1)
-    return pcap_of(cap, nanosecond=True, big_endian=True)
+    return pcap_of(pcap_nsec_be_capture()[0], nanosecond=True, big_endian=True)
 
 
 # ---- 14. RPC control PDUs ---------------------------------------------------------
@@ -536,18 +629,25 @@ def rpc_control_pdus() -> bytes:
 # ---- 15. snaplen truncation ---------------------------------------------------------
 
 
-@sample("truncated_snaplen.pcap")
-def truncated_snaplen() -> bytes:
+@intent_of("truncated_snaplen.pcap")
+def truncated_snaplen_capture() -> tuple[Capture, Intent]:
     cap = Capture()
+    x = Intent(cap)
     s = session(cap, 1)
     other = host("02:00:00:00:03:01", "192.168.1.50")
     arp_exchange(cap, s.controller, s.device)
-    txn_read_one(s, 1, b5=0)  # frames 3-6, all <= 256 bytes
+    x.txn(txn_read_one(s, 1, b5=0), 1, "ok")  # frames 3-6, all <= 256 bytes
     # change request with 20 Unsigned32 values: 92-byte record, 298-byte frame
     req = change_request(2, 1, [(P(2000, n_elems=20), value_block(0x07, list(range(1, 21))))])
-    s.parameter_access(req, change_ok(2, 1, 1))  # frames 7-10, frame 7 cut
+    calls = s.parameter_access(req, change_ok(2, 1, 1))  # frames 7-10, frame 7 cut
+    x.txn(calls, 2, "malformed", "write request cut by the snaplen (R1, H5)")
     cap.send_udp(s.controller, 50010, other, 50020, bytes(400))  # frame 11, cut
-    return pcap_of(cap, snaplen=256)
+    return cap, x
+
+
+@sample("truncated_snaplen.pcap")
+def truncated_snaplen() -> bytes:
+    return pcap_of(truncated_snaplen_capture()[0], snaplen=256)
 
 
 # ---- expected findings -----------------------------------------------------------------------------------
@@ -585,6 +685,7 @@ STATIC_EXPECTED: dict[str, list[tuple[int, str]]] = {
         (7, "truncated_capture_pnio"),  # E: cut inside a PNIO RPC PDU
         (11, "truncated_capture"),  # I: cut outside PNIO
     ],
+    "fault_trace.pcap": [],  # its one finding, T4 retry on frame 291, is a transaction's (fault_trace_capture)
 }
 
 
@@ -596,6 +697,8 @@ def build_expected() -> dict[str, str]:
     out = {}
     for name, findings in STATIC_EXPECTED.items():
         doc = {"file": name, "profiles": [{"profile": "generic", "findings": [list(f) for f in sorted(findings)]}]}
+        if name in INTENTS:
+            doc |= {k: v for k, v in INTENTS[name]().render(name).items() if k in ("transactions", "loose")}
         out[name] = dumps(doc)
     for name, render in pd_samples.EXPECTED.items():
         out[name] = dumps(render())
@@ -605,8 +708,8 @@ def build_expected() -> dict[str, str]:
 # ---- fault_trace.pcap: three drives interleaved, for the notebook and the HTML report -------------------
 
 
-@sample("fault_trace.pcap")
-def fault_trace() -> bytes:
+@intent_of("fault_trace.pcap")
+def fault_trace_capture() -> tuple[Capture, Intent]:
     """Commissioning of three drives by three controllers at once (own clocks,
     merged by time): change trails preceded by reads, NAKs with several error
     numbers, B5 polling, a write refused with DF 80 B1 00, a timeout and its
@@ -616,6 +719,7 @@ def fault_trace() -> bytes:
     from .profidrive import error_block
 
     cap = Capture()
+    x = Intent(cap)
     f32, w16, u16 = 0x08, 0x42, 0x06
     df_b1 = pnio.pnio_status(0xDF, 0x80, 0xB1, 0x00)
     refs: dict[str, int] = {}  # last Request Reference per device
@@ -631,9 +735,17 @@ def fault_trace() -> bytes:
         refs[s.device.ip] += 1
         return refs[s.device.ip]
 
-    def access(s: PnioSession, request: bytes, response: bytes | None, pause_ms: float, **kw: Any) -> None:
+    def access(s: PnioSession, request: bytes, response: bytes | None, pause_ms: float, retry: bool = False,
+               **kw: Any) -> None:
         """One transaction, then the controller's idle time before the next one."""
-        s.parameter_access(request, response, **kw)
+        calls = s.parameter_access(request, response, **kw)
+        if "write_status" in kw:
+            verdict = "pnio_error"
+        elif response is None:
+            verdict = "timeout"  # no answer after the B5 polls: closed by the 10 s deadline
+        else:
+            verdict = "nak" if response[1] & 0x80 else "ok"
+        x.txn(calls, request[0], verdict, findings=[(x.write_req(calls), "retry")] if retry else ())
         s.clock.advance_us(pauses[s.device.ip].uniform(0.6, 1.4) * pause_ms * 1000)
 
     def read1(s: PnioSession, pnu: int, fmt: int, value: float, pause_ms: float, **kw: Any) -> None:
@@ -645,7 +757,8 @@ def fault_trace() -> bytes:
         r = ref or nxt(s)
         block = error_block(error, 0) if error in (0x01, 0x02, 0x14) else error_block(error)  # with subindex
         res = change_ok(r, 1, 1) if error < 0 else pd_response(r, 0x82, 1, [block])
-        access(s, change_request(r, 1, [(P(pnu), value_block(fmt, [value]))]), res, pause_ms, **kw)
+        access(s, change_request(r, 1, [(P(pnu), value_block(fmt, [value]))]), res, pause_ms, retry=bool(ref),
+               **kw)
 
     # drive 1 (.21): quick (1.2 ms RTT), one change below the limit, one PNU that does not exist
     d1 = drive(1, 0, 1200, 400)
@@ -691,4 +804,9 @@ def fault_trace() -> bytes:
     for k in range(8):
         read1(d3, 63, f32, 2790.0 + k, 1000)
     cap.frames = cap.time_sorted()
-    return pcap_of(cap)
+    return cap, x
+
+
+@sample("fault_trace.pcap")
+def fault_trace() -> bytes:
+    return pcap_of(fault_trace_capture()[0])

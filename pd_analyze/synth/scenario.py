@@ -175,6 +175,16 @@ class Call:
     request: list[Frame]
     response: list[Frame]
     args_max: int = 0
+    retransmits: int = 0  # identical copies of the request PDU sent after the first
+    status: bytes | None = None  # PNIOStatus of the record response (None: no response, or a fault/reject)
+    fault: int | None = None  # NCA status of a fault/reject answer
+
+
+def _answered(call: Call, respond: bool, status: bytes, fault: tuple[int, int] | None) -> Call:
+    """Record on the call how the server answered a record service (for the samples' expectations)."""
+    if respond:
+        call.status, call.fault = (None, fault[1]) if fault is not None else (status, None)
+    return call
 
 
 def _merge(base: dict[str, Any], extra: Overrides) -> dict[str, Any]:
@@ -412,7 +422,7 @@ class PnioSession:
             t_end = res_frames[-1].ts_ns or t1
             self.client_boot = self.server_boot
         self.clock.now_ns = t_end + self._lat(gap_us, self.gap_us)
-        return Call(s, opnum, req_frames, res_frames, args_max)
+        return Call(s, opnum, req_frames, res_frames, args_max, len(retransmit_after_us))
 
     # ---- stub builders for the record services -------------------------
     def _addr(self, index: int, api: int | None, slot: int | None, subslot: int | None, ar: Any) -> dict[str, Any]:
@@ -520,7 +530,8 @@ class PnioSession:
         req, res = self.write_stubs(index, data, args_max=args_max, **kw)
         if fault is not None:
             res, call_kw["res_ptype"] = rpc.status_body(fault[1], self.little), fault[0]
-        return self.call(3, req, res if respond else None, args_max=args_max, **call_kw)
+        c = self.call(3, req, res if respond else None, args_max=args_max, **call_kw)
+        return _answered(c, respond, kw.get("status", pnio.STATUS_OK), fault)
 
     def read(
         self,
@@ -538,7 +549,8 @@ class PnioSession:
         req, res, amax = self.read_stubs(index, data, **kw)
         if fault is not None:
             res, call_kw["res_ptype"] = rpc.status_body(fault[1], self.little), fault[0]
-        return self.call(opnum, req, res if respond else None, args_max=amax, **call_kw)
+        c = self.call(opnum, req, res if respond else None, args_max=amax, **call_kw)
+        return _answered(c, respond, kw.get("status", pnio.STATUS_OK), fault)
 
     def read_implicit(self, index: int, data: bytes | None = None, *, target_ar_uuid: Any = None, **kw: Any) -> Call:
         """ReadImplicit (opnum 5): NIL ARUUID, TargetARUUID names the AR
@@ -592,7 +604,7 @@ class PnioSession:
             res_inner, **_merge(dict(seq=outer_seq, ar_uuid=self.ar_uuid, status=status), res_outer)
         )
         res = self.res_stub(res_body, status=status, max_count=args_max)
-        return self.call(3, req, res, args_max=args_max, **call_kw)
+        return _answered(self.call(3, req, res, args_max=args_max, **call_kw), True, status, None)
 
     def parameter_access(
         self,
