@@ -221,6 +221,7 @@ Examples:
   pd-analyze report sample_pcaps/pd_negative.pcap
   pd-analyze report captures/ --out report/ --format parquet --profile sinamics
   pd-analyze report 'line3/*.pcapng' --timeout 30
+  pd-analyze report sample_pcaps/fault_trace.pcap --format html --out report/
 """
 AUDIT_EXAMPLES = """\b
 Examples:
@@ -276,7 +277,9 @@ def _timeouts(func: Callable) -> Callable:
 @click.option("-r", "--read", "read", metavar="FILE", help="Capture to read (as tshark -r).")
 @click.option("--out", "out_dir", default="pd-report", show_default=True, metavar="DIR",
               help="Directory for transactions, parameters, findings and changes files.")
-@click.option("--format", "fmt", type=click.Choice(["csv", "parquet", "json"]), default="csv", show_default=True)
+@click.option("--format", "fmt", type=click.Choice(["csv", "parquet", "json", "html"]), default="csv",
+              show_default=True, help="html: DIR/report.html (self-contained: summary, plots, tables, "
+                                      "drill-down) plus the tables as CSV.")
 @profile_option
 @_timeouts
 def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fmt: str, profile: str,
@@ -285,7 +288,12 @@ def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fm
     from pd_analyze import report
 
     analysis = _analyze(captures, read, profile, timeout, rpc_timeout, jobs, chain)
-    written = report.write_tables(analysis, out_dir, fmt)
+    written = report.write_tables(analysis, out_dir, "csv" if fmt == "html" else fmt)
+    if fmt == "html":
+        from pd_analyze import html_report
+
+        written.append(html_report.write(analysis, f"{out_dir}/report.html",
+                                         tables_dir_note="the CSV files beside this page"))
     click.echo(report.summary(analysis))
     click.echo("\nWrote " + ", ".join(written), err=True)
     for error in analysis.errors:

@@ -88,6 +88,12 @@ class Parsed:
         return self.length >= 4
 
 
+def footprint(p: Parsed) -> int:
+    """Bytes a parsed record keeps alive, objects included (roughly): what the caps of the tables that
+    keep parsed requests count. A record of n parameters costs some 300 bytes per parameter."""
+    return 256 + 2 * p.length + 128 * len(p.addresses) + 192 * len(p.blocks)  # block data <= p.length
+
+
 # --- parsing ----------------------------------------------------------------------------------
 def parse_request(data: bytes, frame: int, findings: list[Finding]) -> Parsed:
     """A parameter request (Write to a PROFIdrive index): header, addresses, value blocks."""
