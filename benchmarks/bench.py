@@ -72,12 +72,14 @@ def main() -> int:
     ap.add_argument("--jobs", type=int, default=1, help="also time report --jobs N")
     ap.add_argument("--skip-tshark-v", action="store_true")
     ap.add_argument("--keep", metavar="FILE", help="write the capture here and keep it")
+    ap.add_argument("--pnio-share", type=float, default=0.1,
+                    help="fraction of PNIO RPC frames (the rest is cyclic PN-RT and other traffic)")
     args = ap.parse_args()
     path = Path(args.keep or tempfile.mkstemp(suffix=".pcap", prefix="pd-bench-")[1])
     t0 = time.perf_counter()
-    count = make_capture(path, args.frames)
-    print(f"capture: {count:,} frames, {path.stat().st_size / 1e6:.0f} MB, generated in "
-          f"{time.perf_counter() - t0:.0f} s ({path})")
+    count = make_capture(path, args.frames, pnio_share=args.pnio_share)
+    print(f"capture: {count:,} frames ({args.pnio_share:.0%} PNIO RPC), {path.stat().st_size / 1e6:.0f} MB, "
+          f"generated in {time.perf_counter() - t0:.0f} s ({path})")
     print(f"machine: {os.cpu_count()} cores, Python {sys.version.split()[0]}")
     results = {name: (wall, rss) for name, wall, rss in bench(path, count, args.rounds, args.skip_tshark_v,
                                                                args.jobs)}

@@ -17,8 +17,12 @@ from .samples import pn_rt, session
 from .scenario import Capture, PnioSession
 
 
-def make_capture(path: Path, frames: int, seed: int = 1) -> int:
-    """A mixed capture of about `frames` frames; returns the exact count."""
+def make_capture(path: Path, frames: int, seed: int = 1, pnio_share: float = 0.1) -> int:
+    """A mixed capture of about `frames` frames; returns the exact count.
+
+    `pnio_share` is the fraction of frames that are PNIO RPC: cyclic PN-RT IO data dominates a real
+    PROFINET capture (each drive exchanges a frame per cycle in each direction), so 0.1 stands for
+    a commissioning tool polling parameters busily; 0.5 is a parameter-access-only trace."""
     rng = random.Random(seed)
     cap = Capture()
     sessions = [session(cap, n) for n in range(1, 9)]
@@ -31,9 +35,12 @@ def make_capture(path: Path, frames: int, seed: int = 1) -> int:
             s = sessions[n]
             refs[n] = refs[n] % 255 + 1
             _transaction(s, refs[n], rng)
-            for _ in range(rng.randrange(2, 9)):  # cyclic traffic between parameter accesses
-                ctrl, dev = s.controller, s.device
-                pn_rt(cap, dev, ctrl, written & 0xFFFF)
+            pnio = len(cap.frames)
+            cyclic = round(pnio * (1 - pnio_share) / pnio_share * rng.uniform(0.5, 1.5))
+            for k in range(cyclic):  # cyclic IO data between parameter accesses, both directions
+                other = sessions[k % len(sessions)]
+                src, dst = (other.device, other.controller) if k & 1 else (other.controller, other.device)
+                pn_rt(cap, src, dst, (written + k) & 0xFFFF)
             if rng.random() < 0.1:
                 cap.send_ip(s.controller, s.device, link.udp(50010, 50020, bytes(64)))
             for f in cap.frames:
