@@ -85,7 +85,7 @@ def test_jobs_splits_one_large_capture_identically(tmp_path, monkeypatch):
     from pd_analyze.synth.mixed import make_capture
 
     path = tmp_path / "mixed.pcap"
-    count = make_capture(path, 12_000)
+    count = make_capture(path, 12_000, pnio_share=0.5)
     # a short lead-in, so the second part really starts mid-stream with calls and channels open
     monkeypatch.setattr(analysis, "LEAD_IN", 0.5)
     one = pd_analyze.analyze(str(path))
