@@ -9,6 +9,7 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import lru_cache
 from types import MappingProxyType
 
 from pd_analyze import pdtables as pt
@@ -200,6 +201,7 @@ def template(name: str) -> str:
     return _INDEX.sub(lambda _m: f"[{next(letters, 'k')}]", name)
 
 
+@lru_cache(maxsize=65_536)  # concrete names repeat frame after frame in a dump
 def field(name: str) -> FieldDef:
     """The registry entry of a field (concrete indexed names allowed); KeyError if unknown."""
     found = FIELDS.get(name)

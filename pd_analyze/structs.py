@@ -11,6 +11,7 @@ from __future__ import annotations
 import struct
 import uuid
 from dataclasses import dataclass
+from socket import inet_ntoa
 
 from pd_analyze import registry
 from pd_analyze.tables import flag_names, name_of
@@ -45,7 +46,7 @@ def json_value(value: object) -> object:
 class Layout:
     """A fixed-size structure: fields in wire order with struct codes, one byte order."""
 
-    __slots__ = ("codes", "names", "offsets", "order", "positions", "size", "sizes", "struct", "title")
+    __slots__ = ("codes", "defs", "names", "offsets", "order", "positions", "size", "sizes", "struct", "title")
 
     def __init__(self, title: str, order: str, fields: tuple[tuple[str, str], ...]) -> None:
         self.title = title
@@ -63,8 +64,8 @@ class Layout:
         self.offsets = tuple(offsets)
         self.sizes = tuple(sizes)
         self.positions = {name: i for i, name in enumerate(self.names)}
-        for name in self.names:
-            registry.field(name)  # a typo in a declaration fails at import, not at run time
+        # registry entries resolved once (a typo in a declaration fails at import, not at run time)
+        self.defs = tuple(registry.field(name) for name in self.names)
 
     def unpack(self, buf: bytes, offset: int = 0) -> tuple:
         return self.struct.unpack_from(buf, offset)
@@ -76,28 +77,40 @@ class Layout:
         """Fields of the structure at `offset` in `buf`; `base` is added to shown offsets."""
         little = self.order == "<"
         out = []
-        for name, rel, size, value in zip(self.names, self.offsets, self.sizes, values, strict=True):
+        for fdef, rel, size, value in zip(self.defs, self.offsets, self.sizes, values, strict=True):
             start = offset + rel
-            raw = bytes(buf[start:start + size])
-            value = convert(name, value, little)
-            out.append(Field(name, base + start, size, raw, value, show(name, value)))
+            if fdef.type in _CONVERTED:
+                value = _convert(fdef, value, little)
+            out.append(Field(fdef.name, base + start, size, bytes(buf[start:start + size]), value,
+                             show_def(fdef, value)))
         return out
+
+
+_CONVERTED = frozenset({registry.UUID, registry.IPV4})
 
 
 def convert(name: str, value: object, little: bool = False) -> object:
     """The registry value of a raw unpacked item (UUIDs to text, byte strings kept)."""
-    kind = registry.field(name).type
-    if kind == registry.UUID and isinstance(value, bytes):
+    return _convert(registry.field(name), value, little)
+
+
+def _convert(fdef: registry.FieldDef, value: object, little: bool) -> object:
+    if fdef.type == registry.UUID and isinstance(value, bytes):
         return str(uuid.UUID(bytes_le=value) if little else uuid.UUID(bytes=value))
-    if kind == registry.IPV4 and isinstance(value, bytes):
-        return ".".join(str(b) for b in value)
+    if fdef.type == registry.IPV4 and isinstance(value, bytes):
+        return inet_ntoa(value)
     return value
 
 
 def show(name: str, value: object) -> str:
     """How a value is shown: hex or decimal by type, with its value-table name."""
-    fdef = registry.field(name)
+    return show_def(registry.field(name), value)
+
+
+def show_def(fdef: registry.FieldDef, value: object) -> str:
     kind = fdef.type
+    if kind == registry.UINT and fdef.values is None:
+        return str(value)  # the commonest case, first
     if kind == registry.HEX and isinstance(value, int):
         text = f"0x{value:0{_hex_width(fdef.name, value)}x}"
     elif kind == registry.FLAGS and isinstance(value, int):
