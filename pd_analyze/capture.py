@@ -70,7 +70,10 @@ def frames(path: str, info: CaptureInfo | None = None) -> Iterator[RawFrame]:
     info = info or CaptureInfo(path)
     stream = _open(path)
     try:
-        head = _peek(stream, 4)
+        try:
+            head = _peek(stream, 4)
+        except OSError as exc:  # e.g. EIO from a failing disk or a special file
+            raise CaptureError(path, f"read failed ({exc.strerror or exc})", 0) from None
         if head[:2] == _GZIP_MAGIC:
             info.compressed = True
             stream = _Gunzip(stream)  # type: ignore[assignment]
@@ -128,59 +131,74 @@ class _Gunzip(io.RawIOBase):
 
     gzip.GzipFile raises on a CRC error in the same read that returns the file's last bytes, so
     the frames in them would be lost; here the 8-byte trailer is held back and checked on its own.
+    Any error is raised only once every byte before it has been read. Each step inflates at most
+    _GZIP_STEP bytes (a small, highly compressed file cannot blow up one read), and reads advance
+    an offset instead of copying what is left, so reading is linear in the decompressed size.
     """
 
     def __init__(self, raw: BinaryIO) -> None:
         super().__init__()
         self.raw = raw
         self.zobj = zlib.decompressobj(16 + zlib.MAX_WBITS)
-        self.pending = b""  # decompressed, not yet returned
+        self.pending = b""  # decompressed; pending[pos:] not yet returned
+        self.pos = 0
+        self.backlog = b""  # compressed input read but not yet inflated
         self.tail = b""  # compressed input held back: the last 8 bytes may be a trailer
-        self.eof = False
+        self.eof = False  # the raw stream is exhausted (tail moved to the backlog)
+        self.done = False  # nothing more will be inflated
         self.error: BaseException | None = None
 
     def readable(self) -> bool:
         return True
 
     def _fill(self, want: int) -> None:
-        while len(self.pending) < want and not self.eof:
-            chunk = self.raw.read(1 << 16)
-            data = self.tail + chunk
-            if not chunk:
-                self.eof = True
-                try:
-                    self.pending += self._feed(data)
-                    if not self.zobj.eof:
-                        raise EOFError("compressed file ended before the end-of-stream marker")
-                except (zlib.error, EOFError) as exc:
-                    self.error = exc  # raised once every byte before it has been read
-                return
-            self.tail = data[-8:]
-            self.pending += self._feed(data[:-8])
-        if not self.pending and self.error is not None:
+        while len(self.pending) - self.pos < want and not self.done:
+            if self.backlog:
+                self._inflate()
+            elif not self.eof:
+                chunk = self.raw.read(1 << 16)
+                data = self.tail + chunk
+                if chunk:
+                    self.tail, self.backlog = data[-8:], data[:-8]
+                else:
+                    self.eof, self.tail, self.backlog = True, b"", data
+            else:
+                self.done = True
+                if not self.zobj.eof and self.error is None:
+                    self.error = EOFError("compressed file ended before the end-of-stream marker")
+        if self.pos >= len(self.pending) and self.error is not None:
             error, self.error = self.error, None
             raise error
 
-    def _feed(self, data: bytes) -> bytes:
-        out = b""
-        while data:
-            out += self.zobj.decompress(data)
-            if not self.zobj.eof:
-                break
-            data = self.zobj.unused_data  # a further gzip member follows
-            if not data.startswith(_GZIP_MAGIC):
-                break
+    def _inflate(self) -> None:
+        if self.zobj.eof:  # after a member: a further member, or trailing garbage (ignored, as gzip does)
+            if self.backlog[:2] != _GZIP_MAGIC[:len(self.backlog[:2])]:
+                self.done, self.backlog = True, b""
+                return
             self.zobj = zlib.decompressobj(16 + zlib.MAX_WBITS)
-        return out
+        try:
+            out = self.zobj.decompress(self.backlog, _GZIP_STEP)
+        except zlib.error as exc:
+            self.error, self.done, self.backlog = exc, True, b""  # raised once every byte before it is read
+            return
+        self.backlog = self.zobj.unused_data if self.zobj.eof else self.zobj.unconsumed_tail
+        if out:
+            self.pending = self.pending[self.pos:] + out
+            self.pos = 0
 
     def read(self, size: int = -1) -> bytes:  # type: ignore[override]
         self._fill(size if size >= 0 else 1 << 62)
-        out, self.pending = (self.pending, b"") if size < 0 else (self.pending[:size], self.pending[size:])
+        end = len(self.pending) if size < 0 else min(len(self.pending), self.pos + size)
+        out = self.pending[self.pos:end]
+        self.pos = end
         return out
 
     def peek(self, size: int = 1) -> bytes:
         self._fill(size)
-        return self.pending[:size]
+        return self.pending[self.pos:self.pos + size]
+
+
+_GZIP_STEP = 1 << 20
 
 
 def _gzip_reason(exc: BaseException) -> str:
@@ -316,6 +334,8 @@ def _pcapng_frames(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[R
             ifaces.append(_interface(path, block, little, pos))
             info.linktypes.append(ifaces[-1].linktype)
         elif btype in (dpkt.pcapng.PCAPNG_BT_EPB, dpkt.pcapng.PCAPNG_BT_PB):
+            if blen < 32:
+                raise CaptureError(path, f"packet block of {blen} bytes, shorter than its 32-byte header", pos)
             iface_id, ts_high, ts_low, caplen = _packet_header(order, btype, block)
             if iface_id >= len(ifaces):
                 raise CaptureError(path, f"packet block names interface {iface_id}, "
@@ -329,6 +349,9 @@ def _pcapng_frames(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[R
         elif btype == dpkt.pcapng.PCAPNG_BT_SPB:
             if not ifaces:
                 raise CaptureError(path, "simple packet block before any interface", pos)
+            if blen < 16:
+                raise CaptureError(path, f"simple packet block of {blen} bytes, shorter than its 16-byte header",
+                                   pos)
             orig_len = struct.unpack(order + "I", block[8:12])[0]
             iface = ifaces[0]
             caplen = min(orig_len, blen - 16, iface.snaplen or MAX_CAPLEN)
@@ -353,7 +376,10 @@ def _read_exact(path: str, stream: BinaryIO, size: int, pos: int, allow_eof: boo
 
 
 def _shb_little(path: str, stream: BinaryIO, pos: int) -> bool:
-    bom = _peek(stream, 4)
+    try:
+        bom = _peek(stream, 4)
+    except (OSError, EOFError, zlib.error) as exc:
+        raise CaptureError(path, f"read failed ({_gzip_reason(exc)})", pos) from None
     if len(bom) < 4:
         raise CaptureError(path, "section header block truncated", pos)
     if struct.unpack("<I", bom)[0] == _PCAPNG_BOM:

@@ -31,6 +31,19 @@ Examples:
 """
 
 
+class _Seconds(click.FloatRange):
+    """A time limit in seconds, at least 1 ms; NaN is refused (it compares false with every limit)."""
+
+    def convert(self, value: object, param: click.Parameter | None, ctx: click.Context | None) -> object:
+        seconds = super().convert(value, param, ctx)
+        if seconds != seconds:
+            self.fail(f"{value!r} is not a number of seconds", param, ctx)
+        return seconds
+
+
+SECONDS = _Seconds(min=0.001)
+
+
 class _Group(click.Group):
     def main(self, *args: object, **kwargs: object) -> object:
         """Any unexpected exception becomes a one-line error with exit code 2, never a traceback."""
@@ -51,8 +64,8 @@ class _Group(click.Group):
             click.echo("pd-analyze: interrupted", err=True)
             sys.exit(130)
         except Exception as exc:
-            click.echo(f"pd-analyze: internal error: {exc.__class__.__name__}: {exc} "
-                       "(please report it with the capture)", err=True)
+            click.echo(dump.safe(f"pd-analyze: internal error: {exc.__class__.__name__}: {exc} "
+                                 "(please report it with the capture)"), err=True)
             sys.exit(EXIT_USAGE)
 
 
@@ -99,7 +112,7 @@ def profile_option(func: Callable) -> Callable:
 @click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
               help="text: indented tree; json: JSON Lines, one object per PNIO RPC frame.")
 @click.option("--color/--no-color", default=None, help="Colour the text output (default: on a terminal).")
-@click.option("--rpc-timeout", type=click.FloatRange(min=0.001), default=DEFAULT_RPC_TIMEOUT,
+@click.option("--rpc-timeout", type=SECONDS, default=DEFAULT_RPC_TIMEOUT,
               show_default=True, help="Seconds of capture time before a request counts as unanswered.")
 @profile_option
 def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None, findings_only: bool,
@@ -116,23 +129,25 @@ def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None
     status = EXIT_OK
     for path in paths:
         if len(paths) > 1 and fmt == "text":
-            click.echo(f"==> {path} <==")
+            click.echo(dump.safe(f"==> {path} <=="))
         d = Dissector(annotate=True, rpc_timeout=rpc_timeout, checker=checker)
         results = (r for r in dissect(path, dissector=d) if wanted(r.frame))
         try:
             dump.render(results, fmt, click.echo, style, findings_only, checks.CHECKED_FIELDS)
         except CaptureError as exc:
-            click.echo(f"pd-analyze: {exc}", err=True)
+            click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
             status = EXIT_USAGE
         loose = [f for f in d.loose_findings if wanted(f.frame)]
         if loose and fmt == "text":
             click.echo("Findings on frames that are not PNIO RPC:")
             for f in loose:
                 click.echo(f"  frame {f.frame} " + dump.finding_line(f, "", style))
+            if d.loose_dropped:
+                click.echo(f"  ... and {d.loose_dropped} more (only the first {len(d.loose_findings)} are kept)")
         elif loose:
             click.echo(f"pd-analyze: {len(loose)} findings on frames that are not PNIO RPC "
                        "(see --format text)", err=True)
-        click.echo(f"{path}: {d.accounting.line()}", err=True)
+        click.echo(dump.safe(f"{path}: {d.accounting.line()}"), err=True)
     sys.exit(status)
 
 
@@ -254,9 +269,11 @@ def _analyze(captures: tuple[str, ...], read: str | None, profile: str, timeout:
              jobs: int, chain: bool):
     from pd_analyze.analysis import analyze, expand
 
-    paths = expand(_inputs(captures, read))
+    given = _inputs(captures, read)
+    paths = expand(given)
     if not paths:
-        raise click.UsageError("no capture files matched")
+        raise click.UsageError(dump.safe(f"no capture files matched {' '.join(given)} (a directory is searched for "
+                                         "*.pcap, *.pcapng, *.cap and *.gz files)"))
     _checker(profile)  # a bad profile is a usage error before any file is read
     return analyze(paths, profile, timeout, rpc_timeout, _progress() if jobs == 1 else None, jobs, chain)
 
@@ -266,9 +283,9 @@ def _timeouts(func: Callable) -> Callable:
                         help="Analyse files in N parallel processes (same tables as one process).")(func)
     func = click.option("--chain", is_flag=True,
                         help="The files continue one another (ring buffer): pair across file boundaries.")(func)
-    func = click.option("--timeout", type=click.FloatRange(min=0.001), default=10.0, show_default=True,
+    func = click.option("--timeout", type=SECONDS, default=10.0, show_default=True,
                         help="Seconds of capture time a transaction may take before it is a timeout.")(func)
-    return click.option("--rpc-timeout", type=click.FloatRange(min=0.001), default=DEFAULT_RPC_TIMEOUT,
+    return click.option("--rpc-timeout", type=SECONDS, default=DEFAULT_RPC_TIMEOUT,
                         show_default=True, help="Seconds of capture time before an RPC call is unanswered.")(func)
 
 
@@ -294,10 +311,10 @@ def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fm
 
         written.append(html_report.write(analysis, f"{out_dir}/report.html",
                                          tables_dir_note="the CSV files beside this page"))
-    click.echo(report.summary(analysis))
+    click.echo("\n".join(dump.safe(line) for line in report.summary(analysis).split("\n")))
     click.echo("\nWrote " + ", ".join(written), err=True)
     for error in analysis.errors:
-        click.echo(f"pd-analyze: {error}", err=True)
+        click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
     sys.exit(EXIT_USAGE if analysis.errors else EXIT_OK)
 
 
@@ -323,7 +340,7 @@ def audit_command(captures: tuple[str, ...], read: str | None, fail_on: str, pro
     click.echo(f"{len(f)} findings in {files} capture{'s' if files != 1 else ''}: "
                + ", ".join(f"{counts.get(s, 0)} {s}" for s in ("error", "warning", "info")))
     for error in analysis.errors:
-        click.echo(f"pd-analyze: {error}", err=True)
+        click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
     if analysis.errors:
         sys.exit(EXIT_USAGE)
     worst = max((SEVERITY_RANK[s] for s in f.severity.astype(str)), default=0)

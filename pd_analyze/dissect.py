@@ -43,8 +43,11 @@ from pd_analyze.tables import (
 
 DEFAULT_RPC_TIMEOUT = 5.0
 MAX_HELD_FRAMES = 10_000
+MAX_HELD_FIELDS = 50_000  # annotated fields of the held frames (a field costs some 300 bytes)
 MAX_KNOWN_ACTIVITIES = 65_536
+MAX_LOOSE_FINDINGS = 100_000  # kept when nobody drains them (the dump lists them at the end)
 MAX_CHANNELS = 16_384  # channels whose last parameter request is kept for labelling responses
+MAX_CHANNEL_BYTES = 16 * 1024 * 1024  # those requests, by profidrive.footprint
 RECORD_SERVICES = (OP_READ, OP_WRITE, OP_READ_IMPLICIT)
 
 # Frame outcomes beyond the link-layer skip reasons.
@@ -77,6 +80,8 @@ class Pdu:
     retransmission: bool = False
     fault_status: int | None = None
     malformed: bool = False
+    fragments: tuple[int, ...] = ()  # frames of the IP/CL fragments it was reassembled from
+    first_ts: float | None = None  # a request is timed at its first frame (protocol.md 7.6)
 
 
 @dataclass(slots=True)
@@ -138,16 +143,21 @@ class Dissector:
         self.records_not_profidrive = 0
         # the last parameter request per channel and its frame, to label the blocks of responses
         self._pd_requests: dict[tuple, tuple[profidrive.Parsed, int]] = {}
+        self._pd_bytes = 0
         self.link = link.LinkDecoder()
         self.frags = rpc.FragmentTable()
         self.calls = rpc.CallTable()
         self.accounting = Accounting()
         self.loose_findings: list[Finding] = []  # findings on frames that are not PNIO RPC
+        self.loose_dropped = 0  # beyond MAX_LOOSE_FINDINGS
         self._activities: dict[bytes, None] = {}
         self._held: deque[FrameResult] = deque()
+        self._held_index: dict[int, FrameResult] = {}  # the held results by frame
+        self._held_fields = 0
         self._waiting: dict[int, FrameResult] = {}
         self._frag_frames: dict[tuple, list[int]] = {}
         self._now = float("-inf")
+        self._fragment_times: dict[int, float] = {}  # IP fragments awaiting their datagram, by frame
 
     # --- the frame loop -------------------------------------------------------------------
     def feed(self, frame: capture.RawFrame) -> list[FrameResult]:
@@ -159,13 +169,20 @@ class Dissector:
         if self.link.findings:
             self.loose_findings += self.link.findings
             self.link.findings = []
+        if dgram is link.SKIP_FRAGMENT:
+            self._fragment_times[number] = ts  # for timing the reassembled PDU from its first piece
+            if len(self._fragment_times) > MAX_KNOWN_ACTIVITIES:
+                del self._fragment_times[next(iter(self._fragment_times))]
         if isinstance(dgram, str):
-            self.accounting.skipped[dgram] += 1
+            (self.accounting.malformed if dgram in link.MALFORMED else self.accounting.skipped)[dgram] += 1
         else:
             result = self._udp(number, ts, linktype, data, dgram)
             if result is not None:
                 out.append(result)
         self._expire(out)
+        if len(self.loose_findings) > MAX_LOOSE_FINDINGS:
+            self.loose_dropped += len(self.loose_findings) - MAX_LOOSE_FINDINGS
+            del self.loose_findings[MAX_LOOSE_FINDINGS:]
         return self._release(out)
 
     def finish(self) -> list[FrameResult]:
@@ -179,6 +196,7 @@ class Dissector:
         for key, call in list(self.calls.open.items()):
             del self.calls.open[key]
             self._unanswered(call, key, out, "end of capture")
+        self.loose_findings += self.calls.finish()
         for number in list(self._waiting):
             self._waiting.pop(number, None)
         released = self._release(out)
@@ -269,6 +287,7 @@ class Dissector:
         response = hdr.ptype == PTYPE_RESPONSE
         stub_base = body_base
         frames: tuple[int, ...] = ()
+        whole_ts = None
         if hdr.flags1 & FLAG1_FRAG:
             fkey = (hdr.activity, hdr.seq, hdr.ptype, dgram.src, dgram.dst)
             if self.frags.seen(fkey, hdr.frag_num, body):
@@ -284,13 +303,13 @@ class Dissector:
                 return
             whole = self.frags.add(fkey, number, res.ts, hdr, body, res.findings)
             if self.annotate:
-                self._frag_frames.setdefault(fkey, []).append(number)
+                self._link_later(fkey, number)
             if whole is None:
                 res.summary = f"{_pdu_name(hdr)}, fragment {hdr.frag_num} ({len(body)} bytes)"
                 if self.annotate:
                     self._wait(res)
                 return
-            body, frames, stub_base = whole.body, whole.frames, 0
+            body, frames, stub_base, whole_ts = whole.body, whole.frames, 0, whole.first_ts
             if self.annotate:
                 for other in self._frag_frames.pop(fkey, []):
                     self._link_reassembled(other, number)
@@ -298,6 +317,7 @@ class Dissector:
                                         0, [derived("rpc.fragments", frames)]))
         pdu = self._bare_pdu(number, res.ts, dgram, hdr)
         res.pdu = pdu
+        self._first_frame(pdu, dgram, frames, whole_ts if frames else None)
         if response:
             self._response(res, hdr, dgram, key, body, pdu)
         else:
@@ -318,9 +338,23 @@ class Dissector:
         res.findings += checks.ndr(stub, declared, opnum, number, request_stub)
         res.findings += checks.blocks(stub, opnum, number, request_stub, self.checker.tolerate)
         self._records(res, stub, hdr, dgram)
+        if not response and not pdu.retransmission and pdu.request is not None:
+            self.calls.charge(key, pdu.request, _decoded_cost(stub), res.findings)  # info keeps the stub
         if self.annotate:
             res.summary = self._summary(hdr, stub, len(frames), opnum)
             self._annotate_stub(res, stub, body, stub_base, opnum)
+
+    def _first_frame(self, pdu: Pdu, dgram: link.Datagram, cl_frames: tuple[int, ...],
+                     cl_first_ts: float | None) -> None:
+        """The frames a reassembled PDU came in, and the time of its first (IP or CL fragments)."""
+        pieces = set(cl_frames) | set(dgram.fragments)
+        if not pieces:
+            return
+        pdu.fragments = tuple(sorted(pieces))
+        times = [self._fragment_times.pop(n) for n in dgram.fragments if n in self._fragment_times]
+        if cl_first_ts is not None:
+            times.append(cl_first_ts)
+        pdu.first_ts = min(times, default=pdu.ts)
 
     def _request(self, res: FrameResult, hdr: rpc.Header, dgram: link.Datagram, key: tuple,
                  body: bytes, pdu: Pdu) -> None:
@@ -439,10 +473,16 @@ class Dissector:
                 parsed = profidrive.parse_request(block.record, number, res.findings)
                 res.findings += self.checker.request(parsed, number)
                 block.pd = (parsed, None)
-                self._pd_requests.pop(key, None)
-                self._pd_requests[key] = (parsed, number)
-                if len(self._pd_requests) > MAX_CHANNELS:
-                    del self._pd_requests[next(iter(self._pd_requests))]
+                self._remember_request(key, parsed, number)
+
+    def _remember_request(self, key: tuple, parsed: profidrive.Parsed, number: int) -> None:
+        """The channel's last parameter request, within MAX_CHANNELS and MAX_CHANNEL_BYTES (oldest go)."""
+        old = self._pd_requests.pop(key, None)
+        self._pd_bytes += profidrive.footprint(parsed) - (profidrive.footprint(old[0]) if old else 0)
+        self._pd_requests[key] = (parsed, number)
+        while len(self._pd_requests) > 1 and (len(self._pd_requests) > MAX_CHANNELS
+                                              or self._pd_bytes > MAX_CHANNEL_BYTES):
+            self._pd_bytes -= profidrive.footprint(self._pd_requests.pop(next(iter(self._pd_requests)))[0])
 
     def _summary(self, hdr: rpc.Header, stub: rec.Stub, fragments: int, opnum: int) -> str:
         op = PNIO_OPNUM.get(opnum, f"opnum {opnum}")
@@ -523,12 +563,8 @@ class Dissector:
 
     def _attach(self, f: Finding, out: list[FrameResult]) -> None:
         """A finding discovered later for an earlier frame: on its held result, else loose."""
-        held = self._waiting.pop(f.frame, None)
-        if held is not None:
-            held.findings.append(f)
-        else:
-            out_frame = next((r for r in reversed(self._held) if r.frame == f.frame), None)
-            (out_frame.findings if out_frame is not None else self.loose_findings).append(f)
+        held = self._waiting.pop(f.frame, None) or self._held_index.get(f.frame)
+        (held.findings if held is not None else self.loose_findings).append(f)
 
     def _unanswered(self, call: rpc.Call, key: tuple, out: list[FrameResult], why: str) -> None:
         self._attach(finding("rpc_unanswered", call.frame, "rpc.seq", key[1],
@@ -542,18 +578,42 @@ class Dissector:
     def _release(self, new: list[FrameResult]) -> list[FrameResult]:
         if not self.annotate:
             return new
-        self._held.extend(new)
+        for res in new:
+            self._held.append(res)
+            self._held_index[res.frame] = res
+            self._held_fields += sum(len(layer.fields) for layer in res.layers)
         ready = []
         while self._held:
             head = self._held[0]
             blocked = head.frame in self._waiting
-            if blocked and (len(self._held) > MAX_HELD_FRAMES or head.ts + self.rpc_timeout < self._now):
+            if blocked and (len(self._held) > MAX_HELD_FRAMES or self._held_fields > MAX_HELD_FIELDS
+                            or head.ts + self.rpc_timeout < self._now):
                 self._waiting.pop(head.frame, None)
                 blocked = False
             if blocked:
                 break
             ready.append(self._held.popleft())
+            self._held_index.pop(head.frame, None)
+            self._held_fields -= sum(len(layer.fields) for layer in head.layers)
         return ready
+
+    def _link_later(self, fkey: tuple, number: int) -> None:
+        """Remember a held fragment's frame, to link it to the frame that reassembles its PDU."""
+        frames = self._frag_frames.setdefault(fkey, [])
+        if len(frames) < MAX_HELD_FRAMES:  # beyond that, the frames have left the hold anyway
+            frames.append(number)
+        if len(self._frag_frames) > rpc.MAX_FRAG_SETS:  # sets evicted or never completed
+            del self._frag_frames[next(iter(self._frag_frames))]
+
+
+def _decoded_cost(stub: rec.Stub) -> int:
+    """Bytes a request's decoded stub keeps alive in its open call: blocks, records, parsed PROFIdrive."""
+    cost = 256
+    for block in stub.blocks:
+        cost += 512 + len(block.record)
+        if isinstance(block.pd, tuple):
+            cost += profidrive.footprint(block.pd[0])
+    return cost
 
 
 def _channel(dgram: link.Datagram, v: tuple, target_ar: bytes, response: bool) -> tuple:

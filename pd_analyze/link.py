@@ -40,8 +40,12 @@ SKIP_NOT_UDP = "not UDP"
 SKIP_SHORT = "frame too short for its headers"
 SKIP_FRAGMENT = "IP fragment (reassembly pending)"
 SKIP_MALFORMED = "malformed IPv4/UDP header"
+MALFORMED = frozenset({SKIP_MALFORMED})  # reasons counted as malformed frames, not skipped ones
 MAX_IP_DATAGRAMS = 1024  # open reassemblies
-MAX_IP_BYTES = 16 * 1024 * 1024  # bytes held by open reassemblies
+MAX_IP_BYTES = 16 * 1024 * 1024  # bytes held by open reassemblies, each piece with PIECE_OVERHEAD
+MAX_IP_PIECES = 256  # pieces of one datagram (45 carry the largest datagram at MTU 1500)
+PIECE_OVERHEAD = 128  # bytes a held piece costs beyond its payload (objects), so tiny pieces count too
+MAX_EVICTION_FINDINGS = 100  # evictions listed one by one; the rest are counted in one finding at the end
 
 
 class Datagram(NamedTuple):
@@ -94,6 +98,8 @@ class LinkDecoder:
     def __init__(self) -> None:
         self._open: dict[tuple[bytes, bytes, int, int], _Reassembly] = {}
         self._bytes = 0
+        self.evicted = 0  # datagrams dropped by the caps
+        self._last_eviction = 0  # frame of the last one
         self.findings: list[Finding] = []  # drained by the caller after every frame
 
     def datagram(self, number: int, linktype: int, data: bytes) -> Datagram | str:
@@ -149,12 +155,18 @@ class LinkDecoder:
     def _add_fragment(self, number: int, src: bytes, dst: bytes, ident: int, flags_frag: int,
                       header: bytes, piece: bytes, truncated: bool) -> tuple[bytes, tuple[int, ...]] | None:
         key = (src, dst, 17, ident)
+        cost = len(piece) + PIECE_OVERHEAD
         entry = self._open.get(key)
+        if entry is not None and len(entry.pieces) >= MAX_IP_PIECES:
+            self._evict(key, number, f"more than {MAX_IP_PIECES} fragments")
+            entry = None
+        self._evict_for(cost, number, key)
         if entry is None:
-            self._evict_for(len(piece), number)
             entry = self._open[key] = _Reassembly(number)
         offset = (flags_frag & 0x1FFF) * 8
         for other_off, other in entry.pieces:
+            if other_off == offset and other == piece:
+                return None  # an identical copy: a retransmitted fragment, nothing new to hold
             lo, hi = max(offset, other_off), min(offset + len(piece), other_off + len(other))
             if lo < hi and piece[lo - offset:hi - offset] != other[lo - other_off:hi - other_off]:
                 self.findings.append(rules.finding(
@@ -164,8 +176,8 @@ class LinkDecoder:
                 break
         entry.pieces.append((offset, piece))
         entry.frames.append(number)
-        entry.size += len(piece)
-        self._bytes += len(piece)
+        entry.size += cost
+        self._bytes += cost
         if offset == 0:
             entry.header = header
         if not flags_frag & 0x2000 and not truncated:
@@ -179,25 +191,40 @@ class LinkDecoder:
             whole[off:off + len(data)] = data[:max(0, entry.total - off)]
         return bytes(whole), tuple(entry.frames)
 
-    def _evict_for(self, incoming: int, number: int) -> None:
-        while self._open and (len(self._open) >= MAX_IP_DATAGRAMS
-                              or self._bytes + incoming > MAX_IP_BYTES):
-            key, entry = next(iter(self._open.items()))
-            del self._open[key]
-            self._bytes -= entry.size
+    def _evict_for(self, incoming: int, number: int, keep: tuple) -> None:
+        """Drop the oldest datagrams (never `keep`, the one growing) until a piece of `incoming` bytes fits."""
+        limit = MAX_IP_DATAGRAMS if keep in self._open else MAX_IP_DATAGRAMS - 1
+        while self._bytes + incoming > MAX_IP_BYTES or len(self._open) > limit:
+            victim = next((k for k in self._open if k != keep), None)
+            if victim is None:
+                return
+            self._evict(victim, number, "IP reassembly table full")
+
+    def _evict(self, key: tuple, number: int, why: str) -> None:
+        entry = self._open.pop(key)
+        self._bytes -= entry.size
+        self.evicted += 1
+        self._last_eviction = number
+        if self.evicted <= MAX_EVICTION_FINDINGS:
             self.findings.append(rules.finding(
                 "ip_frag_evicted", number, "ip.id", f"{key[3]:#06x}",
-                f"<= {MAX_IP_DATAGRAMS} open datagrams, {MAX_IP_BYTES} bytes",
-                f"IP reassembly table full: datagram from frame {entry.first_frame} dropped "
-                f"({len(entry.frames)} fragments)"))
+                f"<= {MAX_IP_DATAGRAMS} open datagrams, {MAX_IP_BYTES} bytes, {MAX_IP_PIECES} pieces each",
+                f"{why}: datagram from frame {entry.first_frame} dropped ({len(entry.frames)} fragments)"))
 
     def finish(self) -> list[Finding]:
         """Findings for datagrams still incomplete at the end of the capture."""
-        out = [rules.finding("ip_frag_incomplete", e.first_frame, "ip.id", f"{key[3]:#06x}",
+        if self.evicted > MAX_EVICTION_FINDINGS:
+            more = self.evicted - MAX_EVICTION_FINDINGS
+            self.findings.append(rules.finding(
+                "ip_frag_evicted", self._last_eviction, "ip.id", self.evicted, f"<= {MAX_IP_DATAGRAMS} open datagrams",
+                f"{more} more datagrams dropped by the reassembly caps ({self.evicted} in all; only the "
+                f"first {MAX_EVICTION_FINDINGS} are listed one by one)"))
+        out = self.findings + [rules.finding("ip_frag_incomplete", e.first_frame, "ip.id", f"{key[3]:#06x}",
                              "all fragments", f"IP datagram {ip_text(key[0])} -> {ip_text(key[1])} "
                              f"id {key[3]:#06x} incomplete at end of capture (frames "
                              f"{', '.join(map(str, e.frames))})")
                for key, e in self._open.items()]
+        self.findings = []
         self._open.clear()
         self._bytes = 0
         return out

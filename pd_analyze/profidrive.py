@@ -189,9 +189,10 @@ def _blocks(data: bytes, pos: int, count: int, frame: int, findings: list[Findin
             continue
         more = i < count - 1
         left = len(data) - pos
-        if left == 0 and not more:
-            findings.append(finding("pad_missing_final", frame, f"pd.val[{i}].pad", "absent", "0x00",
-                                    "odd value list at the end of the record without its pad byte"))
+        if left == 0:  # with more blocks expected, the next round reports the record as cut short
+            if not more:
+                findings.append(finding("pad_missing_final", frame, f"pd.val[{i}].pad", "absent", "0x00",
+                                        "odd value list at the end of the record without its pad byte"))
         elif left == 1 or (more and data[pos] == 0):
             _take_pad(block, data, pos, i, frame, findings)
             pos += 1

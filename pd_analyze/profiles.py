@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from types import MappingProxyType
+from typing import Any
 
 from pd_analyze.rules import RULES
 
@@ -115,35 +116,49 @@ def _profile(data: dict, where: str, default_rule: str) -> Profile:
     unknown = set(data) - {"name", "title", "description", "limit", "error_texts", "tolerate", "vendor_ids"}
     if unknown:
         raise fail(f"unknown top-level keys {sorted(unknown)}")
+
+    def typed(table: dict, key: str, kind: type, what: str, default: object) -> Any:
+        """A value of the file, of the type the profile format wants (TOML can hold any type anywhere)."""
+        value = table.get(key, default)
+        if not isinstance(value, kind) or (isinstance(value, bool) and kind is not bool):
+            raise fail(f"'{key}' must be {what}, not {type(value).__name__} {value!r}"[:300])
+        return value
+
+    for key in ("title", "description"):
+        typed(data, key, str, "a string", "")
     limits = []
-    for n, item in enumerate(data.get("limit", []), 1):
+    for n, item in enumerate(typed(data, "limit", list, "an array of tables ([[limit]])", []), 1):
         if not isinstance(item, dict):
             raise fail(f"limit #{n} is not a table")
-        key = item.get("key")
+        key = typed(item, "key", str, "a string (see LIMIT_KEYS)", "")
         if key not in LIMIT_KEYS:
             raise fail(f"limit #{n}: unknown key {key!r} (known: {', '.join(LIMIT_KEYS)})")
         source = item.get("source")
         if not isinstance(source, str) or not source:
             raise fail(f"limit #{n} ({key}): every limit needs its 'source' (manual and table)")
-        rule = item.get("rule", default_rule)
+        rule = typed(item, "rule", str, "a rule name", default_rule)
         if rule not in RULES:
             raise fail(f"limit #{n} ({key}): unknown rule {rule!r}")
-        ranges = tuple(_range(v, fail, n, key) for v in item.get("allowed", []))
+        allowed = typed(item, "allowed", list, 'a list of numbers or "lo-hi" ranges, e.g. ["1-16"]', [])
+        ranges = tuple(_range(v, fail, n, key) for v in allowed)
         if not ranges:
             raise fail(f"limit #{n} ({key}): 'allowed' must list values or 'lo-hi' ranges")
         limits.append(Limit(key, LIMIT_KEYS[key][0], ranges, source, rule))
     texts = {}
-    for k, v in data.get("error_texts", {}).items():
+    for k, v in typed(data, "error_texts", dict, 'a table ([error_texts], "0x70" = "text")', {}).items():
         try:
             texts[int(k, 0)] = str(v)
         except ValueError:
             raise fail(f"error_texts: key {k!r} is not a number like \"0x65\"") from None
-    tolerate = frozenset(data.get("tolerate", []))
+    tolerate_list = typed(data, "tolerate", list, "a list of names", [])
+    if not all(isinstance(t, str) for t in tolerate_list):
+        raise fail(f"tolerate entries must be names (known: {', '.join(TOLERATIONS)})")
+    tolerate = frozenset(tolerate_list)
     if tolerate - set(TOLERATIONS):
         raise fail(f"unknown tolerate entries {sorted(tolerate - set(TOLERATIONS))} "
                    f"(known: {', '.join(TOLERATIONS)})")
-    vendor_ids = tuple(data.get("vendor_ids", []))
-    if not all(isinstance(v, int) for v in vendor_ids):
+    vendor_ids = tuple(typed(data, "vendor_ids", list, "a list of integers", []))
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in vendor_ids):
         raise fail("vendor_ids must be integers")
     return Profile(name, str(data.get("title", name)), str(data.get("description", "")), tuple(limits),
                    MappingProxyType(texts), tolerate, vendor_ids, where)

@@ -66,6 +66,10 @@ def summary(analysis: Analysis, top: int = 10) -> str:
         line = (f"{row.capture}: {row.read} frames read = {row.decoded} decoded + {row.skipped} skipped + "
                 f"{row.malformed} malformed; {row.transactions} transactions")
         lines.append(line + (f"; ERROR {row.error}" if row.error else ""))
+        for kind, reasons in (("skipped", row.skipped_by_reason), ("malformed", row.malformed_by_reason)):
+            if reasons:  # the invariant by reason: every frame is accounted for
+                lines.append(f"  {kind}: " + "; ".join(f"{n} {why}" for why, n in
+                                                       sorted(reasons.items(), key=lambda item: -item[1])))
     lines.append("")
     if t.empty:
         lines.append("No PROFIdrive transactions found.")

@@ -44,10 +44,17 @@ SKIP_NOT_RPC = "UDP, not DCE/RPC v4"
 SKIP_NOT_PNIO = "DCE/RPC, not PNIO (e.g. endpoint mapper)"
 
 MAX_OPEN_CALLS = 65_536
+MAX_OPEN_BYTES = 32 * 1024 * 1024  # open calls: request bodies and what was decoded from them (Call.cost)
 MAX_CLOSED_CALLS = 16_384  # remembered to tell duplicate responses from orphans
+MAX_CLOSED_BYTES = 16 * 1024 * 1024
+CALL_OVERHEAD = 512  # bytes a call costs beyond its body (objects), counted against the byte caps
 MAX_FRAG_SETS = 4_096
-MAX_FRAG_BYTES = 64 * 1024 * 1024
+MAX_FRAG_BYTES = 16 * 1024 * 1024  # held fragment bodies, each with FRAGMENT_OVERHEAD
+MAX_SET_BYTES = 1024 * 1024  # one fragment set (a PNIO record service needs a small fraction of it)
+FRAGMENT_OVERHEAD = 128  # bytes a held fragment costs beyond its body, so tiny fragments count too
 MAX_DONE_SETS = 4_096  # reassembled sets remembered to recognise late retransmitted fragments
+MAX_DONE_FRAGMENTS = 65_536  # fragment digests kept for those sets
+MAX_EVICTION_FINDINGS = 100  # evictions listed one by one; the rest are counted in one finding at the end
 
 
 def canonical_uuid(raw: bytes, little: bool) -> bytes:
@@ -129,6 +136,10 @@ class FragmentTable:
         self._sets: dict[tuple, _FragSet] = {}
         self._bytes = 0
         self._done: dict[tuple, _Done] = {}
+        self._done_count = 0  # digests held by _done
+        self._by_call: dict[tuple, list[tuple]] = {}  # (activity, seq) -> keys of its request sets
+        self.evicted = 0
+        self._last_eviction = 0
 
     def add(self, key: tuple, number: int, ts: float, hdr: Header, body: bytes,
             findings: list[Finding]) -> Reassembled | None:
@@ -141,9 +152,15 @@ class FragmentTable:
                 f"fragment {hdr.frag_num} retransmitted after its PDU was reassembled in frame "
                 f"{done.frame} (identical copy)"))
             return None
+        cost = len(body) + FRAGMENT_OVERHEAD
+        if entry is not None and entry.size + cost > MAX_SET_BYTES:
+            self._drop(key, number, findings, f"fragment set above {MAX_SET_BYTES} bytes")
+            entry = None
+        self._evict(number, findings, cost, key)
         if entry is None:
-            self._evict(number, findings, len(body))
             entry = self._sets[key] = _FragSet(number, ts)
+            if key[2] == PTYPE_REQUEST:
+                self._by_call.setdefault(key[:2], []).append(key)
         num = hdr.frag_num
         is_last = bool(hdr.flags1 & FLAG1_LASTFRAG)
         if num in entry.bodies:
@@ -165,14 +182,13 @@ class FragmentTable:
             return None
         entry.bodies[num] = body
         entry.frames[num] = number
-        entry.size += len(body)
-        self._bytes += len(body)
+        entry.size += cost
+        self._bytes += cost
         if is_last:
             entry.last = num
         if entry.last < 0 or len(entry.bodies) != entry.last + 1:
             return None
-        del self._sets[key]
-        self._bytes -= entry.size
+        self._pop(key)
         self._remember(key, number, entry)
         order = range(entry.last + 1)
         return Reassembled(b"".join(entry.bodies[n] for n in order),
@@ -196,19 +212,31 @@ class FragmentTable:
         return done is not None and done.digests.get(num) == _digest(body)
 
     def _remember(self, key: tuple, number: int, entry: _FragSet) -> None:
-        self._done.pop(key, None)
+        old = self._done.pop(key, None)
+        self._done_count -= len(old.digests) if old is not None else 0
         self._done[key] = _Done(number, {n: _digest(b) for n, b in entry.bodies.items()})
-        if len(self._done) > MAX_DONE_SETS:
-            del self._done[next(iter(self._done))]
+        self._done_count += len(entry.bodies)
+        while self._done and (len(self._done) > MAX_DONE_SETS or self._done_count > MAX_DONE_FRAGMENTS):
+            self._done_count -= len(self._done.pop(next(iter(self._done))).digests)
+
+    def _pop(self, key: tuple) -> _FragSet:
+        """Take a set out of the table (complete, missing pieces or dropped)."""
+        entry = self._sets.pop(key)
+        self._bytes -= entry.size
+        if key[2] == PTYPE_REQUEST:
+            keys = self._by_call.get(key[:2], [])
+            if key in keys:
+                keys.remove(key)
+            if not keys:
+                self._by_call.pop(key[:2], None)
+        return entry
 
     def drop_call(self, call_key: tuple, number: int, findings: list[Finding]) -> None:
         """The call was answered: any unfinished fragment set of its request is missing pieces."""
-        for key in [k for k in self._sets if k[0] == call_key[0] and k[1] == call_key[1]
-                    and k[2] == PTYPE_REQUEST]:
-            findings.append(self._missing(key, self._sets.pop(key), number))
+        for key in list(self._by_call.get(call_key[:2], ())):
+            findings.append(self._missing(key, self._pop(key), number))
 
     def _missing(self, key: tuple, entry: _FragSet, number: int) -> Finding:
-        self._bytes -= entry.size
         have = sorted(entry.bodies)
         top = entry.last if entry.last >= 0 else (have[-1] if have else 0)
         absent = _gaps(have, top)  # ranges, not numbers: a set may name up to 65,536 fragments
@@ -218,20 +246,34 @@ class FragmentTable:
             "rpc_frag_missing", entry.first_frame, "rpc.frag_num", _spans(_runs(have), ","), expect,
             f"fragment set of seq {key[1]} incomplete (missing {missing}; noticed at frame {number})")
 
-    def _evict(self, number: int, findings: list[Finding], incoming: int) -> None:
-        while self._sets and (len(self._sets) >= MAX_FRAG_SETS
-                              or self._bytes + incoming > MAX_FRAG_BYTES):
-            key, entry = next(iter(self._sets.items()))
-            del self._sets[key]
-            self._bytes -= entry.size
+    def _evict(self, number: int, findings: list[Finding], incoming: int, keep: tuple) -> None:
+        """Drop the oldest sets (never `keep`, the one growing) until a fragment of `incoming` bytes fits."""
+        limit = MAX_FRAG_SETS if keep in self._sets else MAX_FRAG_SETS - 1
+        while self._bytes + incoming > MAX_FRAG_BYTES or len(self._sets) > limit:
+            victim = next((k for k in self._sets if k != keep), None)
+            if victim is None:
+                return
+            self._drop(victim, number, findings, "fragment table full")
+
+    def _drop(self, key: tuple, number: int, findings: list[Finding], why: str) -> None:
+        entry = self._pop(key)
+        self.evicted += 1
+        self._last_eviction = number
+        if self.evicted <= MAX_EVICTION_FINDINGS:
             findings.append(rules.finding(
                 "rpc_frag_evicted", number, "rpc.frag_num", len(entry.bodies),
-                f"<= {MAX_FRAG_SETS} open sets", f"fragment table full: set from frame "
-                f"{entry.first_frame} dropped"))
+                f"<= {MAX_FRAG_SETS} open sets, {MAX_FRAG_BYTES} bytes, {MAX_SET_BYTES} bytes per set",
+                f"{why}: set of seq {key[1]} from frame {entry.first_frame} dropped"))
 
     def finish(self, number: int) -> list[Finding]:
         out = [self._missing(key, entry, number) for key, entry in self._sets.items()]
+        if self.evicted > MAX_EVICTION_FINDINGS:
+            out.append(rules.finding(
+                "rpc_frag_evicted", self._last_eviction, "rpc.frag_num", self.evicted, f"<= {MAX_FRAG_SETS} open sets",
+                f"{self.evicted - MAX_EVICTION_FINDINGS} more fragment sets dropped by the table caps "
+                f"({self.evicted} in all; only the first {MAX_EVICTION_FINDINGS} are listed one by one)"))
         self._sets.clear()
+        self._by_call.clear()
         self._bytes = 0
         return out
 
@@ -285,6 +327,7 @@ class Call:
     working: int = 0
     pings: int = 0
     response_frame: int = 0
+    cost: int = 0  # bytes it keeps alive (body, what was decoded from it), counted against the caps
 
 
 class CallTable:
@@ -293,6 +336,10 @@ class CallTable:
     def __init__(self) -> None:
         self.open: dict[tuple[bytes, int], Call] = {}
         self.closed: dict[tuple[bytes, int], Call] = {}
+        self.open_bytes = 0
+        self.closed_bytes = 0
+        self.evicted = 0  # open calls dropped by the caps
+        self._last_eviction = 0
 
     def request(self, key: tuple[bytes, int], call: Call, findings: list[Finding]) -> Call:
         """Register a request; returns the call it belongs to (the first copy on retransmission)."""
@@ -308,22 +355,54 @@ class CallTable:
                     "rpc_key_reused", call.frame, "rpc.seq", key[1], "a new sequence number",
                     f"activity/sequence number of frame {known.frame} reused with a different body"))
             return known
-        if len(self.open) >= MAX_OPEN_CALLS:
-            old_key, old = next(iter(self.open.items()))
-            del self.open[old_key]
-            findings.append(rules.finding(
-                "rpc_call_evicted", call.frame, "rpc.seq", old_key[1], f"<= {MAX_OPEN_CALLS} open calls",
-                f"open-call table full: call of frame {old.frame} dropped unanswered"))
+        call.cost = CALL_OVERHEAD + len(call.body)
         self.open[key] = call
+        self.open_bytes += call.cost
+        self._evict(key, call.frame, findings)
         return call
+
+    def charge(self, key: tuple[bytes, int], call: Call, extra: int, findings: list[Finding]) -> None:
+        """What was decoded from an open call's request (kept in `info`) adds `extra` bytes to its cost."""
+        if self.open.get(key) is call:
+            call.cost += extra
+            self.open_bytes += extra
+            self._evict(key, call.frame, findings)
+
+    def _evict(self, keep: tuple[bytes, int], number: int, findings: list[Finding]) -> None:
+        """Drop the oldest open calls (never `keep`) while the table is above its caps."""
+        while len(self.open) > MAX_OPEN_CALLS or self.open_bytes > MAX_OPEN_BYTES:
+            old_key = next((k for k in self.open if k != keep), None)
+            if old_key is None:
+                return
+            old = self.open.pop(old_key)
+            self.open_bytes -= old.cost
+            self.evicted += 1
+            self._last_eviction = number
+            if self.evicted <= MAX_EVICTION_FINDINGS:
+                findings.append(rules.finding(
+                    "rpc_call_evicted", number, "rpc.seq", old_key[1],
+                    f"<= {MAX_OPEN_CALLS} open calls, {MAX_OPEN_BYTES} bytes",
+                    f"open-call table full: call of frame {old.frame} dropped unanswered"))
 
     def close(self, key: tuple[bytes, int]) -> Call | None:
         call = self.open.pop(key, None)
         if call is not None:
+            self.open_bytes -= call.cost
+            old = self.closed.pop(key, None)
+            self.closed_bytes += call.cost - (old.cost if old is not None else 0)
             self.closed[key] = call
-            if len(self.closed) > MAX_CLOSED_CALLS:
-                del self.closed[next(iter(self.closed))]
+            while self.closed and (len(self.closed) > MAX_CLOSED_CALLS or self.closed_bytes > MAX_CLOSED_BYTES):
+                self.closed_bytes -= self.closed.pop(next(iter(self.closed))).cost
         return call
+
+    def finish(self) -> list[Finding]:
+        """At the end of the capture: how many open calls the caps dropped beyond those listed."""
+        if self.evicted <= MAX_EVICTION_FINDINGS:
+            return []
+        return [rules.finding(
+            "rpc_call_evicted", self._last_eviction, "rpc.seq", self.evicted, f"<= {MAX_OPEN_CALLS} open calls",
+            f"{self.evicted - MAX_EVICTION_FINDINGS} more open calls dropped unanswered by the table caps "
+            f"({self.evicted} in all; only the first {MAX_EVICTION_FINDINGS} are listed one by one)")]
 
     def expire(self, now: float, timeout: float) -> list[tuple[tuple[bytes, int], Call]]:
         """Calls opened more than `timeout` seconds of capture time before `now`."""
@@ -334,6 +413,7 @@ class CallTable:
             if call.ts + timeout >= now:
                 break
             out.append((key, call))
-        for key, _ in out:
+        for key, call in out:
             del self.open[key]
+            self.open_bytes -= call.cost
         return out

@@ -167,6 +167,8 @@ _RULES = (
     R("T4", "retry", INFO, SEQUENCE, PD, "re-write after pnio_error/timeout with the same reference"),
     R("T5", "b5_polling", INFO, SEQUENCE, PD, "B5 retries above the threshold"),
     R("T6", "fallback_pairing", WARNING, SEQUENCE, PD, "read paired by device, controller and AR only"),
+    R("T7", "txn_evicted", WARNING, SEQUENCE, "pd-analyze limits",
+      "transaction table full, or a transaction with too many frames: it ends as a timeout"),
     R("F1", "format_unsupported", WARNING, MALFORMED, PD, "format of unknown size in the last block"),
     R("F1", "format_unsupported_stop", ERROR, MALFORMED, PD, "format of unknown size before the last block"),
     R("F2", "date_padded", WARNING, PROTOCOL, PD, "Date values padded to 8 bytes"),

@@ -22,6 +22,7 @@ from pd_analyze.transactions import Transaction, param_label
 VERDICT_DTYPE = pd.CategoricalDtype(["ok", "nak", "reference_mismatch", "timeout", "pnio_error", "malformed"])
 SEVERITY_DTYPE = pd.CategoricalDtype(["info", "warning", "error"], ordered=True)
 TIME = "datetime64[ns, UTC]"
+MAX_TIME_SECONDS = 9.2e9  # datetime64[ns] spans 1677 ... 2262
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,7 +66,7 @@ COLUMNS: Mapping[str, tuple[Column, ...]] = MappingProxyType({
         ("t_final_read_rtt", "Float64", "seconds from the final read request to its response"),
         ("t_first_read_gap", "Float64", "seconds from write response to the first read request"),
         ("capture_ended", "boolean", "still open when the capture ended"),
-        ("closed_by", "category", "response, pnio_error, deadline, superseded or capture_end"),
+        ("closed_by", "category", "response, pnio_error, deadline, superseded, capture_end or evicted"),
     ),
     "parameters": _cols(
         ("txn", "Int64", "transaction"), ("capture", "category", "capture file"),
@@ -223,7 +224,9 @@ def frame_of(name: str, rows: Iterable[tuple]) -> pd.DataFrame:
     df = pd.DataFrame.from_records(list(rows), columns=[c.name for c in cols])
     for c in cols:
         if c.dtype == TIME:  # capture times to the microsecond (float seconds carry no more)
-            micros = (df[c.name].astype("float64") * 1e6).round().astype("Int64")
+            seconds = df[c.name].astype("float64")
+            seconds = seconds.where(seconds.abs() < MAX_TIME_SECONDS)  # a pcapng time beyond datetime64: NaT
+            micros = (seconds * 1e6).round().astype("Int64")
             df[c.name] = pd.to_datetime(micros, unit="us", utc=True).astype(TIME)
         else:
             df[c.name] = df[c.name].astype(c.dtype)

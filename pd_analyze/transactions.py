@@ -212,7 +212,10 @@ class TransactionEngine:
         v = block.values
         channel = (pdu.dst, pdu.src, v[rec.B_AR], v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], v[rec.B_INDEX])
         parsed = block.pd[0] if isinstance(block.pd, tuple) else None
-        txn = Transaction(self._next if pdu.frame >= self.number_from else 0, channel, parsed, pdu.frame, pdu.ts)
+        first = pdu.fragments[0] if pdu.fragments else pdu.frame  # timed at its first frame (7.6)
+        start = pdu.first_ts if pdu.first_ts is not None else pdu.ts
+        txn = Transaction(self._next if first >= self.number_from else 0, channel, parsed, first, start)
+        txn.frames.extend(pdu.fragments)
         txn.rpc_calls.append(pdu.request)
         self._next += 1 if txn.txn else 0
         record = block.record
@@ -288,8 +291,9 @@ class TransactionEngine:
                                                                      "pending write on the channel"))
             self._remember(pdu.frame, _Call("read", [None], channel))
             return None
-        txn.read_req_frames.append(pdu.frame)
-        txn.t_read_reqs.append(pdu.ts)
+        txn.read_req_frames.append(pdu.fragments[0] if pdu.fragments else pdu.frame)
+        txn.t_read_reqs.append(pdu.first_ts if pdu.first_ts is not None else pdu.ts)
+        txn.frames.extend(pdu.fragments)
         txn.rpc_calls.append(pdu.request)
         self._remember(pdu.frame, _Call("read", [txn], channel))
         return txn

@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 SAMPLE = "sample_pcaps/worked_example.pcap"
 
 
@@ -109,3 +111,144 @@ def test_profiles_and_fields_listing():
     assert "000_8871e7857f299724.txt" in out
     r = run("fields")
     assert "pd.addr[i].pnu" in r.stdout.decode() and "pn_io.profidrive.parameter.number" in r.stdout.decode()
+
+
+# --- hostile and broken input: every command, every kind of damage --------------------------------------------
+def _damaged(tmp_path: Path, kind: str) -> tuple[str, bytes | None, int, int | None]:
+    """(path or '-', stdin, frames before the damage, byte offset of the damage or None)."""
+    import gzip
+    import itertools
+    import struct
+
+    from tests.test_capture import epb, idb, shb
+
+    good = Path(SAMPLE).read_bytes()
+    starts = [24]
+    while starts[-1] < len(good):
+        starts.append(starts[-1] + 16 + struct.unpack_from("<I", good, starts[-1] + 8)[0])
+    path = tmp_path / f"{kind}.pcap"
+    if kind == "bad_magic":
+        data, frames, offset = b"\x00\x01\x02\x03" + good[4:], 0, 0
+    elif kind == "record_header_cut":
+        data, frames, offset = good[:starts[3] + 9], 3, starts[3]
+    elif kind == "caplen_too_big":
+        data = bytearray(good)
+        struct.pack_into("<I", data, starts[3] + 8, 262_145)
+        data, frames, offset = bytes(data), 3, starts[3]
+    elif kind == "pcapng_block_length":
+        records = [good[s + 16:e] for s, e in itertools.pairwise(starts)]
+        blocks = [epb(0, 1_000_000 * i, f) for i, f in enumerate(records)]
+        bad = bytearray(blocks[3])
+        bad[-4:] = struct.pack("<I", 16)
+        head = shb() + idb(1) + b"".join(blocks[:3])
+        data, frames, offset = head + bytes(bad) + b"".join(blocks[4:]), 3, len(head)
+        path = tmp_path / "block.pcapng"
+    elif kind == "gzip_crc":
+        raw = bytearray(gzip.compress(good, mtime=0))
+        raw[-8] ^= 0xFF
+        data, frames, offset = bytes(raw), 6, len(good)
+        path = tmp_path / "crc.pcap.gz"
+    elif kind == "empty":
+        data, frames, offset = b"", 0, 0
+    elif kind == "stdin_cut":
+        return "-", good[:starts[4] + 20], 4, starts[4]
+    elif kind == "unreadable":
+        return "/proc/self/mem", None, 0, 0
+    elif kind == "directory":
+        (tmp_path / "empty_dir").mkdir()
+        return str(tmp_path / "empty_dir"), None, 0, None
+    else:
+        raise AssertionError(kind)
+    path.write_bytes(data)
+    return str(path), None, frames, offset
+
+
+DAMAGE = ("bad_magic", "record_header_cut", "caplen_too_big", "pcapng_block_length", "gzip_crc", "empty",
+          "stdin_cut", "unreadable", "directory")
+
+
+@pytest.mark.parametrize("kind", DAMAGE)
+@pytest.mark.parametrize("command", ["dump", "report", "audit"])
+def test_damaged_input_one_line_error_results_before_it_exit_2(tmp_path, kind, command):
+    path, stdin, frames, offset = _damaged(tmp_path, kind)
+    args = [command, path] + (["--out", str(tmp_path / "out")] if command == "report" else [])
+    r = run(*args, stdin=stdin if stdin is not None else b"")
+    out, err = r.stdout.decode(), r.stderr.decode()
+    assert r.returncode == 2, (kind, command, err)
+    assert "Traceback" not in err and "internal error" not in err, err
+    errors = [line for line in err.splitlines() if line.startswith(("pd-analyze:", "Error:"))]
+    assert len(errors) == 1, err  # one line
+    if kind == "directory":
+        assert ("is a directory" if command == "dump" else "no capture files matched") in errors[0]
+        return
+    where = f"{path}: byte {offset}: "
+    assert errors[0].startswith(f"pd-analyze: {where}"), errors[0]
+    if command == "dump":  # the results for every frame before the damage
+        assert [line.split()[1] for line in out.splitlines() if line.startswith("Frame ")] == [
+            str(n) for n in range(1, frames + 1)]
+    elif command == "report":
+        assert out.startswith(f"{path}: {frames} frames read = {frames} decoded + 0 skipped + 0 malformed")
+        assert "ERROR byte" in out.splitlines()[0]
+    else:  # findings of the frames before the damage only, and the total line
+        lines = out.splitlines()
+        assert lines[-1].endswith(" info") and " findings in 1 capture: " in lines[-1]
+        assert all(int(line.split(":")[1]) <= frames for line in lines[:-1])
+
+
+def test_unreadable_file_without_read_rights(tmp_path):
+    import os
+
+    if os.geteuid() == 0:
+        pytest.skip("root reads any file: permission denied is covered in tests/test_robustness.py")
+    bad = tmp_path / "locked.pcap"
+    bad.write_bytes(Path(SAMPLE).read_bytes())
+    bad.chmod(0)
+    r = run("audit", str(bad))
+    assert r.returncode == 2 and "permission denied" in r.stderr.decode()
+
+
+@pytest.mark.parametrize(("profile", "message"), [
+    ('name = "x"\nerror_texts = "nope"\n', "'error_texts' must be a table"),
+    ('name = "x"\ntolerate = 5\n', "'tolerate' must be a list"),
+    ('name = "x"\nvendor_ids = 7\n', "'vendor_ids' must be a list of integers"),
+    ('name = "x"\nlimit = 3\n', "'limit' must be an array of tables"),
+    ('name = "x"\n[[limit]]\nkey = "iod.slot"\nallowed = "1-3"\nsource = "s"\n', "'allowed' must be a list"),
+    ('name = "x"\n[[limit]]\nkey = ["iod.slot"]\nallowed = [1]\nsource = "s"\n', "'key' must be a string"),
+    ('name = "x"\n[[limit]]\nkey = "iod.slot"\nallowed = [1]\nsource = "s"\nrule = 5\n', "'rule' must be"),
+    ('name = "x"\ntolerate = [["a"]]\n', "tolerate entries must be names"),
+    ('import os\nos.system("true")\n', "not valid TOML"),
+    ("\xff\xfe", "not valid TOML"),
+])
+def test_malformed_profile_file_is_a_usage_error(tmp_path, profile, message):
+    path = tmp_path / "mine.toml"
+    path.write_bytes(profile.encode("latin-1"))
+    commands = [["audit", SAMPLE, "--profile", str(path)]]
+    if "TOML" in message:  # every command that takes a profile
+        commands += [["dump", SAMPLE, "--profile", str(path)], ["profiles", str(path)],
+                     ["report", SAMPLE, "--profile", str(path), "--out", str(tmp_path / "o")],
+                     ["decode", "01010101100103c40000", "--request", "--profile", str(path)]]
+    for args in commands:
+        r = run(*args)
+        err = r.stderr.decode()
+        assert r.returncode == 2 and message in err and str(path) in err and "Traceback" not in err, (args, err)
+        assert "internal error" not in err
+
+
+@pytest.mark.parametrize(("args", "text"), [
+    (("dump", SAMPLE, "--frames", "abc"), "bad frame range 'abc'"),
+    (("dump", SAMPLE, "--frames", "0"), "frames are numbered from 1"),
+    (("dump", SAMPLE, "--frames", ","), "empty frame selection"),
+    (("report", SAMPLE, "--timeout", "nan"), "'nan' is not a number of seconds"),
+    (("audit", SAMPLE, "--rpc-timeout", "0"), "is not in the range"),
+    (("report", SAMPLE, "--format", "xlsx"), "'xlsx' is not one of"),
+    (("audit", SAMPLE, "--fail-on", "sometimes"), "'sometimes' is not one of"),
+    (("audit", SAMPLE, "--profile", "nosuch"), "unknown profile 'nosuch' (known: akd, generic"),
+    (("profiles", "nosuch"), "unknown profile 'nosuch'"),
+    (("frobnicate",), "No such command 'frobnicate'"),
+    (("report", "--bogus", SAMPLE), "No such option"),
+    (("audit",), "no capture given"),
+])
+def test_bad_usage_helpful_message_exit_2(args, text):
+    r = run(*args)
+    err = r.stderr.decode()
+    assert r.returncode == 2 and text in err and "Traceback" not in err, (args, err)

@@ -31,15 +31,7 @@ EXPECTED_DIR = SAMPLE_DIR / "expected"
 # (file, profile) -> the analyser fix the case waits for. Empty: the analyser agrees with every intent.
 KNOWN_ANALYSER_GAPS: dict[tuple[str, str], str] = {}
 # file -> the analyser fix its transactions wait for (strict xfail, as above).
-KNOWN_TRANSACTION_GAPS: dict[str, str] = {
-    "ip_fragments.pcap": (
-        "protocol.md 7.6 times a request at its first frame: the Write-Multiple request is IP fragments 5 (sent "
-        "first) and 6, so the transaction starts at frame 5 and t_write_rtt/t_total are 20 us longer than from "
-        "frame 6. link.py must hand the reassembled datagram on with its first frame (number and time), "
-        "dissect.py put them on the Pdu (a CL-fragmented request needs the same: rpc.py collects its fragment "
-        "frames, but the Pdu is timed at the completing one) and the transaction engine open the transaction "
-        "there; until then the engine reports frames 6-9 timed from frame 6."),
-}
+KNOWN_TRANSACTION_GAPS: dict[str, str] = {}
 
 # Rules the transaction engine reports (protocol.md 6.4 Q2-Q5 pairing, 6.5 T1-T6): profile-independent.
 TXN_RULES = frozenset({

@@ -810,3 +810,45 @@ def fault_trace_capture() -> tuple[Capture, Intent]:
 @sample("fault_trace.pcap")
 def fault_trace() -> bytes:
     return pcap_of(fault_trace_capture()[0])
+
+
+# ---- crafted_strings.pcap: untrusted text in every place a capture carries it ----------------------------
+
+
+@sample("crafted_strings.pcap")
+def crafted_strings() -> bytes:
+    """Strings a hostile device (or a forged capture) could send, in every place a capture carries text:
+    a text array (attribute 0x30), a description's name (attribute 0x20, subindex 0), VisibleString,
+    OctetString and UnicodeString values, read and written. Markup and script (<script>, attribute and
+    URL injection), terminal control (ANSI CSI and OSC, C1 CSI, CR, BS, BEL) and spreadsheet formulas
+    (leading =, +, -, @, tab, CR). Every output must show them inertly (tests/test_untrusted_strings.py)."""
+    from .profidrive import description, error_block, text_entries
+
+    cap = Capture()
+    s = session(cap, 1)
+
+    def text(pnu: int, value: str, fmt: int = 0x09) -> tuple[P, bytes]:
+        return P(pnu, n_elems=len(value)), value_block(fmt, value)
+
+    # ref 1 (frames 1-4): a text array and a description whose name is markup
+    names = text_entries(["<script>alert(1)", "</script><b>x</b"])
+    desc = description(0x0009, 16, "<svg/onload=a()>")
+    s.parameter_access(read_request(1, 1, [P(1, n_elems=2, attr=0x30), P(2, attr=0x20)]),
+                       pd_response(1, 0x01, 1, [value_block(0x09, names), value_block(0x0A, desc)]))
+    # ref 2 (frames 5-8): attribute and URL injection, answered with a NAK (so the HTML drill-down shows it)
+    html = [text(20, '"><img src=x onerror=alert(2)>'), text(21, "javascript:alert(3)"),
+            text(22, "' onmouseover='alert(4)")]
+    s.parameter_access(read_request(2, 1, [a for a, _ in html] + [P(23)]),
+                       pd_response(2, 0x81, 1, [b for _, b in html] + [error_block(0x00)]))
+    # ref 3 (frames 9-12): terminal control sequences, NAK
+    term = [text(30, "\x1b[31mRED\x1b[0m\x1b]0;pwned\x07"), text(31, "\x9b2J\rOVER\x08WRITTEN"),
+            (P(32, n_elems=12), value_block(0x0A, b"\x1b[2J<script>")), text(33, "\u202eevil\u2028x", 0x27)]
+    s.parameter_access(read_request(3, 1, [a for a, _ in term] + [P(34)]),
+                       pd_response(3, 0x81, 1, [b for _, b in term] + [error_block(0x00)]))
+    # ref 4 (frames 13-16) reads formulas, ref 5 (17-20) writes others over them: the change trail has both
+    formulas = ["=cmd|' /C calc'!A0", "+SUM(1,2)", "-2+3", "@SUM(1,2)", "\t=1+2", "\r=1+2"]
+    read = [text(40 + i, f) for i, f in enumerate(formulas)]
+    s.parameter_access(read_request(4, 1, [a for a, _ in read]), pd_response(4, 0x01, 1, [b for _, b in read]))
+    written = [text(40 + i, f) for i, f in enumerate(["=1+1", "+1-1", "-1+1", "@A1", "\t@A1", "\r-1"])]
+    s.parameter_access(change_request(5, 1, written), change_ok(5, 1, len(written)))
+    return pcap_of(cap)

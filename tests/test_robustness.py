@@ -1,0 +1,338 @@
+"""Hostile input: the accounting invariant, the memory caps, and a regression test for every decoder fix the
+fuzz harness and the property tests led to (each test names what crashed, hung or grew before the fix)."""
+
+from __future__ import annotations
+
+import gzip
+import io
+import json
+import struct
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+
+import pd_analyze
+from pd_analyze import capture, fuzz, hostile, link, profidrive, rpc, transactions
+from pd_analyze.dissect import MAX_HELD_FIELDS, MAX_LOOSE_FINDINGS, Dissector
+from pd_analyze.rules import finding
+from pd_analyze.synth import samples
+from pd_analyze.synth.profidrive import ParamAddress, change_ok, change_request, value_block
+from pd_analyze.synth.scenario import Capture
+from pd_analyze.tables_out import Rows, frame_of
+from pd_analyze.transactions import TransactionEngine
+from tests.test_capture import FRAME_A, epb, idb, shb
+
+REPO = Path(__file__).resolve().parents[1]
+SEEDS = fuzz.seed_paths()
+
+
+# --- the accounting invariant on every capture ----------------------------------------------------------------
+@pytest.mark.parametrize("path", SEEDS, ids=[Path(p).name for p in SEEDS])
+def test_every_frame_is_accounted_for(path: str) -> None:
+    """frames read = decoded + skipped (by reason) + malformed (by reason), from analyze() and the summary."""
+    a = pd_analyze.analyze(path)
+    row = a.accounting.iloc[0]
+    frames = sum(1 for _ in capture.frames(path))
+    assert row.read == frames and bool(row.balanced)
+    assert row.read == row.decoded + sum(row.skipped_by_reason.values()) + sum(row.malformed_by_reason.values())
+    assert (row.skipped, row.malformed) == (sum(row.skipped_by_reason.values()), sum(row.malformed_by_reason.values()))
+    from pd_analyze import report
+
+    text = report.summary(a)
+    assert f"{row.read} frames read = {row.decoded} decoded + {row.skipped} skipped + {row.malformed} malformed" in text
+    for why, n in row.skipped_by_reason.items():
+        assert f"{n} {why}" in text
+
+
+def test_invalid_ip_header_counts_as_malformed() -> None:
+    ip = bytearray(struct.pack(">BBHHHBBH4s4s", 0x43, 0, 40, 0, 0, 64, 17, 0, bytes(4), bytes(4)) + bytes(20))
+    d = Dissector()
+    d.feed(capture.RawFrame(1, 0.0, 1, bytes(12) + b"\x08\x00" + bytes(ip)))
+    assert d.accounting.malformed == {link.SKIP_MALFORMED: 1} and d.accounting.balanced()
+
+
+# --- capture.py ---------------------------------------------------------------------------------------------
+def test_gzip_of_a_highly_compressible_pcapng_reads_in_linear_time(tmp_path: Path) -> None:
+    """Before: every small read copied the whole inflated rest: 300,000 frames took 197 s (quadratic)."""
+    data = shb() + idb(1) + epb(0, 0, bytes(60)) * 200_000
+    path = tmp_path / "zeros.pcapng.gz"
+    path.write_bytes(gzip.compress(data, compresslevel=9))
+    started = time.perf_counter()
+    assert sum(1 for _ in capture.frames(str(path))) == 200_000
+    assert time.perf_counter() - started < 10
+
+
+def test_gzip_inflates_in_bounded_steps() -> None:
+    """A 100 MB run of zeros in 100 kB: one read inflates at most _GZIP_STEP bytes, not the whole member."""
+    bomb = gzip.compress(bytes(100 * 1024 * 1024), compresslevel=9)
+    stream = capture._Gunzip(io.BytesIO(bomb))
+    for _ in range(1000):
+        assert stream.read(16) == bytes(16)
+        assert len(stream.pending) <= 2 * capture._GZIP_STEP
+    assert len(stream.backlog) <= len(bomb)
+
+
+def test_gzip_multi_member_and_trailing_garbage(tmp_path: Path) -> None:
+    raw = struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 65535, 1) + struct.pack("<IIII", 1, 0, 60, 60) + FRAME_A
+    for blob, frames in ((gzip.compress(raw[:30]) + gzip.compress(raw[30:]), 1), (gzip.compress(raw) + b"junk", 1)):
+        path = tmp_path / "m.pcap.gz"
+        path.write_bytes(blob)
+        assert len(list(capture.frames(str(path)))) == frames
+
+
+@pytest.mark.parametrize(("btype", "size"), [(6, 12), (6, 28), (2, 16), (3, 12)])
+def test_pcapng_packet_block_shorter_than_its_header(tmp_path: Path, btype: int, size: int) -> None:
+    """Before: an EPB/PB of 12-28 bytes with consistent length fields raised struct.error (property test)."""
+    block = struct.pack("<II", btype, size) + bytes(size - 12) + struct.pack("<I", size)
+    good = shb() + idb(1) + epb(0, 0, FRAME_A)
+    path = tmp_path / "short.pcapng"
+    path.write_bytes(good + block)
+    got = []
+    with pytest.raises(capture.CaptureError) as err:
+        got.extend(capture.frames(str(path)))
+    assert len(got) == 1 and err.value.offset == len(good) and "shorter than its" in err.value.reason
+
+
+def test_read_error_is_a_capture_error() -> None:
+    """Before: EIO on the first read (a failing disk, /proc/self/mem) escaped as OSError: 'internal error'."""
+    with pytest.raises(capture.CaptureError, match="read failed"):
+        list(capture.frames("/proc/self/mem"))
+
+
+def test_permission_denied(monkeypatch: pytest.MonkeyPatch) -> None:
+    def denied(path: str, mode: str) -> None:
+        raise PermissionError(13, "Permission denied", path)
+
+    monkeypatch.setattr(capture, "open", denied, raising=False)
+    with pytest.raises(capture.CaptureError, match="permission denied"):
+        list(capture.frames("/some/capture.pcap"))
+
+
+def test_gzip_error_offsets_say_they_are_in_the_decompressed_data(tmp_path: Path) -> None:
+    raw = bytearray(gzip.compress(shb() + idb(1) + epb(0, 0, FRAME_A) + b"\x06\x00\x00\x00", mtime=0))
+    path = tmp_path / "cut.pcapng.gz"
+    path.write_bytes(bytes(raw))
+    with pytest.raises(capture.CaptureError) as err:
+        list(capture.frames(str(path)))
+    assert "decompressed data" in str(err.value) and err.value.offset is not None
+
+
+# --- tables --------------------------------------------------------------------------------------------------
+def test_pcapng_times_beyond_datetime64_become_nat(tmp_path: Path) -> None:
+    """Before: a pcapng timestamp after 2262 (tsresol 0, ticks 2^40) crashed building the tables."""
+    frames = list(capture.frames(str(REPO / "sample_pcaps" / "worked_example.pcap")))
+    data = shb() + idb(1, tsresol=0) + b"".join(epb(0, (1 << 40) + i, f.data) for i, f in enumerate(frames))
+    path = tmp_path / "future.pcapng"
+    path.write_bytes(data)
+    a = pd_analyze.analyze(str(path))
+    assert len(a.transactions) == 1 and a.transactions.t_start.isna().all()
+    assert frame_of("transactions", Rows().transactions).empty
+
+
+# --- link.py: IP reassembly caps ----------------------------------------------------------------------------
+def _fragment(ident: int, offset8: int, size: int = 64, more: bool = True, fill: int = 0, src: int = 1) -> bytes:
+    payload = bytes([fill]) * size
+    ip = struct.pack(">BBHHHBBH4s4s", 0x45, 0, 20 + size, ident, (0x2000 if more else 0) | offset8, 64, 17, 0,
+                     bytes([10, 0, src >> 8 & 0xFF, src & 0xFF]), bytes([10, 0, 0, 1]))
+    return bytes(12) + b"\x08\x00" + ip + payload
+
+
+def test_one_datagram_flooded_with_pieces_is_capped() -> None:
+    """Before: pieces of one datagram were unbounded, and each new one was compared with all (quadratic)."""
+    decoder = link.LinkDecoder()
+    started = time.perf_counter()
+    for n in range(20_000):
+        decoder.datagram(n + 1, 1, _fragment(7, n % 8000, 8))
+    assert time.perf_counter() - started < 10
+    entry = next(iter(decoder._open.values()))
+    assert len(entry.pieces) <= link.MAX_IP_PIECES and decoder.evicted >= 20_000 // link.MAX_IP_PIECES - 1
+
+
+def test_identical_fragment_copies_are_not_held_twice() -> None:
+    decoder = link.LinkDecoder()
+    for n in range(100):
+        decoder.datagram(n + 1, 1, _fragment(7, 0, 64))
+    entry = next(iter(decoder._open.values()))
+    assert len(entry.pieces) == 1 and decoder._bytes == 64 + link.PIECE_OVERHEAD
+
+
+def test_many_datagrams_evicted_with_bounded_findings() -> None:
+    decoder = link.LinkDecoder()
+    for n in range(5000):
+        decoder.datagram(n + 1, 1, _fragment(n & 0xFFFF, 0, 1400, src=n >> 16))
+        assert len(decoder._open) <= link.MAX_IP_DATAGRAMS and decoder._bytes <= link.MAX_IP_BYTES
+    assert decoder.evicted == 5000 - link.MAX_IP_DATAGRAMS
+    listed = [f for f in decoder.findings if f.name == "ip_frag_evicted"]
+    assert len(listed) == link.MAX_EVICTION_FINDINGS
+    decoder.findings = []  # the dissector drains them after every frame
+    ends = decoder.finish()
+    summary = [f for f in ends if f.name == "ip_frag_evicted"]
+    assert len(summary) == 1 and f"{5000 - link.MAX_IP_DATAGRAMS - 100} more datagrams" in summary[0].message
+    assert sum(f.name == "ip_frag_incomplete" for f in ends) == link.MAX_IP_DATAGRAMS
+
+
+# --- rpc.py: CL fragments and calls -------------------------------------------------------------------------
+def _hdr(num: int, last: bool = False, seq: int = 1) -> rpc.Header:
+    return rpc.Header((), True, 0, 0x04 | (0x02 if last else 0), b"a" * 16, b"i" * 16, seq, 3, 0, num)
+
+
+def test_fragment_set_flooded_with_numbers_is_capped() -> None:
+    """Before: one set held any number of fragments (65,536 x 64 kB), and its 'missing' finding listed every
+    absent number (a 300 kB message per set, 3 s to build at the end of the capture)."""
+    table = rpc.FragmentTable()
+    findings: list = []
+    for n in range(0, 3000, 2):
+        table.add((b"a", 1, 0, b"s", b"d"), n, 0.0, _hdr(n), bytes(1384), findings)
+        assert table._bytes <= rpc.MAX_SET_BYTES
+    assert any(f.name == "rpc_frag_evicted" and "above" in f.message for f in findings)
+    (missing,) = table.finish(9999)
+    assert missing.name == "rpc_frag_missing" and len(missing.message) < 300 and "more)" in missing.message
+
+
+def test_fragment_table_total_bytes_and_done_digests_are_capped() -> None:
+    table = rpc.FragmentTable()
+    findings: list = []
+    for s in range(20_000):
+        table.add((b"a", s, 0, b"s", b"d"), s, 0.0, _hdr(0, seq=s), bytes(1384), findings)
+        assert table._bytes <= rpc.MAX_FRAG_BYTES and len(table._sets) <= rpc.MAX_FRAG_SETS
+    assert table.evicted > 0 and sum(f.name == "rpc_frag_evicted" for f in findings) == rpc.MAX_EVICTION_FINDINGS
+    for s in range(3000):  # complete sets of 40 fragments each: the digests kept for late copies are capped
+        for n in range(40):
+            table.add((b"b", s, 0, b"s", b"d"), n, 0.0, _hdr(n, last=n == 39, seq=s), bytes([n]), findings)
+    assert table._done_count <= rpc.MAX_DONE_FRAGMENTS and len(table._done) <= rpc.MAX_DONE_SETS
+
+
+def test_answers_find_their_fragment_sets_without_a_scan() -> None:
+    """Before: every response scanned all open fragment sets (4,096 per frame)."""
+    table = rpc.FragmentTable()
+    findings: list = []
+    for s in range(4000):
+        table.add((b"a" * 16, s, 0, b"s", b"d"), s, 0.0, _hdr(0, seq=s), b"x", findings)
+    started = time.perf_counter()
+    for s in range(4000):
+        table.drop_call((b"a" * 16, s), s, findings)
+    assert time.perf_counter() - started < 1 and not table._sets and not table._by_call
+    assert sum(f.name == "rpc_frag_missing" for f in findings) == 4000
+
+
+def test_open_and_closed_calls_are_capped_by_bytes() -> None:
+    calls = rpc.CallTable()
+    findings: list = []
+    for s in range(2000):
+        key = (b"a", s)
+        call = calls.request(key, rpc.Call(s, 0.0, b"s", b"d", b"i", 3, bytes(60_000)), findings)
+        calls.charge(key, call, 100_000, findings)
+        assert calls.open_bytes <= rpc.MAX_OPEN_BYTES + 200_000
+        if s % 2:
+            calls.close(key)
+            assert calls.closed_bytes <= rpc.MAX_CLOSED_BYTES
+    assert calls.evicted > 0 and calls.finish() != []
+    assert sum(f.name == "rpc_call_evicted" for f in findings) == rpc.MAX_EVICTION_FINDINGS
+
+
+# --- profidrive.py -------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("record", [bytes([1, 0x01, 1, 2, 0x09, 1, 65]), bytes([1, 0x81, 1, 3, 0x09, 3, 65, 66, 67]),
+                                    bytes([1, 0x02, 1, 2]) + bytes([0x10, 1, 0, 1, 0, 0]) * 2 + bytes([0x09, 1, 65])])
+def test_odd_value_list_at_the_record_end_with_more_blocks_expected(record: bytes) -> None:
+    """Before: IndexError looking for the pad byte past the end (the long fuzz run, cases 12728 and 33700)."""
+    findings: list = []
+    parse = profidrive.parse_request if record[1] == 0x02 else profidrive.parse_response
+    p = parse(record, 1, findings)
+    assert not p.complete and len(p.blocks) == 1 and p.end == len(record)
+    assert [f.name for f in findings] in (["pd_response_truncated"], ["change_blocks"])
+
+
+# --- dissect.py and transactions.py -------------------------------------------------------------------------
+def test_channel_table_is_capped_by_bytes() -> None:
+    """Before: 16,384 channels each kept a parsed request of up to 255 parameters (400 MB)."""
+    d = Dissector()
+    for raw in hostile.frames("calls", 20_000):
+        d.feed(raw)
+        assert d._pd_bytes <= 16 * 1024 * 1024 + 100_000
+    assert len(d._pd_requests) < 20_000
+    assert d._pd_bytes == sum(profidrive.footprint(p) for p, _ in d._pd_requests.values())
+
+
+def test_transaction_engine_state_is_bounded() -> None:
+    """Before: pending transactions were unbounded, closed ones stayed alive through the call table, and a
+    read on a new channel scanned every pending transaction."""
+    d, engine = Dissector(), TransactionEngine()
+    evicted = 0
+    started = time.perf_counter()
+    for raw in hostile.frames("calls", 40_000):
+        for res in d.feed(raw):
+            evicted += sum(t.closed_by == "evicted" for t in engine.feed(res))
+        assert engine._pending_bytes <= transactions.MAX_PENDING_BYTES + 100_000
+    assert time.perf_counter() - started < 60
+    assert evicted > 0 and len(engine._pending) <= transactions.MAX_PENDING
+    pending = {t.txn for t in engine._pending.values()}
+    referenced = {t.txn for c in engine._calls.values() for t in c.txns if t is not None}
+    assert referenced <= pending  # no closed transaction is kept alive by its calls
+    assert all(isinstance(v, transactions._Last) for v in engine._last_done.values())
+
+
+def test_long_b5_polling_is_linear_and_bounded() -> None:
+    """Before: every frame of a transaction was checked against all its frames (quadratic), without limit."""
+    cap = Capture()
+    s = samples.session(cap, 1, rtt_us=1, gap_us=1)
+    req = change_request(1, 1, [(ParamAddress(1120), value_block(0x08, [1.0]))])
+    s.parameter_access(req, change_ok(1, 1, 1), b5_retries=6000)
+    d, engine = Dissector(), TransactionEngine()
+    started = time.perf_counter()
+    closed: list[transactions.Transaction] = []
+    for number, f in enumerate(cap.frames, 1):
+        for res in d.feed(capture.RawFrame(number, f.ts_ns / 1e9, 1, f.data)):
+            closed += engine.feed(res)
+    closed += engine.finish(1e12)
+    assert time.perf_counter() - started < 30
+    first = closed[0]
+    assert first.closed_by == "evicted" and len(first.frames) == transactions.MAX_TXN_FRAMES + 1
+    assert any(f.name == "txn_evicted" for f in first.findings) and first.verdict == "timeout"
+
+
+def test_dump_hold_is_bounded_by_fields() -> None:
+    """Before: the dump held up to 10,000 annotated frames waiting for answers (500 MB of fields)."""
+    d = Dissector(annotate=True)
+    for raw in hostile.frames("calls", 3000):
+        d.feed(raw)
+        assert d._held_fields <= MAX_HELD_FIELDS + 1000
+        assert len(d._frag_frames) <= rpc.MAX_FRAG_SETS
+    assert set(d._held_index) == {r.frame for r in d._held}
+
+
+def test_dump_keeps_a_bounded_number_of_loose_findings() -> None:
+    d = Dissector(annotate=True)
+    bad = bytes(12) + b"\x08\x00" + struct.pack(">BBHHHBBH4s4s", 0x43, 0, 40, 0, 0, 64, 17, 0, bytes(4), bytes(4))
+    d.loose_findings = [finding("link_malformed", 1, "ip.len", 0, 0, "x")] * MAX_LOOSE_FINDINGS
+    d.feed(capture.RawFrame(1, 0.0, 1, bad + bytes(20)))
+    assert len(d.loose_findings) == MAX_LOOSE_FINDINGS and d.loose_dropped == 1
+
+
+# --- memory: hostile captures ------------------------------------------------------------------------------
+HOSTILE_FRAMES = 200_000
+EXPECTED_CAPS = {"ip": {"ip_frag_evicted"}, "cl": {"rpc_frag_evicted"}, "calls": {"rpc_call_evicted", "txn_evicted"},
+                 "mixed": {"ip_frag_evicted", "rpc_frag_evicted", "rpc_call_evicted", "txn_evicted"}}
+
+
+def test_hostile_captures_keep_memory_bounded() -> None:
+    """200,000 frames of only unfinished fragments or unanswered requests, each kind in its own process:
+    every cap is hit and the peak RSS stays under 200 MB (README, Robustness, has the 1,000,000-frame run)."""
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        results = list(pool.map(lambda kind: hostile.run_isolated(kind, HOSTILE_FRAMES), EXPECTED_CAPS))
+    for r in results:
+        assert r["frames"] == HOSTILE_FRAMES and r["balanced"], r
+        assert r["peak_rss_mb"] < hostile.LIMIT_MB, r
+        assert set(r["evictions"]) == EXPECTED_CAPS[r["kind"]], r
+
+
+def test_hostile_command_line() -> None:
+    r = subprocess.run([sys.executable, "-m", "pd_analyze.hostile", "--kind", "ip", "--frames", "5000", "--json"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    result = json.loads(r.stdout)
+    assert result["kind"] == "ip" and result["balanced"] and result["peak_rss_mb"] < hostile.LIMIT_MB
+
