@@ -23,6 +23,7 @@ from pd_analyze.tables import (
     FLAG1_FRAG,
     INDEX_PD_DPV1,
     INDEX_WRITE_MULTIPLE,
+    LINKTYPE_ETHERNET,
     NCA_STATUS,
     OP_READ,
     OP_READ_IMPLICIT,
@@ -163,8 +164,10 @@ class Dissector:
     def feed(self, frame: capture.RawFrame) -> list[FrameResult]:
         self.accounting.read += 1
         number, ts, linktype, data = frame.number, frame.ts, frame.linktype, frame.data
-        self._now = max(self._now, ts)
         out: list[FrameResult] = []
+        if ts > self._now:
+            self._now = ts
+            self._expire(out)  # deadlines passed before this frame arrived, whatever frame it is
         dgram = self.link.datagram(number, linktype, data)
         if self.link.findings:
             self.loose_findings += self.link.findings
@@ -179,7 +182,6 @@ class Dissector:
             result = self._udp(number, ts, linktype, data, dgram)
             if result is not None:
                 out.append(result)
-        self._expire(out)
         if len(self.loose_findings) > MAX_LOOSE_FINDINGS:
             self.loose_dropped += len(self.loose_findings) - MAX_LOOSE_FINDINGS
             del self.loose_findings[MAX_LOOSE_FINDINGS:]
@@ -639,10 +641,20 @@ def dissect(path: str, annotate: bool = False, rpc_timeout: float = DEFAULT_RPC_
     return dissect_frames(capture.frames(path), dissector or Dissector(annotate, rpc_timeout))
 
 
+_IP_ETHERTYPES = (b"\x08\x00", b"\x81\x00", b"\x88\xa8", b"\x91\x00")  # IPv4, or a VLAN tag first
+
+
 def dissect_frames(frames: Iterable[capture.RawFrame], d: Dissector) -> Iterator[FrameResult]:
     """The frame loop over any frame source (one file, or a chain of files numbered as one)."""
+    accounting, not_ip = d.accounting, d.accounting.skipped
     try:
         for frame in frames:
+            # Most of a PROFINET capture is cyclic PN-RT, LLDP, ARP...: an Ethernet frame that carries
+            # no IPv4 (tagged or not) is counted here without a call; the result is the same as feed's.
+            if frame.linktype == LINKTYPE_ETHERNET and frame.data[12:14] not in _IP_ETHERTYPES:
+                accounting.read += 1
+                not_ip[link.SKIP_NOT_IPV4] += 1
+                continue
             yield from d.feed(frame)
     except capture.CaptureError:
         yield from d.finish()  # the frames before the damage are complete results
