@@ -161,16 +161,18 @@ def _analyze_file(path: str, settings: tuple[str, float, float],
     return rows, result
 
 
-LEAD_IN = 60.0  # seconds of capture time a split part replays before its range to warm up the state
+LEAD_IN = 20.0  # seconds of capture time a split part replays before its range (> txn + rpc timeouts)
 
 
 def _analyze_split(path: str, settings: tuple[str, float, float], jobs: int) -> tuple[Rows, CaptureResult] | None:
     """One large capture in `jobs` processes: each part analyses a range of frames, replaying LEAD_IN
-    seconds before it (so calls and channels that cross the split are known) and reading past its
-    end until everything opened in its range has closed; parts are stitched in frame order.
+    seconds (at least the two timeouts) before it, so calls and channels that cross the split are
+    known, and reading past its end until everything opened in its range has closed; parts are
+    stitched in frame order.
 
-    The result equals one process whenever no dependency reaches further back than LEAD_IN (a
-    Request Reference reused after a longer idle channel is the one known exception)."""
+    The result equals one process whenever no dependency reaches further back than the lead-in: a
+    Request Reference reused after a longer idle channel (T1), and the value read before a change
+    (`changes.value_before`) when that read lies further back, are the known exceptions."""
     points = capture.pcap_split_points(path, jobs)
     if points is None:
         return None
@@ -178,7 +180,8 @@ def _analyze_split(path: str, settings: tuple[str, float, float], jobs: int) -> 
     bounds = [points[i * step] for i in range(jobs)]
     tasks = []
     for k, (first, _offset, ts) in enumerate(bounds):
-        lead = next((p for p in reversed(points) if p[2] <= ts - LEAD_IN and p[0] <= first), points[0])
+        lead_in = max(LEAD_IN, settings[1] + settings[2])
+        lead = next((p for p in reversed(points) if p[2] <= ts - lead_in and p[0] <= first), points[0])
         end = bounds[k + 1][0] if k + 1 < len(bounds) else None
         tasks.append((path, lead[1], lead[0], first, end, settings))
     from concurrent.futures import ProcessPoolExecutor

@@ -88,8 +88,8 @@ def test_jobs_splits_one_large_capture_identically(tmp_path, monkeypatch):
     count = make_capture(path, 12_000, pnio_share=0.5)
     # a short lead-in, so the second part really starts mid-stream with calls and channels open
     monkeypatch.setattr(analysis, "LEAD_IN", 0.5)
-    one = pd_analyze.analyze(str(path))
-    two = pd_analyze.analyze(str(path), jobs=2)
+    one = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2)
+    two = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2, jobs=2)
     assert int(one.accounting.read.iloc[0]) == int(two.accounting.read.iloc[0]) == count
     assert two.accounting.balanced.all()
     assert len(one.transactions) > 900
