@@ -587,15 +587,15 @@ class Runner:
                     size = len(mutated) if mutated[:2] != b"\x1f\x8b" else float("inf")  # gzip: decompressed
                     if exc.offset is not None and not 0 <= exc.offset <= size:
                         raise InvariantError(f"CaptureError offset {exc.offset} outside the file "
-                                        f"({len(mutated)} bytes)") from None
+                                             f"({len(mutated)} bytes)") from None
                 for res in d.finish():
                     engine.feed(res)
                 engine.finish(0.0)
+                stats.slowest = max(stats.slowest, (time.perf_counter() - t0) / max(1, read))
                 if number % (FILE_CASE_EVERY * REPORT_CASE_EVERY) == 0:
-                    self.report_case(path)
+                    self.report_case(path)  # whole tables and pages: not a frame's time
         finally:
             os.unlink(path)
-        stats.slowest = max(stats.slowest, (time.perf_counter() - t0) / max(1, read))
         stats.files += 1
         stats.file_frames += read
         if d.accounting.read != read or not d.accounting.balanced():

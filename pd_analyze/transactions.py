@@ -393,7 +393,7 @@ class TransactionEngine:
 
     def _forget_calls(self, txn: Transaction) -> None:
         """A closed transaction's calls need no state: a late answer to them belongs to no transaction."""
-        for frame in (txn.write_req_frame, *txn.read_req_frames):
+        for frame in txn.frames:  # its requests' frames among them (a reassembled one: the completing frame)
             call = self._calls.get(frame)
             if call is not None and all(t is None or t is txn or t.closed_by for t in call.txns):
                 del self._calls[frame]
