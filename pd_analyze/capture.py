@@ -342,6 +342,8 @@ def _pcapng_frames(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[R
                                          f"only {len(ifaces)} described", pos)
             if caplen > blen - 28 - 4:
                 raise CaptureError(path, f"packet block caplen {caplen} exceeds its block", pos)
+            if caplen > MAX_CAPLEN:
+                raise CaptureError(path, f"packet block caplen {caplen} exceeds {MAX_CAPLEN} bytes", pos)
             iface = ifaces[iface_id]
             number += 1
             last_ts = iface.offset + ((ts_high << 32) | ts_low) / iface.divisor
@@ -355,6 +357,8 @@ def _pcapng_frames(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[R
             orig_len = struct.unpack(order + "I", block[8:12])[0]
             iface = ifaces[0]
             caplen = min(orig_len, blen - 16, iface.snaplen or MAX_CAPLEN)
+            if caplen > MAX_CAPLEN:
+                raise CaptureError(path, f"simple packet block of {caplen} bytes exceeds {MAX_CAPLEN} bytes", pos)
             number += 1
             # An SPB carries no timestamp: Wireshark shows none; we keep the previous one so
             # capture-time timeouts stay monotonic.

@@ -432,7 +432,7 @@ def _reshape_block(rng: random.Random, data: bytes, records: list[tuple[int, int
     btype = struct.unpack_from(order + "I", data, pos)[0]
     if rng.random() < 0.3:
         btype = rng.choice((1, 2, 3, 5, 6, 0x0A0D0D0A, 0xBAD))
-    size = rng.choice((12, 16, 20, 24, 28, 32, 36, blen - 4, blen + 4, blen + 64))
+    size = rng.choice((12, 16, 20, 24, 28, 32, 36, blen - 4, blen + 4, blen + 64, capture.MAX_CAPLEN + 64))
     body = (data[pos + 8:pos + max(8, blen - 4)] + bytes(size))[:max(0, size - 12)]
     block = struct.pack(order + "II", btype, size) + body + struct.pack(order + "I", size)
     return data[:pos] + block + data[pos + blen:]

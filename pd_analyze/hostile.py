@@ -12,7 +12,7 @@ reports its peak resident set size.
 
 Kinds:
   ip       IPv4 fragments with More Fragments set, never completed: new datagram ids, and floods of
-           pieces for one id
+           pieces for one id (consistent where they overlap)
   cl       CL-RPC request fragments (1,384-byte bodies) that never get their last fragment: new
            activity/sequence number sets, and sets flooded with fragment numbers
   calls    PNIO Write requests of PROFIdrive change requests (39 parameters each) on ever new channels,
@@ -85,8 +85,9 @@ def frames(kind: str, count: int, seed: int = 1) -> Iterator[RawFrame]:
         what = kinds[n % len(kinds)]
         if what == "ip":
             data = bytearray(t["ip"])
-            if n % 1000 < 200:  # a flood of pieces for one datagram
+            if n % 1000 < 200:  # a flood of pieces for one datagram (same bytes where they overlap)
                 struct.pack_into(">HH", data, _IP_ID, 0xF00D, 0x2000 | rng.randrange(0x2000))
+                data[34:] = bytes(len(data) - 34)
             else:
                 ip_id += 1
                 struct.pack_into(">H", data, _IP_ID, ip_id & 0xFFFF)
@@ -102,6 +103,7 @@ def frames(kind: str, count: int, seed: int = 1) -> Iterator[RawFrame]:
                 struct.pack_into("<IH", data, _ACTIVITY, seq >> 16, seq & 0xFFFF)
                 struct.pack_into("<I", data, _SEQ, seq)
                 struct.pack_into("<H", data, _FRAG_NUM, rng.randrange(8))
+            data[42 + 7], data[42 + 79] = data[_FRAG_NUM + 1], data[_FRAG_NUM]  # serial = fragment number
         else:
             seq += 1
             data = bytearray(t["write"] if n % 4 else t["read"])

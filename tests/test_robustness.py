@@ -24,7 +24,7 @@ from pd_analyze.synth.profidrive import ParamAddress, change_ok, change_request,
 from pd_analyze.synth.scenario import Capture
 from pd_analyze.tables_out import Rows, frame_of
 from pd_analyze.transactions import TransactionEngine
-from tests.test_capture import FRAME_A, epb, idb, shb
+from tests.test_capture import FRAME_A, block, epb, idb, shb
 
 REPO = Path(__file__).resolve().parents[1]
 SEEDS = fuzz.seed_paths()
@@ -95,6 +95,20 @@ def test_pcapng_packet_block_shorter_than_its_header(tmp_path: Path, btype: int,
     with pytest.raises(capture.CaptureError) as err:
         got.extend(capture.frames(str(path)))
     assert len(got) == 1 and err.value.offset == len(good) and "shorter than its" in err.value.reason
+
+
+@pytest.mark.parametrize("kind", ["epb", "spb"])
+def test_pcapng_caplen_above_the_limit(tmp_path: Path, kind: str) -> None:
+    """Before: a pcapng packet block could carry up to 327,680 bytes (its length limit), above MAX_CAPLEN."""
+    big = bytes(capture.MAX_CAPLEN + 4)
+    interface = block(1, struct.pack("<HHI", 1, 0, 0xFFFFFFFF))  # snaplen 2^32 - 1
+    good = shb() + interface + epb(0, 0, FRAME_A)
+    path = tmp_path / "big.pcapng"
+    path.write_bytes(good + (epb(0, 0, big) if kind == "epb" else block(3, struct.pack("<I", len(big)) + big)))
+    got = []
+    with pytest.raises(capture.CaptureError) as err:
+        got.extend(capture.frames(str(path)))
+    assert len(got) == 1 and err.value.offset == len(good) and f"exceeds {capture.MAX_CAPLEN}" in err.value.reason
 
 
 def test_read_error_is_a_capture_error() -> None:
@@ -320,9 +334,12 @@ EXPECTED_CAPS = {"ip": {"ip_frag_evicted"}, "cl": {"rpc_frag_evicted"}, "calls":
 
 def test_hostile_captures_keep_memory_bounded() -> None:
     """200,000 frames of only unfinished fragments or unanswered requests, each kind in its own process:
-    every cap is hit and the peak RSS stays under 200 MB (README, Robustness, has the 1,000,000-frame run)."""
+    every cap is hit and the peak RSS stays under 200 MB (README, Robustness, has the 1,000,000-frame run).
+    The fragment kinds also keep the table rows and build the DataFrames, as analyze() does."""
+    runs = [(kind, False) for kind in EXPECTED_CAPS] + [("ip", True), ("cl", True)]
     with ThreadPoolExecutor(max_workers=2) as pool:
-        results = list(pool.map(lambda kind: hostile.run_isolated(kind, HOSTILE_FRAMES), EXPECTED_CAPS))
+        results = list(pool.map(lambda run: hostile.run_isolated(run[0], HOSTILE_FRAMES, tables=run[1]), runs))
+    assert [r["path"] for r in results] == ["report"] * 4 + ["tables"] * 2
     for r in results:
         assert r["frames"] == HOSTILE_FRAMES and r["balanced"], r
         assert r["peak_rss_mb"] < hostile.LIMIT_MB, r
