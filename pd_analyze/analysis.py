@@ -157,7 +157,8 @@ def _analyze_file(path: str, settings: tuple[str, float, float],
     rows = Rows()
     d = Dissector(annotate=False, rpc_timeout=rpc_timeout, checker=checker)
     result = CaptureResult(path, d.accounting)
-    _run(capture.frames(path), d, TransactionEngine(timeout), rows, lambda _frame: path, [result], progress)
+    frames = capture.frames(path, ip_only=True)
+    _run(frames, d, TransactionEngine(timeout), rows, lambda _frame: path, [result], progress)
     return rows, result
 
 
@@ -260,8 +261,8 @@ def _analyze_chain(files: list[str], settings: tuple[str, float, float],
             result = CaptureResult(path, Accounting())
             results.append(result)
             try:
-                for frame in capture.frames(path):
-                    offset += 1
+                for frame in capture.frames(path, ip_only=True):
+                    offset += frame.run or 1  # a run of skipped frames ends at its number
                     yield frame._replace(number=offset)
             except CaptureError as exc:
                 result.error = _error_text(exc)

@@ -25,6 +25,8 @@ import dpkt
 import dpkt.pcap
 import dpkt.pcapng
 
+from pd_analyze.tables import LINKTYPE_ETHERNET
+
 MAX_CAPLEN = 262_144  # the largest snaplen tools write (tcpdump, Wireshark)
 _PCAPNG_MAX_BLOCK = MAX_CAPLEN + 65_536  # a packet block plus generous room for options
 _GZIP_MAGIC = b"\x1f\x8b"
@@ -48,11 +50,17 @@ class CaptureError(Exception):
 
 
 class RawFrame(NamedTuple):
+    """A frame; or, from an `ip_only` reader, a run of `run` skipped frames ending at `number`."""
+
     number: int
     ts: float
     linktype: int
     data: bytes
     iface: int = 0
+    run: int = 0  # > 0: this record stands for that many Ethernet frames without IPv4 (data is empty)
+
+
+IP_ETHERTYPES = (b"\x08\x00", b"\x81\x00", b"\x88\xa8", b"\x91\x00")  # IPv4, or a VLAN tag first
 
 
 class CaptureInfo:
@@ -65,8 +73,12 @@ class CaptureInfo:
         self.linktypes: list[int] = []
 
 
-def frames(path: str, info: CaptureInfo | None = None) -> Iterator[RawFrame]:
-    """Every frame of a capture file (`-` = standard input), numbered from 1."""
+def frames(path: str, info: CaptureInfo | None = None, ip_only: bool = False) -> Iterator[RawFrame]:
+    """Every frame of a capture file (`-` = standard input), numbered from 1.
+
+    `ip_only`: consecutive Ethernet frames whose EtherType is neither IPv4 nor a VLAN tag (cyclic PN-RT,
+    LLDP, ARP: most of a PROFINET capture) may come as one `run` record instead of a frame each, so
+    the analysis skips them without an object per frame (classic pcap; other formats ignore it)."""
     info = info or CaptureInfo(path)
     stream = _open(path)
     try:
@@ -83,7 +95,8 @@ def frames(path: str, info: CaptureInfo | None = None) -> Iterator[RawFrame]:
                 raise CaptureError(path, f"gzip data unreadable ({exc})", 0) from None
         reader = _reader_for(path, head, info)
         try:
-            yield from reader(path, stream, info)
+            yield from reader(path, stream, info, ip_only=ip_only) if reader is _pcap_frames else \
+                reader(path, stream, info)
         except CaptureError as exc:
             if not info.compressed or exc.offset is None:
                 raise
@@ -239,7 +252,7 @@ def pcap_frames_from(path: str, offset: int, first_number: int) -> Iterator[RawF
 
 
 def _pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, with_offsets: bool = False,
-                 head: bytes | None = None, base: int = 24) -> Iterator[RawFrame]:
+                 head: bytes | None = None, base: int = 24, ip_only: bool = False) -> Iterator[RawFrame]:
     """Classic pcap: dpkt parses the file header; records are cut from large chunks.
 
     dpkt's record loop builds a header object per frame (about 1.7 us) and reads whatever length a
@@ -257,20 +270,28 @@ def _pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, with_offsets: b
     linktype = fh.linktype
     info.linktypes = [linktype]
     unpack = struct.Struct("<IIII" if little else ">IIII").unpack_from
+    skip_non_ip = ip_only and linktype == LINKTYPE_ETHERNET and not with_offsets
     buf = b""
     pos = 0  # in buf; base is the file offset of buf[0]
     number = 0
+    run = 0  # frames skipped since the last one yielded (ip_only)
+    run_sec = run_frac = 0
     while True:
         if len(buf) - pos < 16:
             buf = buf[pos:] + _read(path, stream, _CHUNK, base + pos)
             base += pos
             pos = 0
+            if run and (len(buf) < 16):  # the run ends here: account for it before the end or the damage
+                yield RawFrame(number, run_sec + run_frac / divisor, linktype, b"", 0, run)
+                run = 0
             if not buf:
                 return
             if len(buf) < 16:
                 raise CaptureError(path, f"record header truncated ({len(buf)} of 16 bytes present)", base)
         sec, frac, caplen, _orig = unpack(buf, pos)
         if caplen > MAX_CAPLEN:
+            if run:
+                yield RawFrame(number, run_sec + run_frac / divisor, linktype, b"", 0, run)
             raise CaptureError(path, f"record length {caplen} exceeds {MAX_CAPLEN} bytes (corrupt record "
                                      "header)", base + pos)
         end = pos + 16 + caplen
@@ -279,9 +300,19 @@ def _pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, with_offsets: b
             base += pos
             pos, end = 0, 16 + caplen
             if end > len(buf):
+                if run:
+                    yield RawFrame(number, run_sec + run_frac / divisor, linktype, b"", 0, run)
                 raise CaptureError(path, f"record data truncated ({len(buf) - 16} of {caplen} bytes present)",
                                    base)
         number += 1
+        if skip_non_ip and caplen >= 14 and buf[pos + 28:pos + 30] not in IP_ETHERTYPES:
+            run += 1
+            run_sec, run_frac = sec, frac
+            pos = end
+            continue
+        if run:
+            yield RawFrame(number - 1, run_sec + run_frac / divisor, linktype, b"", 0, run)
+            run = 0
         if with_offsets:
             yield RawFrame(number, sec + frac / divisor, linktype, b"", base + pos)
         else:

@@ -349,9 +349,9 @@ class Dissector:
     def _first_frame(self, pdu: Pdu, dgram: link.Datagram, cl_frames: tuple[int, ...],
                      cl_first_ts: float | None) -> None:
         """The frames a reassembled PDU came in, and the time of its first (IP or CL fragments)."""
-        pieces = set(cl_frames) | set(dgram.fragments)
-        if not pieces:
+        if not cl_frames and not dgram.fragments:
             return
+        pieces = set(cl_frames) | set(dgram.fragments)
         pdu.fragments = tuple(sorted(pieces))
         times = [self._fragment_times.pop(n) for n in dgram.fragments if n in self._fragment_times]
         if cl_first_ts is not None:
@@ -638,10 +638,10 @@ def _pdu_name(hdr: rpc.Header) -> str:
 def dissect(path: str, annotate: bool = False, rpc_timeout: float = DEFAULT_RPC_TIMEOUT,
             dissector: Dissector | None = None) -> Iterator[FrameResult]:
     """Every PNIO RPC frame of a capture, in frame order. CaptureError after the good frames."""
-    return dissect_frames(capture.frames(path), dissector or Dissector(annotate, rpc_timeout))
+    return dissect_frames(capture.frames(path, ip_only=True), dissector or Dissector(annotate, rpc_timeout))
 
 
-_IP_ETHERTYPES = (b"\x08\x00", b"\x81\x00", b"\x88\xa8", b"\x91\x00")  # IPv4, or a VLAN tag first
+_IP_ETHERTYPES = capture.IP_ETHERTYPES
 
 
 def dissect_frames(frames: Iterable[capture.RawFrame], d: Dissector) -> Iterator[FrameResult]:
@@ -650,7 +650,12 @@ def dissect_frames(frames: Iterable[capture.RawFrame], d: Dissector) -> Iterator
     try:
         for frame in frames:
             # Most of a PROFINET capture is cyclic PN-RT, LLDP, ARP...: an Ethernet frame that carries
-            # no IPv4 (tagged or not) is counted here without a call; the result is the same as feed's.
+            # no IPv4 (tagged or not) is counted here without a call (or by the reader, as a run of
+            # them); the result is the same as feed's.
+            if frame.run:
+                accounting.read += frame.run
+                not_ip[link.SKIP_NOT_IPV4] += frame.run
+                continue
             if frame.linktype == LINKTYPE_ETHERNET and frame.data[12:14] not in _IP_ETHERTYPES:
                 accounting.read += 1
                 not_ip[link.SKIP_NOT_IPV4] += 1

@@ -147,3 +147,35 @@ def test_gzip_crc_error_reported_after_good_frames(tmp_path):
     with pytest.raises(CaptureError) as err:
         got.extend(frames(write(tmp_path, "crc.pcap.gz", bytes(raw))))
     assert len(got) == 2 and "CRC" in str(err.value)
+
+
+IP_FRAME = bytes(12) + b"\x08\x00" + bytes(46)
+VLAN_FRAME = bytes(12) + b"\x81\x00" + bytes(50)
+RT_FRAME = bytes(12) + b"\x88\x92" + bytes(46)
+SHORT_FRAME = bytes(10)  # too short for an EtherType: passed on, the link layer judges it
+
+
+def test_ip_only_runs_stand_for_the_skipped_frames(tmp_path):
+    data = [RT_FRAME, RT_FRAME, IP_FRAME, RT_FRAME, VLAN_FRAME, SHORT_FRAME, RT_FRAME, RT_FRAME, RT_FRAME]
+    path = tmp_path / "mix.pcap"
+    path.write_bytes(pcap([(n, 500, d) for n, d in enumerate(data, 1)]))
+    got = [(f.number, f.ts, f.data, f.run) for f in frames(str(path), ip_only=True)]
+    assert got == [(2, 2.0005, b"", 2), (3, 3.0005, IP_FRAME, 0), (4, 4.0005, b"", 1), (5, 5.0005, VLAN_FRAME, 0),
+                   (6, 6.0005, SHORT_FRAME, 0), (9, 9.0005, b"", 3)]
+    assert [f.run for f in frames(str(path))] == [0] * 9  # without ip_only: a record per frame
+
+
+def test_ip_only_run_is_accounted_before_damage(tmp_path):
+    path = tmp_path / "cut.pcap"
+    path.write_bytes(pcap([(1, 0, RT_FRAME), (2, 0, RT_FRAME)]) + struct.pack("<IIII", 3, 0, 60, 60) + bytes(10))
+    got = []
+    with pytest.raises(CaptureError, match="record data truncated"):
+        for f in frames(str(path), ip_only=True):
+            got.append((f.number, f.run))
+    assert got == [(2, 2)]
+
+
+def test_ip_only_ignored_for_other_link_types(tmp_path):
+    path = tmp_path / "raw.pcap"
+    path.write_bytes(pcap([(1, 0, RT_FRAME), (2, 0, RT_FRAME)], linktype=101))
+    assert [(f.number, f.run) for f in frames(str(path), ip_only=True)] == [(1, 0), (2, 0)]

@@ -353,3 +353,22 @@ def test_hostile_command_line() -> None:
     result = json.loads(r.stdout)
     assert result["kind"] == "ip" and result["balanced"] and result["peak_rss_mb"] < hostile.LIMIT_MB
 
+
+
+def test_skipped_runs_give_the_same_results_and_accounting(tmp_path):
+    """The reader's runs of non-IP frames (ip_only) change nothing but the speed."""
+    from pd_analyze.dissect import dissect_frames
+    from pd_analyze.synth.mixed import make_capture
+
+    path = tmp_path / "mixed.pcap"
+    count = make_capture(path, 3000, pnio_share=0.2)
+
+    def run(ip_only: bool) -> tuple[list, Dissector]:
+        d = Dissector()
+        out = [(r.frame, r.summary, r.findings) for r in dissect_frames(capture.frames(str(path), ip_only=ip_only), d)]
+        return out, d
+
+    (plain, d1), (runs, d2) = run(False), run(True)
+    assert runs == plain and len(plain) > 500
+    assert d2.accounting == d1.accounting and d2.accounting.read == count and d2.accounting.balanced()
+    assert d2.accounting.skipped[link.SKIP_NOT_IPV4] > count // 2
