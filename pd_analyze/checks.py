@@ -6,6 +6,8 @@ parses bytes. Structural findings that stop a decode (R1, R3, H5 truncation) com
 
 from __future__ import annotations
 
+from operator import itemgetter
+
 from pd_analyze import record as rec
 from pd_analyze import rpc
 from pd_analyze.record import Block, Stub
@@ -176,13 +178,13 @@ def _header_form(block: Block, expected: int, frame: int, response: bool) -> lis
     if (v[rec.B_VHIGH], v[rec.B_VLOW]) != (1, 0):
         out.append(finding("block_version", frame, "iod.version_high", f"{v[rec.B_VHIGH]}.{v[rec.B_VLOW]}",
                            "1.0", "block version is not 1.0"))
-    rw_pad = block.get("iod.rw_pad")
-    if v[rec.B_PAD] or any(rw_pad):
+    rw_pad = v[-1]  # every IOD layout ends with its RWPadding
+    if v[rec.B_PAD] or rw_pad.count(0) != len(rw_pad):
         bad = "iod.pad" if v[rec.B_PAD] else "iod.rw_pad"
         out.append(finding("padding_nonzero", frame, bad, f"{v[rec.B_PAD]:#06x}" if v[rec.B_PAD]
                            else rw_pad.hex(), "0", "padding bytes are not zero"))
     if response and block.layout in (rec.WRITE_RES, rec.READ_RES):
-        add1, add2 = block.get("iod.add_val1"), block.get("iod.add_val2")
+        add1, add2 = v[rec.B_ADD_VAL1], v[rec.B_ADD_VAL2]
         if add1 or add2:
             out.append(finding("additional_values", frame, "iod.add_val1", f"{add1}/{add2}", "0/0",
                                "AdditionalValue1/2 not zero"))
@@ -247,10 +249,15 @@ _MIRRORED = (("iod.seq", rec.B_SEQ), ("iod.api", rec.B_API), ("iod.slot", rec.B_
              ("iod.subslot", rec.B_SUBSLOT), ("iod.index", rec.B_INDEX))
 
 
+_mirrored_values = itemgetter(*(i for _, i in _MIRRORED), rec.B_AR)
+
+
 def _mirroring(stub: Stub, request: Stub, opnum: int, frame: int) -> list[Finding]:
     """H6-H8: each response block mirrors the request block in the same position."""
     out = []
     for pos, (res, req) in enumerate(zip(stub.blocks, request.blocks, strict=False)):
+        if _mirrored_values(res.values) == _mirrored_values(req.values):
+            continue  # the common case: every mirrored field equal, ARUUID included
         for name, i in _MIRRORED:
             if res.values[i] != req.values[i]:
                 out.append(finding("response_not_mirrored", frame, name, res.values[i], req.values[i],

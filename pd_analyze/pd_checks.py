@@ -6,6 +6,8 @@ profile adds its narrower limits as warnings, each finding naming the seed manua
 
 from __future__ import annotations
 
+from functools import cache
+
 from pd_analyze import pdtables as pt
 from pd_analyze.profidrive import Block, Parsed
 from pd_analyze.profiles import Limit, Profile
@@ -25,6 +27,10 @@ class Checker:
             for lim in profile.limits if profile is not None else ():
                 by_key.setdefault(lim.key, []).append((profile, lim))
         self._by_key = {key: tuple(pairs) for key, pairs in by_key.items()}  # looked up per field
+        # Where every limit of a key is one range, a value inside their intersection breaks none:
+        # the common case is decided by two comparisons.
+        self._within = {key: (max(lim.ranges[0][0] for _, lim in pairs), min(lim.ranges[0][1] for _, lim in pairs))
+                        for key, pairs in self._by_key.items() if all(len(lim.ranges) == 1 for _, lim in pairs)}
 
     @property
     def tolerate(self) -> frozenset[str]:
@@ -39,6 +45,9 @@ class Checker:
 
     def limit(self, key: str, name: str, value: int, frame: int, out: list[Finding]) -> None:
         """Findings for every profile limit of `key` that `value` breaks."""
+        within = self._within.get(key)
+        if within is not None and within[0] <= value <= within[1]:
+            return
         for profile, lim in self._by_key.get(key, ()):
             if not lim.allows(value):
                 out.append(finding(lim.rule, frame, name, _fmt(value), lim.text(),
@@ -63,10 +72,11 @@ class Checker:
         self.limit("request.do", "pd.do", p.do, frame, out)
         self.limit("request.n_params", "pd.n_params", p.n, frame, out)
         for i, a in enumerate(p.addresses):
-            self.limit("request.attribute", f"pd.addr[{i}].attr", a.attr, frame, out)
-            self.limit("request.n_elems", f"pd.addr[{i}].n_elems", a.n_elems, frame, out)
-            self.limit("request.pnu", f"pd.addr[{i}].pnu", a.pnu, frame, out)
-            self.limit("request.subindex", f"pd.addr[{i}].subindex", a.subindex, frame, out)
+            attr, n_elems, pnu, subindex = _address_fields(i)
+            self.limit("request.attribute", attr, a.attr, frame, out)
+            self.limit("request.n_elems", n_elems, a.n_elems, frame, out)
+            self.limit("request.pnu", pnu, a.pnu, frame, out)
+            self.limit("request.subindex", subindex, a.subindex, frame, out)
         if p.ident == pt.REQ_READ:
             if p.complete and p.end < p.length:
                 out.append(finding("read_request_length", frame, "pd.trailing", p.length, 4 + 6 * p.n,
@@ -93,8 +103,9 @@ class Checker:
                 out.append(finding("change_blocks", frame, f"{name}.format", f"{block.format:#04x}",
                                    "a sized data type", "Zero/Error format in a change request"))
                 continue
-            self.limit("request.format", f"{name}.format", block.format, frame, out)
-            self.limit("request.n_values", f"{name}.n_values", block.n_values, frame, out)
+            fmt, n_values = _value_fields(i)
+            self.limit("request.format", fmt, block.format, frame, out)
+            self.limit("request.n_values", n_values, block.n_values, frame, out)
             if addr.attr == pt.ATTR_VALUE and not (
                     block.n_values == addr.n_elems or (addr.n_elems == 0 and block.n_values == 1)):
                 out.append(finding("n_values_mismatch", frame, f"{name}.n_values", block.n_values,
@@ -148,11 +159,12 @@ class Checker:
                                    "positive change response carries a body (it is header-only)"))
             return out
         for i, block in enumerate(p.blocks):
-            self.limit("response.format", f"pd.val[{i}].format", block.format, frame, out)
+            fmt, n_values = _value_fields(i)
+            self.limit("response.format", fmt, block.format, frame, out)
             if block.is_error:
                 out += self._error_block(block, i, frame)
             else:
-                self.limit("response.n_values", f"pd.val[{i}].n_values", block.n_values, frame, out)
+                self.limit("response.n_values", n_values, block.n_values, frame, out)
                 out += self._values(block, i, frame)
         out += self._response_ids(p, frame, request)
         if p.complete and p.end < p.length:
@@ -222,6 +234,17 @@ class Checker:
         self.limit("iod.subslot", "iod.subslot", subslot, frame, out)
         self.limit("iod.index", "iod.index", index, frame, out)
         return out
+
+
+@cache
+def _address_fields(i: int) -> tuple[str, str, str, str]:
+    """Field names of parameter address i (built once, not per frame)."""
+    return f"pd.addr[{i}].attr", f"pd.addr[{i}].n_elems", f"pd.addr[{i}].pnu", f"pd.addr[{i}].subindex"
+
+
+@cache
+def _value_fields(i: int) -> tuple[str, str]:
+    return f"pd.val[{i}].format", f"pd.val[{i}].n_values"
 
 
 def _fmt(value: int) -> str:

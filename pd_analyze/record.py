@@ -54,6 +54,13 @@ READ_RES = Layout("IODReadResHeader", ">", _COMMON + (
     ("iod.add_val1", "H"), ("iod.add_val2", "H"), ("iod.rw_pad", "20s")))
 (B_TYPE, B_LENGTH, B_VHIGH, B_VLOW, B_SEQ, B_AR, B_API, B_SLOT, B_SUBSLOT, B_PAD, B_INDEX,
  B_RECLEN) = range(12)
+B_ADD_VAL1, B_ADD_VAL2 = 12, 13  # in both response layouts, right after the common fields
+assert all(layout.index("iod.add_val1") == B_ADD_VAL1 and layout.index("iod.add_val2") == B_ADD_VAL2
+           for layout in (WRITE_RES, READ_RES))
+assert all(layout.names[-1] == "iod.rw_pad" for layout in (WRITE_REQ, READ_REQ, READ_REQ_IMPLICIT, WRITE_RES,
+                                                           READ_RES))  # checks reads the padding as values[-1]
+_WRITE_RES_STATUS = WRITE_RES.index("iod.status.code")
+_TARGET_AR = READ_REQ_IMPLICIT.index("iod.target_ar_uuid")
 NIL_UUID = bytes(16)
 
 EXPECTED_BLOCK = {(OP_WRITE, False): BT_WRITE_REQ, (OP_WRITE, True): BT_WRITE_RES,
@@ -145,13 +152,13 @@ def parse_stub(stub: bytes, little: bool, response: bool, opnum: int, frame: int
     out = Stub(little, response)
     if opnum not in PNIO_OPNUM:
         return out
-    layout = out.ndr_layout
+    layout = (NDR_RES if response else NDR_REQ)[little]
     if len(stub) < NDR_SIZE:
         out.truncated = True
         findings.append(rules.finding("ndr_truncated", frame, "ndr.args_len", len(stub), f">= {NDR_SIZE}",
                                       f"stub of {len(stub)} bytes has no complete NDR header"))
         return out
-    out.ndr = v = layout.unpack(stub)
+    out.ndr = v = layout.struct.unpack_from(stub)
     if response:
         out.status = Status(v[3], v[2], v[1], v[0]) if little else Status(v[0], v[1], v[2], v[3])
         out.args_len, out.max_count, out.offset, out.actual_count = v[4:]
@@ -170,7 +177,7 @@ def _header(stub: bytes, pos: int, layout: Layout, frame: int, findings: list[Fi
                                       IOD_SIZE, f"{layout.title} cut short: {len(stub) - pos} of "
                                                 f"{IOD_SIZE} bytes present"))
         return None
-    return layout.unpack(stub, pos)
+    return layout.struct.unpack_from(stub, pos)
 
 
 def _parse_blocks(stub: bytes, out: Stub, opnum: int, response: bool, frame: int,
@@ -207,10 +214,9 @@ def _block(stub: bytes, layout: Layout, values: tuple, pos: int, limit: int, dep
             f"{len(record)} bytes present"))
     block = Block(layout, values, pos, record, start, depth)
     if layout is WRITE_RES:
-        i = layout.index("iod.status.code")
-        block.status = Status(*values[i:i + 4])
-    if layout is READ_REQ_IMPLICIT:
-        block.target_ar = values[layout.index("iod.target_ar_uuid")]
+        block.status = Status._make(values[_WRITE_RES_STATUS:_WRITE_RES_STATUS + 4])
+    elif layout is READ_REQ_IMPLICIT:
+        block.target_ar = values[_TARGET_AR]
     return block
 
 

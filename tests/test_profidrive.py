@@ -281,3 +281,16 @@ def test_plausibility_for_index_47():
     assert pd.plausible(read_request(1, 1, [ParamAddress(5)]))
     assert not pd.plausible(b"\x00\x01\x01\x01" + bytes(6))
     assert not pd.plausible(b"I&M0 data, not a parameter block")
+
+
+@pytest.mark.parametrize("vendor", sorted(profiles.packaged()))
+def test_limit_shortcut_agrees_with_every_range(vendor):
+    """Checker.limit decides in-range values by one intersected range: never a finding lost or added."""
+    checker = Checker(profiles.generic(), profiles.load(vendor))
+    for key, pairs in checker._by_key.items():
+        edges = {v + d for _, lim in pairs for lo, hi in lim.ranges for v in (lo, hi) for d in (-1, 0, 1)}
+        for value in sorted(edges | {0, 1, 0xFFFF, 0xFFFFFFFF}):
+            got: list = []
+            checker.limit(key, "f", value, 1, got)
+            broken = [lim.rule for _, lim in pairs if not any(lo <= value <= hi for lo, hi in lim.ranges)]
+            assert [f.name for f in got] == broken, (key, value)
