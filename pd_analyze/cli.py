@@ -254,9 +254,9 @@ def _progress() -> Callable[[str, int], None] | None:
     bars: dict[str, tqdm] = {}
 
     def update(path: str, frames: int) -> None:
-        if frames % 4096:
-            return
         bar = bars.get(path)
+        if bar is not None and frames - bar.n < 4096:  # called per PNIO frame; skipped frames jump the count
+            return
         if bar is None:
             bar = bars[path] = tqdm(desc=path, unit=" frames", leave=False, file=sys.stderr)
         bar.n = frames
