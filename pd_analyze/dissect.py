@@ -185,7 +185,7 @@ class Dissector:
         if len(self.loose_findings) > MAX_LOOSE_FINDINGS:
             self.loose_dropped += len(self.loose_findings) - MAX_LOOSE_FINDINGS
             del self.loose_findings[MAX_LOOSE_FINDINGS:]
-        return self._release(out)
+        return self._release(out) if self.annotate else out
 
     def finish(self) -> list[FrameResult]:
         """End of capture: unfinished fragments, unanswered calls, everything still held."""
@@ -217,7 +217,8 @@ class Dissector:
         if not self._is_pnio(hdr):
             self._skip_udp(number, dgram, rpc.SKIP_NOT_PNIO)
             return None
-        self._remember(hdr.activity)
+        if hdr.activity not in self._activities:
+            self._remember(hdr.activity)
         res = FrameResult(number, ts, dgram.src, dgram.dst, "", hdr.ptype)
         base = dgram.payload_offset if dgram.payload_offset >= 0 else 0
         if self.annotate:
@@ -319,7 +320,8 @@ class Dissector:
                                         0, [derived("rpc.fragments", frames)]))
         pdu = self._bare_pdu(number, res.ts, dgram, hdr)
         res.pdu = pdu
-        self._first_frame(pdu, dgram, frames, whole_ts if frames else None)
+        if frames or dgram.fragments:
+            self._first_frame(pdu, dgram, frames, whole_ts if frames else None)
         if response:
             self._response(res, hdr, dgram, key, body, pdu)
         else:
@@ -349,8 +351,6 @@ class Dissector:
     def _first_frame(self, pdu: Pdu, dgram: link.Datagram, cl_frames: tuple[int, ...],
                      cl_first_ts: float | None) -> None:
         """The frames a reassembled PDU came in, and the time of its first (IP or CL fragments)."""
-        if not cl_frames and not dgram.fragments:
-            return
         pieces = set(cl_frames) | set(dgram.fragments)
         pdu.fragments = tuple(sorted(pieces))
         times = [self._fragment_times.pop(n) for n in dgram.fragments if n in self._fragment_times]
