@@ -234,20 +234,19 @@ def pcap_split_points(path: str, parts: int) -> list[tuple[int, int, float]] | N
         info = CaptureInfo(path)
         points = []
         try:
-            for frame in _pcap_frames(path, f, info, with_offsets=True):
-                if frame.number % 512 == 1:
-                    points.append((frame.number, frame.iface, frame.ts))  # iface carries the offset here
+            for frame in _pcap_frames(path, f, info, with_offsets=True):  # every 512th record
+                points.append((frame.number, frame.iface, frame.ts))  # iface carries the offset here
         except CaptureError:
             return None
     return points if len(points) >= 2 * parts else None
 
 
-def pcap_frames_from(path: str, offset: int, first_number: int) -> Iterator[RawFrame]:
+def pcap_frames_from(path: str, offset: int, first_number: int, ip_only: bool = False) -> Iterator[RawFrame]:
     """The frames of a classic pcap from a record at `offset`, numbered from `first_number`."""
     with open(path, "rb") as f:
         head = f.read(24)
         f.seek(offset)
-        for frame in _pcap_frames(path, f, CaptureInfo(path), head=head, base=offset):
+        for frame in _pcap_frames(path, f, CaptureInfo(path), head=head, base=offset, ip_only=ip_only):
             yield frame._replace(number=frame.number + first_number - 1)
 
 
@@ -313,8 +312,9 @@ def _pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, with_offsets: b
         if run:
             yield RawFrame(number - 1, run_sec + run_frac / divisor, linktype, b"", 0, run)
             run = 0
-        if with_offsets:
-            yield RawFrame(number, sec + frac / divisor, linktype, b"", base + pos)
+        if with_offsets:  # split points: the offset of every 512th record, no frame data
+            if number % 512 == 1:
+                yield RawFrame(number, sec + frac / divisor, linktype, b"", base + pos)
         else:
             yield RawFrame(number, sec + frac / divisor, linktype, buf[pos + 16:end])
         pos = end
