@@ -1,12 +1,25 @@
-"""Benchmark pd-analyze against tshark on one generated mixed PROFIdrive capture.
+"""Benchmark pd-analyze against tshark and check every speed target in one run.
 
-    python benchmarks/bench.py                      # 1,000,000 frames, 3 rounds
-    python benchmarks/bench.py --frames 200000 --rounds 1 --skip-tshark-v
+    python benchmarks/bench.py                      # 1,000,000 frames, 3 rounds, every step
+    python benchmarks/bench.py --frames 200000 --rounds 1 --skip-tshark-v --skip-scale --skip-files
 
-Generates the capture deterministically with the project's generator (cyclic PN-RT, other UDP and
-PROFIdrive transactions of 8 drives: reads, changes, multi-parameter, NAKs, B5 polling), then times, in
-the same run: `pd-analyze report`, `pd-analyze dump --format json`, tshark's PROFIdrive field extraction
-and `tshark -V`, and prints wall time, frames per second, peak RSS and the ratios to tshark.
+Generates a capture deterministically with the project's generator (cyclic PN-RT, other UDP and
+PROFIdrive transactions of 8 drives: reads, changes, multi-parameter, NAKs, B5 polling), then times:
+
+  commands    `pd-analyze report`, `report --jobs N` (N from --jobs, 2 by default; 1 leaves it out),
+              `dump --format json`, tshark's PROFIdrive field extraction and `tshark -V`
+  scale       `report` once on a second capture of 4x the frames, same mix (--skip-scale: not run)
+  classes     the capture split into the frames the project's dissector decodes as PNIO RPC and all
+              the others; `report` on each file and on the first 10 frames of the second (start-up and
+              imports; at least 3 rounds here); (time - start-up) / frames is the cost per frame
+  files       the capture cut into 8 files of consecutive frames; `report DIR --jobs 1` and `--jobs 2`
+              (--skip-files: not run)
+
+Every command is a subprocess: wall time is the median of --rounds, peak RSS the largest (wait4's
+ru_maxrss: the largest single process, --jobs workers included, not their sum). Prints the machine,
+each command as it ends, then two Markdown tables for the README: the commands, and the targets
+(target | measured | met?). Without tshark on PATH the tshark comparisons are n/a. Derived files go
+to a temporary directory that is removed at the end.
 """
 
 from __future__ import annotations
@@ -19,7 +32,10 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
+
+import pcapfiles  # beside this script, whose directory Python puts first on sys.path
 
 from pd_analyze.synth.mixed import make_capture
 
@@ -28,70 +44,226 @@ TSHARK_FIELDS = ("frame.number", "pn_io.profidrive.parameter.request_reference",
                  "pn_io.profidrive.parameter.no_of_parameters", "pn_io.profidrive.parameter.number",
                  "pn_io.profidrive.parameter.index", "pn_io.profidrive.parameter.format",
                  "pn_io.profidrive.parameter.error_num")
+PD = [sys.executable, "-m", "pd_analyze.cli"]
+REPORT, DUMP = "pd-analyze report", "pd-analyze dump --format json"
+FIELDS, VERBOSE = "tshark PROFIdrive fields", "tshark -V"
+SCALE = "pd-analyze report, 4x frames"
+ONLY_PNIO, ONLY_OTHER, STARTUP = "report, PNIO RPC frames only", "report, other frames only", "report, start-up"
+MANY = "report DIR of {} files --jobs {}"
+PARTS = 8
+STARTUP_FRAMES = 10
+CLASS_ROUNDS = 3  # the per-frame costs are differences of wall times: one round is too noisy
+NOISE = 0.2  # seconds: start-up varies by about this much on a busy machine
 
 
-def _run(cmd: list[str], stdout: int | None = subprocess.DEVNULL) -> tuple[float, int]:
-    """Wall seconds and peak RSS (kB) of one command."""
-    start = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=stdout, stderr=subprocess.DEVNULL)
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - start
-    if os.waitstatus_to_exitcode(status) not in (0,):
-        raise SystemExit(f"command failed: {' '.join(cmd)}")
+@dataclass
+class Timing:
+    frames: int
+    wall: float  # seconds, median
+    rss: int  # kB, largest
+
+
+def _run(cmd: list[str]) -> tuple[float, int]:
+    """Wall seconds and peak RSS (kB) of one command; its stderr is shown if it fails."""
+    with tempfile.TemporaryFile() as err:
+        start = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - start
+        proc.returncode = os.waitstatus_to_exitcode(status)  # reaped here: keep Popen from waiting again
+        if proc.returncode != 0:
+            err.seek(0)
+            tail = err.read()[-2000:].decode(errors="replace")
+            raise SystemExit(f"command failed ({proc.returncode}): {' '.join(cmd)}\n{tail}")
     return wall, usage.ru_maxrss
 
 
-def bench(path: Path, frames: int, rounds: int, skip_v: bool, jobs: int) -> list[tuple[str, float, int]]:
-    exe = [sys.executable, "-m", "pd_analyze.cli"]
-    out_dir = tempfile.mkdtemp(prefix="pd-bench-")
-    tests = [("pd-analyze report", exe + ["report", str(path), "--out", out_dir])]
+class Bench:
+    def __init__(self, rounds: int) -> None:
+        self.rounds = rounds
+        self.results: dict[str, Timing] = {}
+
+    def time(self, name: str, cmd: list[str], frames: int, rounds: int | None = None) -> Timing:
+        runs = [_run(cmd) for _ in range(rounds or self.rounds)]
+        t = Timing(frames, statistics.median(r[0] for r in runs), max(r[1] for r in runs))
+        self.results[name] = t
+        print(f"  {name:<38} {t.wall:8.2f} s  {frames / t.wall:10,.0f} frames/s  {t.rss / 1024:8.1f} MB",
+              flush=True)
+        return t
+
+    def get(self, name: str) -> Timing | None:
+        return self.results.get(name)
+
+
+def _tshark_version() -> str | None:
+    if not shutil.which("tshark"):
+        return None
+    out = subprocess.run(["tshark", "-v"], capture_output=True, text=True, check=False).stdout
+    return (out.splitlines() or ["tshark (version unknown)"])[0]
+
+
+def _generate(path: Path, frames: int, share: float, label: str = "capture") -> int:
+    t0 = time.perf_counter()
+    count = make_capture(path, frames, pnio_share=share)
+    print(f"{label}: {count:,} frames ({share:.0%} PNIO RPC), {path.stat().st_size / 1e6:.1f} MB, "
+          f"generated in {time.perf_counter() - t0:.1f} s ({path})", flush=True)
+    return count
+
+
+def commands(b: Bench, path: Path, count: int, out: Path, jobs: int, tshark: bool, verbose: bool) -> None:
+    report = [*PD, "report", str(path), "--out", str(out)]
+    b.time(REPORT, report, count)
     if jobs > 1:
-        tests.append((f"pd-analyze report --jobs {jobs}", exe + ["report", str(path), "--out", out_dir,
-                                                                "--jobs", str(jobs)]))
-    tests += [("pd-analyze dump --format json", exe + ["dump", str(path), "--format", "json"]),
-              ("tshark PROFIdrive fields", ["tshark", "-r", str(path), "-Y",
-                                            "pn_io.profidrive.parameter.request_reference", "-T", "fields",
-                                            *[x for f in TSHARK_FIELDS for x in ("-e", f)]])]
-    if not skip_v:
-        tests.append(("tshark -V", ["tshark", "-r", str(path), "-V"]))
-    results = []
-    for name, cmd in tests:
-        runs = [_run(cmd) for _ in range(rounds)]
-        wall = statistics.median(r[0] for r in runs)
-        rss = max(r[1] for r in runs)
-        results.append((name, wall, rss))
-        print(f"  {name:<32} {wall:8.2f} s  {frames / wall:10,.0f} frames/s  {rss / 1024:8.1f} MB", flush=True)
-    shutil.rmtree(out_dir, ignore_errors=True)
-    return results
+        b.time(f"{REPORT} --jobs {jobs}", [*report, "--jobs", str(jobs)], count)
+    b.time(DUMP, [*PD, "dump", str(path), "--format", "json"], count)
+    if tshark:
+        b.time(FIELDS, ["tshark", "-r", str(path), "-Y", "pn_io.profidrive.parameter.request_reference",
+                        "-T", "fields", *[x for f in TSHARK_FIELDS for x in ("-e", f)]], count)
+        if verbose:
+            b.time(VERBOSE, ["tshark", "-r", str(path), "-V"], count)
+
+
+def scale(b: Bench, tmp: Path, frames: int, share: float, out: Path) -> None:
+    big = tmp / "scale-4x.pcap"
+    count = _generate(big, 4 * frames, share, "  4x capture")
+    b.time(SCALE, [*PD, "report", str(big), "--out", str(out)], count, rounds=1)
+    big.unlink()  # the largest file of the run: free the disk before the next steps
+
+
+@dataclass
+class Costs:
+    skip: float | None  # us per frame, None when not measurable
+    analyse: float | None
+    noisy: bool  # a class took less than NOISE seconds beyond start-up: its cost is rough
+
+
+def classes(b: Bench, path: Path, tmp: Path, out: Path) -> Costs:
+    pnio, other, tiny = tmp / "pnio.pcap", tmp / "other.pcap", tmp / "startup.pcap"
+    t0 = time.perf_counter()
+    n_pnio, n_other = pcapfiles.split_classes(path, pcapfiles.pnio_frames(path), pnio, other)
+    n_tiny = pcapfiles.head(other, STARTUP_FRAMES, tiny)
+    print(f"  {n_pnio:,} PNIO RPC frames, {n_other:,} others (split in {time.perf_counter() - t0:.1f} s)",
+          flush=True)
+    rounds = max(CLASS_ROUNDS, b.rounds)
+    base = b.time(STARTUP, [*PD, "report", str(tiny), "--out", str(out)], n_tiny, rounds).wall
+    costs, noisy = [], False
+    for name, file, n in ((ONLY_OTHER, other, n_other), (ONLY_PNIO, pnio, n_pnio)):
+        net = b.time(name, [*PD, "report", str(file), "--out", str(out)], n, rounds).wall - base
+        costs.append(net / (n - n_tiny) * 1e6 if n > n_tiny and net > 0 else None)
+        noisy |= net < NOISE
+    for file in (pnio, other, tiny):
+        file.unlink()
+    return Costs(costs[0], costs[1], noisy)
+
+
+def many_files(b: Bench, path: Path, count: int, tmp: Path, out: Path) -> None:
+    parts = tmp / "parts"
+    parts.mkdir()
+    pcapfiles.split_even(path, PARTS, parts)
+    for jobs in (1, 2):
+        b.time(MANY.format(PARTS, jobs), [*PD, "report", str(parts), "--out", str(out), "--jobs", str(jobs)],
+               count)
+    shutil.rmtree(parts)
+
+
+def _met(*checks: bool | None) -> str:
+    """no if any measured check fails; n/a if one could not be measured; else yes."""
+    if any(c is False for c in checks):
+        return "no"
+    return "n/a" if any(c is None for c in checks) else "yes"
+
+
+def _speedup(ref: Timing | None, t: Timing | None) -> float | None:
+    return ref.wall / t.wall if ref and t else None
+
+
+def _x(value: float | None, why_not: str) -> str:
+    return f"n/a ({why_not})" if value is None else f"{value:.2f}x"
+
+
+def targets(b: Bench, jobs: int, costs: Costs, skip_v: bool) -> list[list[str]]:
+    rows = []
+    no_tshark = "tshark not on PATH"
+    fields, report = b.get(FIELDS), b.results[REPORT]
+    r = _speedup(fields, report)
+    rows.append(["`report` >= 5x faster than tshark's field extraction", _x(r, no_tshark),
+                 _met(None if r is None else r >= 5)])
+    par = b.get(f"{REPORT} --jobs {jobs}")
+    r = _speedup(fields, par)
+    rows.append([f"`report --jobs {max(jobs, 2)}` on one file >= 8x faster than tshark's field extraction",
+                 _x(r, no_tshark) if par else "n/a (--jobs 1)", _met(None if r is None else r >= 8)])
+    r = _speedup(b.get(VERBOSE), b.get(DUMP))
+    rows.append(["`dump --format json` no slower than `tshark -V`", _x(r, "--skip-tshark-v" if skip_v else no_tshark),
+                 _met(None if r is None else r >= 1)])
+    rows.append(_rss_row(report, fields, b.get(SCALE)))
+    rows.append(_cost_row(costs))
+    one, two = b.get(MANY.format(PARTS, 1)), b.get(MANY.format(PARTS, 2))
+    r = _speedup(one, two)
+    measured = f"{two.wall:.2f} s against {one.wall:.2f} s ({r:.2f}x)" if one and two else "n/a (--skip-files)"
+    rows.append([f"{PARTS} files: `report DIR --jobs 2` faster than `--jobs 1`", measured,
+                 _met(None if r is None else r > 1)])
+    return rows
+
+
+def _rss_row(report: Timing, fields: Timing | None, big: Timing | None) -> list[str]:
+    below = report.rss < fields.rss if fields else None
+    flat = big.rss <= 1.2 * report.rss if big else None
+    vs = f"{report.rss / fields.rss:.2f}x tshark's {fields.rss / 1024:.0f} MB" if fields else "tshark's n/a"
+    growth = (f"{big.rss / 1024:.0f} MB with 4x the frames ({big.rss / report.rss:.2f}x)" if big
+              else "4x capture n/a (--skip-scale)")
+    return ["peak RSS of `report` below tshark's, and flat: 4x the frames <= 1.2x the RSS",
+            f"{report.rss / 1024:.0f} MB = {vs}; {growth}", _met(below, flat)]
+
+
+def _cost_row(c: Costs) -> list[str]:
+    target = "non-PNIO frames skipped >= 5x faster than PNIO frames are analysed"
+    if c.skip is None or c.analyse is None:
+        return [target, "n/a: a class is empty or no slower than start-up (use more frames)", "n/a"]
+    note = f"; rough: under {NOISE} s beyond start-up, use more frames" if c.noisy else ""
+    return [target, f"{c.skip:.2f} us against {c.analyse:.2f} us per frame: {c.analyse / c.skip:.1f}x{note}",
+            _met(None if c.noisy else c.analyse >= 5 * c.skip)]  # noise alone can pass or fail it
+
+
+def markdown(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=1_000_000)
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--jobs", type=int, default=1, help="also time report --jobs N")
-    ap.add_argument("--skip-tshark-v", action="store_true")
+    ap.add_argument("--jobs", type=int, default=2, help="also time report --jobs N on the capture (1: do not)")
+    ap.add_argument("--skip-tshark-v", action="store_true", help="do not time tshark -V (nor compare dump)")
+    ap.add_argument("--skip-scale", action="store_true", help="do not generate and time the 4x capture")
+    ap.add_argument("--skip-files", action="store_true", help=f"do not time the capture cut into {PARTS} files")
     ap.add_argument("--keep", metavar="FILE", help="write the capture here and keep it")
     ap.add_argument("--pnio-share", type=float, default=0.1,
                     help="fraction of PNIO RPC frames (the rest is cyclic PN-RT and other traffic)")
     args = ap.parse_args()
-    path = Path(args.keep or tempfile.mkstemp(suffix=".pcap", prefix="pd-bench-")[1])
-    t0 = time.perf_counter()
-    count = make_capture(path, args.frames, pnio_share=args.pnio_share)
-    print(f"capture: {count:,} frames ({args.pnio_share:.0%} PNIO RPC), {path.stat().st_size / 1e6:.0f} MB, "
-          f"generated in {time.perf_counter() - t0:.0f} s ({path})")
-    print(f"machine: {os.cpu_count()} cores, Python {sys.version.split()[0]}")
-    results = {name: (wall, rss) for name, wall, rss in bench(path, count, args.rounds, args.skip_tshark_v,
-                                                               args.jobs)}
-    fields = results["tshark PROFIdrive fields"]
-    print("ratios (tshark time / pd-analyze time; > 1 means pd-analyze is faster):")
-    for name, (wall, rss) in results.items():
-        if name.startswith("pd-analyze"):
-            ref = results.get("tshark -V") if "dump" in name else fields
-            if ref:
-                print(f"  {name:<32} {ref[0] / wall:6.2f}x   peak RSS {rss / ref[1]:.2f} of tshark's")
-    if not args.keep:
-        path.unlink()
+    tshark = _tshark_version()
+    print(f"machine: {os.cpu_count()} cores, Python {sys.version.split()[0]}, "
+          f"{tshark or 'tshark not on PATH: the tshark comparisons are skipped (n/a)'}", flush=True)
+    b = Bench(args.rounds)
+    with tempfile.TemporaryDirectory(prefix="pd-bench-") as tmp_name:
+        tmp = Path(tmp_name)
+        out = tmp / "out"
+        path = Path(args.keep) if args.keep else tmp / "capture.pcap"
+        count = _generate(path, args.frames, args.pnio_share)
+        print("commands:", flush=True)
+        commands(b, path, count, out, args.jobs, tshark is not None, not args.skip_tshark_v)
+        if not args.skip_scale:
+            print("scale:", flush=True)
+            scale(b, tmp, args.frames, args.pnio_share, out)
+        print("frame classes:", flush=True)
+        costs = classes(b, path, tmp, out)
+        if not args.skip_files:
+            print("many files:", flush=True)
+            many_files(b, path, count, tmp, out)
+    print("\n" + markdown(["Command", "Frames", "Wall", "Frames/s", "Peak RSS"],
+                          [[name, f"{t.frames:,}", f"{t.wall:.2f} s", f"{t.frames / t.wall:,.0f}",
+                            f"{t.rss / 1024:.0f} MB"] for name, t in b.results.items()]))
+    print("\n" + markdown(["Target", "Measured", "Met?"], targets(b, args.jobs, costs, args.skip_tshark_v)))
     return 0
 
 
