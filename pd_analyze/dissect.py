@@ -187,6 +187,12 @@ class Dissector:
             del self.loose_findings[MAX_LOOSE_FINDINGS:]
         return self._release(out) if self.annotate else out
 
+    def open_frames(self) -> Iterator[int]:
+        """Frames whose outcome is still open: unanswered calls, unfinished IP or CL reassemblies."""
+        yield from self.calls.open_frames()
+        yield from self.frags.open_frames()
+        yield from self.link.open_frames()
+
     def finish(self) -> list[FrameResult]:
         """End of capture: unfinished fragments, unanswered calls, everything still held."""
         last = self.accounting.read

@@ -8,6 +8,7 @@ memory bounded.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from socket import inet_ntoa
 from typing import NamedTuple
@@ -210,6 +211,10 @@ class LinkDecoder:
                 "ip_frag_evicted", number, "ip.id", f"{key[3]:#06x}",
                 f"<= {MAX_IP_DATAGRAMS} open datagrams, {MAX_IP_BYTES} bytes, {MAX_IP_PIECES} pieces each",
                 f"{why}: datagram from frame {entry.first_frame} dropped ({len(entry.frames)} fragments)"))
+
+    def open_frames(self) -> Iterator[int]:
+        """First frame of every incomplete datagram."""
+        return (entry.first_frame for entry in self._open.values())
 
     def finish(self) -> list[Finding]:
         """Findings for datagrams still incomplete at the end of the capture."""

@@ -8,6 +8,7 @@ response may use different DREP byte orders.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -193,6 +194,10 @@ class FragmentTable:
         order = range(entry.last + 1)
         return Reassembled(b"".join(entry.bodies[n] for n in order),
                            tuple(entry.frames[n] for n in order), entry.first_ts)
+
+    def open_frames(self) -> Iterator[int]:
+        """First frame of every unfinished set."""
+        return (entry.first_frame for entry in self._sets.values())
 
     def seen(self, key: tuple, num: int, body: bytes) -> bool:
         """True when this exact fragment is already held, or was part of the set reassembled last
@@ -383,6 +388,10 @@ class CallTable:
                     "rpc_call_evicted", number, "rpc.seq", old_key[1],
                     f"<= {MAX_OPEN_CALLS} open calls, {MAX_OPEN_BYTES} bytes",
                     f"open-call table full: call of frame {old.frame} dropped unanswered"))
+
+    def open_frames(self) -> Iterator[int]:
+        """Request frame of every unanswered call."""
+        return (call.frame for call in self.open.values())
 
     def close(self, key: tuple[bytes, int]) -> Call | None:
         call = self.open.pop(key, None)

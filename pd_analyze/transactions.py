@@ -155,6 +155,10 @@ class TransactionEngine:
             self.loose += res.findings
         return closed
 
+    def open_frames(self) -> Iterator[int]:
+        """Write request frame of every pending transaction."""
+        return (txn.write_req_frame for txn in self._pending.values())
+
     def finish(self, last_ts: float) -> list[Transaction]:
         """Capture end: every open transaction is a timeout, marked capture_ended if its deadline lies beyond."""
         out = []
