@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable, Iterable
 
 from pd_analyze.dissect import FrameResult
@@ -30,8 +31,13 @@ def mark_checks(result: FrameResult, checked: frozenset[str]) -> None:
     by_field: dict[str, list[Finding]] = {}
     for f in result.findings:
         by_field.setdefault(f.field, []).append(f)
-    for fld in result.fields():
-        mark_field(fld, by_field, checked)
+    for layer in result.layers:
+        for fld in layer.fields:  # some 60 a frame: two set lookups each, a call only where a finding is
+            name = fld.name
+            if name in by_field:
+                mark_field(fld, by_field, checked)
+            elif name in checked and not fld.check:
+                fld.check = "ok"
 
 
 def mark_field(fld: Field, by_field: dict[str, list[Finding]], checked: frozenset[str]) -> None:
@@ -44,22 +50,52 @@ def mark_field(fld: Field, by_field: dict[str, list[Finding]], checked: frozense
 
 
 def frame_json(result: FrameResult) -> str:
-    """One JSON Lines object; fields are written directly (names are registry names, strings are
-    escaped by the json module's encoder), as json.dumps of a dict per field costs several times more."""
-    fields = ",".join(
-        f'{{"name":"{f.name}","offset":{f.offset},"length":{f.length},"raw":"{f.raw.hex()}",'
-        f'"value":{_json_value(f.value)},"show":{_esc(f.show)},"check":{_esc(f.check)}}}'
-        for layer in result.layers for f in layer.fields)
-    head = json.dumps({"frame": result.frame, "time": result.ts, "src": result.src, "dst": result.dst,
-                       "summary": result.summary}, ensure_ascii=True, separators=(",", ":"))
-    findings = json.dumps([f.as_dict() for f in result.findings], ensure_ascii=True, separators=(",", ":"))
-    return f'{head[:-1]},"fields":[{fields}],"findings":{findings}}}'
+    """One JSON Lines object, written directly rather than by json.dumps of a dict per field (several
+    times dearer). The text equals json.dumps(..., ensure_ascii=True, separators=(",", ":")): names
+    are registry names, strings go through the json module's own escaping, numbers as json writes them."""
+    esc = _esc
+    fields = []
+    for layer in result.layers:
+        for f in layer.fields:
+            shared, check = f.shared, f.check
+            if shared is None:
+                text = _json_field(f)
+            elif (f.offset == shared.json_at and f.value is shared.value and f.show is shared.show
+                  and f.raw is shared.raw and f.name is shared.name and f.length == shared.length):
+                text = shared.json  # made for an earlier field with these bytes at this offset (holds, inline)
+            else:
+                text = _json_field(f)
+                if shared.holds(f):
+                    shared.json, shared.json_at = text, f.offset
+            fields.append(f'{text}{_CHECKS.get(check) or esc(check)}}}')
+    head = (f'{{"frame":{_json_value(result.frame)},"time":{_json_value(result.ts)},"src":{_json_value(result.src)},'
+            f'"dst":{_json_value(result.dst)},"summary":{_json_value(result.summary)}')
+    findings = json.dumps([f.as_dict() for f in result.findings], ensure_ascii=True, separators=(",", ":")) \
+        if result.findings else "[]"
+    return f'{head},"fields":[{",".join(fields)}],"findings":{findings}}}'
+
+
+def _json_field(f: Field) -> str:
+    """A field's JSON object up to its check."""
+    value = f.value
+    return (f'{{"name":"{f.name}","offset":{f.offset},"length":{f.length},"raw":"{f.raw.hex()}",'
+            f'"value":{value if type(value) is int else _json_value(value)},"show":{_esc(f.show)},"check":')
 
 
 _esc = json.encoder.encode_basestring_ascii
+_CHECKS = {"": '""', "ok": '"ok"'}  # nearly every field's check
 
 
 def _json_value(value: object) -> str:
+    kind = type(value)  # the exact types first: bool is an int, and int/float subclasses may print otherwise
+    if kind is str:
+        return _esc(value)
+    if kind is int:
+        return int.__repr__(value)
+    if kind is bytes:
+        return f'"{value.hex()}"'
+    if kind is float and math.isfinite(value):
+        return float.__repr__(value)
     if isinstance(value, bool) or value is None:
         return "true" if value is True else "false" if value is False else "null"
     if isinstance(value, int):
@@ -100,15 +136,39 @@ def decoded_json(sections: list[tuple[str, list[Field]]], findings: list[Finding
 
 
 def _field_line(f: Field, indent: str, style: Style) -> str:
+    styled = style is not plain_style  # without colour, the style calls are skipped (same text)
+    shared = f.shared
+    if styled or shared is None:
+        text = _text_field(f, style)
+    elif (f.offset == shared.text_at and f.value is shared.value and f.show is shared.show
+          and f.raw is shared.raw and f.name is shared.name and f.length == shared.length):
+        text = shared.text  # made for an earlier field with these bytes at this offset (holds, inline)
+    else:
+        text = _text_field(f, style)
+        if shared.holds(f):
+            shared.text, shared.text_at = text, f.offset
+    check = f.check
+    if not check:
+        return f"{indent}{text}"
+    mark = _MARKS.get(check)
+    if mark is None:
+        mark = (f"[{safe(check)}]", _check_role(check))
+        if len(_MARKS) < 4096:  # check texts repeat ("ok", the profile limits); a few hold values
+            _MARKS[check] = mark
+    return f"{indent}{text}  {style(*mark) if styled else mark[0]}"
+
+
+_MARKS: dict[str, tuple[str, str]] = {}  # check text -> (its bracketed text, its style role)
+
+
+def _text_field(f: Field, style: Style) -> str:
+    """A field's text line without indent and check: offset, bytes, name and shown value."""
     if f.offset < 0:
         where = " " * 32
     else:
         raw = f.raw[:8].hex(" ") + (" .." if len(f.raw) > 8 else "")
         where = f"{f.offset:04x}  {raw:<26}"
-    line = f"{indent}{style(where, 'dim')}  {f.name} = {safe(f.show)}"
-    if f.check:
-        line += "  " + style(f"[{safe(f.check)}]", _check_role(f.check))
-    return line
+    return f"{style(where, 'dim')}  {f.name} = {safe(f.show)}"
 
 
 def _check_role(check: str) -> str:

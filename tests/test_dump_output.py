@@ -1,0 +1,161 @@
+"""The dump's exact output, and the precomputed shortcuts behind it staying equal to their definitions.
+
+Layouts resolve each field's show function once and memoise shown values; the JSON and text writers
+reuse the text of a value shown before. Each shortcut is checked here against the plain definition
+(show_def, the uuid module, json.dumps of the fields' dicts, the text line spelt out).
+"""
+
+import json
+import random
+import uuid
+from pathlib import Path
+
+import pytest
+
+from pd_analyze import checks, dump, registry, structs
+from pd_analyze.dissect import Dissector, FrameResult, dissect
+from pd_analyze.structs import Field, Layout
+
+REPO = Path(__file__).resolve().parent.parent
+SAMPLES = sorted(p for p in (REPO / "sample_pcaps").iterdir() if p.is_file() and p.name != "README.md")
+
+
+def _results(path: Path) -> list[FrameResult]:
+    out = []
+    for res in dissect(str(path), dissector=Dissector(annotate=True)):
+        dump.mark_checks(res, checks.CHECKED_FIELDS)
+        out.append(res)
+    return out
+
+
+def _sample_values(fdef: registry.FieldDef) -> list[object]:
+    ints = [0, 1, 2, 0x7F, 0xFF, 0x100, 0xFFFF, 0x10000, 0xDEA00001, -1, True, False]
+    ints += list(fdef.values or {}) + list(fdef.flags or {})
+    if fdef.flags:
+        ints.append(sum(fdef.flags))  # every bit set
+    others = [b"", b"\x01\x02\x03", bytes(range(6)), bytes(range(16)), bytes(range(40)), bytearray(b"\xff" * 6),
+              0.0, 1.5, 1e-9, float("nan"), "text", "", (1, 2, 3), [4], (), None]
+    return ints + others
+
+
+@pytest.mark.parametrize("name", sorted(registry.FIELDS))
+def test_every_registry_field_shows_as_defined(name: str) -> None:
+    fdef = registry.FIELDS[name]
+    show = structs.shower(fdef)
+    for value in _sample_values(fdef):
+        assert show(value) == structs.show_def(fdef, value), (name, value)
+
+
+def test_show_by_concrete_name_uses_the_template_entry() -> None:
+    for name in ("pd.val[3].value[1]", "pd.addr[0].attr", "pd.val[12].error", "iod.index", "rpc.flags1"):
+        fdef = registry.field(name)
+        for value in _sample_values(fdef):
+            assert structs.show(name, value) == structs.show_def(fdef, value), (name, value)
+
+
+def test_uuid_text_as_the_uuid_module() -> None:
+    rng = random.Random(7)
+    for raw in [bytes(16), b"\xff" * 16] + [rng.randbytes(16) for _ in range(200)]:
+        assert structs.convert("rpc.activity", raw, little=False) == str(uuid.UUID(bytes=raw))
+        assert structs.convert("rpc.activity", raw, little=True) == str(uuid.UUID(bytes_le=raw))
+    assert structs.convert("ip.src", b"\xc0\xa8\x00\x01") == "192.168.0.1"
+    assert structs.convert("rpc.seq", 5) == 5
+    with pytest.raises(ValueError):
+        structs.convert("rpc.activity", b"short")
+
+
+def _fresh(layout: Layout, buf: bytes, offset: int, values: tuple, base: int) -> list[Field]:
+    """annotate spelt out without plan or memo."""
+    out = []
+    for fdef, rel, size, value in zip(layout.defs, layout.offsets, layout.sizes, values, strict=True):
+        start = offset + rel
+        value = structs.convert(fdef.name, value, layout.order == "<")
+        out.append(Field(fdef.name, base + start, size, bytes(buf[start:start + size]), value,
+                         structs.show_def(fdef, value)))
+    return out
+
+
+def test_layout_memo_follows_the_bytes_and_stays_bounded() -> None:
+    layout = Layout("test", "<", (("rpc.activity", "16s"), ("rpc.seq", "I"), ("iod.index", "H"), ("rpc.flags1", "B")))
+    rng = random.Random(3)
+    for _ in range(3 * structs._MEMO_SIZE):
+        buf = b"\xaa" + rng.randbytes(layout.size) + b"\xbb"
+        values = layout.unpack(buf, 1)
+        assert layout.annotate(buf, 1, values, 40) == _fresh(layout, buf, 1, values, 40)
+        assert layout.annotate(bytearray(buf), 1, values, 0) == _fresh(layout, buf, 1, values, 0)
+    assert all(len(memo) <= structs._MEMO_SIZE for _, _, _, memo, _, _ in layout.plan)
+    # the same values over other bytes (a caller's values need not come from this buffer): raw follows the buffer
+    buf = bytes(range(layout.size))
+    values = layout.unpack(buf)
+    layout.annotate(buf, 0, values)
+    other = bytes(reversed(buf))
+    assert [f.raw for f in layout.annotate(other, 0, values)] == [f.raw for f in _fresh(layout, other, 0, values, 0)]
+
+
+def _reference_json(res: FrameResult) -> str:
+    return json.dumps({"frame": res.frame, "time": res.ts, "src": res.src, "dst": res.dst, "summary": res.summary,
+                       "fields": [f.as_dict() for f in res.fields()],
+                       "findings": [f.as_dict() for f in res.findings]}, ensure_ascii=True, separators=(",", ":"))
+
+
+def _reference_text(res: FrameResult) -> str:
+    lines = [f"Frame {res.frame}  {res.ts:.6f}  {res.src} -> {res.dst}  {dump.safe(res.summary)}"]
+    for layer in res.layers:
+        indent = "  " * (layer.depth + 1)
+        lines.append(f"{indent}{dump.safe(layer.title)}")
+        for f in layer.fields:
+            raw = f.raw[:8].hex(" ") + (" .." if len(f.raw) > 8 else "")
+            where = " " * 32 if f.offset < 0 else f"{f.offset:04x}  {raw:<26}"
+            check = f"  [{dump.safe(f.check)}]" if f.check else ""
+            lines.append(f"{indent}  {where}  {f.name} = {dump.safe(f.show)}{check}")
+    lines += [dump.finding_line(f, "  ") for f in res.findings]
+    return "\n".join(lines)
+
+
+def test_json_and_text_of_every_sample_equal_their_definitions() -> None:
+    frames = 0
+    for path in SAMPLES:
+        for _ in range(2):  # the second pass renders from the text kept by the first
+            for res in _results(path):
+                assert dump.frame_json(res) == _reference_json(res), (path.name, res.frame)
+                assert dump.frame_text(res) == _reference_text(res), (path.name, res.frame)
+                frames += 1
+    assert frames > 200
+
+
+def test_a_field_changed_after_annotation_is_written_as_it_is_now() -> None:
+    first, second = _results(REPO / "sample_pcaps" / "worked_example.pcap")[:2]
+    dump.frame_json(first), dump.frame_text(first)  # the shared text of the header fields is made
+    ver = next(f for f in second.fields() if f.name == "rpc.ver")
+    assert ver.shared is not None and ver.shared.json and ver.shared.text  # made for the first frame
+    ver.show, ver.value = "four", 44
+    assert '"name":"rpc.ver","offset":42,"length":1,"raw":"04","value":44,"show":"four"' in dump.frame_json(second)
+    assert "002a  04                          rpc.ver = four" in dump.frame_text(second)
+    assert dump.frame_json(second) == _reference_json(second)
+
+
+def test_worked_example_read_response_text_exactly() -> None:
+    res = _results(REPO / "sample_pcaps" / "worked_example.pcap")[5]
+    lines = dump.frame_text(res).split("\n")
+    assert lines[0] == ("Frame 6  1767225600.016300  192.168.0.2 -> 192.168.0.1  Read response, seq 3, "
+                        "IODReadResHeader api 0x3a00 slot 1/0x1 index 0xb02e 22 bytes")
+    for line in ("                                      rpc.rtt = 0.001700 s",
+                 "    007c  00                          ndr.status.decode = 0x00 (OK)  [ok]",
+                 "      00a6  00 00 3a 00                 iod.api = 0x00003a00 (PROFIdrive)  [ok]",
+                 "        00cf  01                          pd.resp_id = 0x01 (request parameter, positive)  "
+                 "[generic 0x01, 0x02, 0x80, 0x81, 0x82: ok]",
+                 "        00d4  12 34                       pd.val[0].value[0] = 0x1234"):
+        assert line in lines
+
+
+def test_equal_bytes_at_another_offset_are_written_at_theirs() -> None:
+    from pd_analyze.dissect import Layer
+
+    layout = Layout("test", ">", (("udp.sport", "H"), ("udp.dport", "H"), ("rpc.activity", "16s")))
+    buf = bytes(range(20))
+    values = layout.unpack(buf)
+    res = FrameResult(1, 1.5, b"\x01\x02\x03\x04", b"\x05\x06\x07\x08", "s", 0, layers=[
+        Layer(f"at {base}", 0, layout.annotate(buf, 0, values, base)) for base in (0, 4, 0, 100, 4)])
+    for _ in range(2):
+        assert dump.frame_json(res) == _reference_json(res)
+        assert dump.frame_text(res) == _reference_text(res)
