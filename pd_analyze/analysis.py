@@ -16,8 +16,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from functools import cached_property
-
-import pandas as pd
+from typing import TYPE_CHECKING
 
 from pd_analyze import capture, profiles
 from pd_analyze.capture import CaptureError
@@ -25,6 +24,9 @@ from pd_analyze.dissect import DEFAULT_RPC_TIMEOUT, Accounting, Dissector, disse
 from pd_analyze.pd_checks import Checker
 from pd_analyze.tables_out import COLUMNS, Rows, frame_of
 from pd_analyze.transactions import DEFAULT_TXN_TIMEOUT, Transaction, TransactionEngine, iter_closed
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 CAPTURE_SUFFIXES = (".pcap", ".pcapng", ".cap", ".pcap.gz", ".pcapng.gz", ".gz")
 
@@ -67,6 +69,8 @@ class Analysis:
     @cached_property
     def accounting(self) -> pd.DataFrame:
         """Per capture: frames read = decoded + skipped + malformed, and why frames were skipped."""
+        import pandas as pd
+
         return pd.DataFrame([{
             "capture": c.path, "read": c.accounting.read, "decoded": c.accounting.decoded,
             "skipped": sum(c.accounting.skipped.values()), "malformed": sum(c.accounting.malformed.values()),
@@ -80,6 +84,8 @@ class Analysis:
 
     def fields(self, txn: int) -> pd.DataFrame:
         """Every field of every frame of one transaction (the dump, as a table): drill-down."""
+        import pandas as pd
+
         row = self.transactions.loc[self.transactions.txn == txn]
         if row.empty:
             raise KeyError(f"no transaction {txn}")
@@ -125,47 +131,59 @@ def analyze(paths: str | Iterable[str], profile: str = profiles.DEFAULT, timeout
     and in the `error` column of `Analysis.accounting`.
     """
     profiles.load(profile)  # an unknown profile fails here, before any work
-    files = expand(paths)
-    settings = (profile, timeout, rpc_timeout)
+    rows = Rows()
+    results = run(expand(paths), rows, (profile, timeout, rpc_timeout), progress, jobs, chain)
+    return Analysis(rows, results, profile, timeout, rpc_timeout)
+
+
+def run(files: list[str], rows: Rows, settings: tuple[str, float, float],
+        progress: Callable[[str, int], None] | None = None, jobs: int = 1, chain: bool = False) -> list[CaptureResult]:
+    """The pipeline over capture files, every row handed to `rows` (lists for `analyze()`, spools for
+    the streaming report): one way through for both, so their tables cannot differ.
+
+    Settings are (profile, timeout, rpc_timeout). One process streams frame by frame; the parallel
+    paths (`jobs` > 1) get each file's or part's rows from the workers and hand them on in order."""
     if chain:
-        rows, results = _analyze_chain(files, settings, progress)
-        return Analysis(rows, results, profile, timeout, rpc_timeout)
+        return _analyze_chain(files, settings, progress, rows)
     if jobs > 1 and len(files) == 1:
-        split = _analyze_split(files[0], settings, jobs)
+        split = _analyze_split(files[0], settings, jobs, rows)
         if split is not None:
-            return Analysis(split[0], [split[1]], profile, timeout, rpc_timeout)
+            return [split]
+    results: list[CaptureResult] = []
     if jobs > 1 and len(files) > 1:
         from concurrent.futures import ProcessPoolExecutor
 
         with ProcessPoolExecutor(max_workers=min(jobs, len(files))) as pool:
-            parts = list(pool.map(_analyze_file, files, [settings] * len(files)))
-    else:
-        parts = [_analyze_file(path, settings, progress) for path in files]
-    rows = Rows()
-    results = []
-    for part_rows, result in parts:  # merged in file order: numbering does not depend on scheduling
-        rows.extend(part_rows, sum(r.transactions for r in results))
+            # merged in file order as results arrive: numbering does not depend on scheduling
+            for part_rows, result in pool.map(_analyze_file, files, [settings] * len(files)):
+                rows.extend(part_rows, sum(r.transactions for r in results))
+                results.append(result)
+        return results
+    for path in files:
+        rows.new_capture()
+        _, result = _analyze_file(path, settings, progress, rows, sum(r.transactions for r in results))
         results.append(result)
-    return Analysis(rows, results, profile, timeout, rpc_timeout)
+    return results
 
 
 def _analyze_file(path: str, settings: tuple[str, float, float],
-                  progress: Callable[[str, int], None] | None = None) -> tuple[Rows, CaptureResult]:
-    """One capture, numbered from transaction 1 (a process-pool task: arguments and result pickle)."""
+                  progress: Callable[[str, int], None] | None = None, rows: Rows | None = None,
+                  offset: int = 0) -> tuple[Rows, CaptureResult]:
+    """One capture, numbered from transaction `offset` + 1 (a process-pool task: arguments and result pickle)."""
     profile, timeout, rpc_timeout = settings
     checker = Checker(profiles.generic(), profiles.load(profile))
-    rows = Rows()
+    rows = Rows() if rows is None else rows
     d = Dissector(annotate=False, rpc_timeout=rpc_timeout, checker=checker)
     result = CaptureResult(path, d.accounting)
     frames = capture.frames(path, ip_only=True)
-    _run(frames, d, TransactionEngine(timeout), rows, lambda _frame: path, [result], progress)
+    _run(frames, d, TransactionEngine(timeout), rows, lambda _frame: path, [result], progress, offset)
     return rows, result
 
 
 LEAD_IN = 20.0  # seconds of capture time a split part replays before its range (> txn + rpc timeouts)
 
 
-def _analyze_split(path: str, settings: tuple[str, float, float], jobs: int) -> tuple[Rows, CaptureResult] | None:
+def _analyze_split(path: str, settings: tuple[str, float, float], jobs: int, rows: Rows) -> CaptureResult | None:
     """One large capture in `jobs` processes: each part analyses a range of frames, replaying LEAD_IN
     seconds (at least the two timeouts) before it, so calls and channels that cross the split are
     known, and reading past its end until everything opened in its range has closed; parts are
@@ -187,20 +205,23 @@ def _analyze_split(path: str, settings: tuple[str, float, float], jobs: int) -> 
         tasks.append((path, lead[1], lead[0], first, end, settings))
     from concurrent.futures import ProcessPoolExecutor
 
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
-        parts = list(pool.map(_analyze_range, tasks))
-    rows = Rows()
     total = CaptureResult(path, Accounting())
-    for part_rows, result in parts:
-        rows.extend(part_rows, total.transactions)
-        total.transactions += result.transactions
-        acc = total.accounting
-        acc.read += result.accounting.read
-        acc.decoded += result.accounting.decoded
-        acc.skipped += result.accounting.skipped
-        acc.malformed += result.accounting.malformed
-        total.error = total.error or result.error
-    return rows, total
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        parts = pool.map(_analyze_range, tasks)
+        for part_rows, result in parts:  # stitched in frame order, each part handed on as it arrives
+            rows.extend(part_rows, total.transactions)
+            _add_part(total, result)
+    return total
+
+
+def _add_part(total: CaptureResult, result: CaptureResult) -> None:
+    total.transactions += result.transactions
+    acc = total.accounting
+    acc.read += result.accounting.read
+    acc.decoded += result.accounting.decoded
+    acc.skipped += result.accounting.skipped
+    acc.malformed += result.accounting.malformed
+    total.error = total.error or result.error
 
 
 def _analyze_range(task: tuple) -> tuple[Rows, CaptureResult]:
@@ -245,11 +266,10 @@ def _analyze_range(task: tuple) -> tuple[Rows, CaptureResult]:
 
 
 def _analyze_chain(files: list[str], settings: tuple[str, float, float],
-                   progress: Callable[[str, int], None] | None) -> tuple[Rows, list[CaptureResult]]:
+                   progress: Callable[[str, int], None] | None, rows: Rows) -> list[CaptureResult]:
     profile, timeout, rpc_timeout = settings
     checker = Checker(profiles.generic(), profiles.load(profile))
     d = Dissector(annotate=False, rpc_timeout=rpc_timeout, checker=checker)
-    rows = Rows()
     results: list[CaptureResult] = []
     starts: list[int] = []  # first global frame number of each file
 
@@ -272,13 +292,13 @@ def _analyze_chain(files: list[str], settings: tuple[str, float, float],
         return files[max(0, bisect_right(starts, frame) - 1)] if files else ""
 
     _run(frames(), d, TransactionEngine(timeout), rows, capture_of, results, progress)
-    return rows, results
+    return results
 
 
 def _run(source: Iterable[capture.RawFrame], d: Dissector, engine: TransactionEngine, rows: Rows,
          capture_of: Callable[[int], str], results: list[CaptureResult],
-         progress: Callable[[str, int], None] | None) -> None:
-    """The frame loop: dissector -> transaction engine -> rows."""
+         progress: Callable[[str, int], None] | None, offset: int = 0) -> None:
+    """The frame loop: dissector -> transaction engine -> rows (transactions numbered after `offset`)."""
     last = [float("-inf")]
 
     def frames() -> Iterator:
@@ -290,7 +310,7 @@ def _run(source: Iterable[capture.RawFrame], d: Dissector, engine: TransactionEn
 
     def add(txn: Transaction) -> None:
         path = capture_of(txn.write_req_frame)
-        rows.add(path, txn)
+        rows.add(path, txn, offset)
         next(r for r in results if r.path == path).transactions += 1
 
     try:

@@ -265,9 +265,8 @@ def _progress() -> Callable[[str, int], None] | None:
     return update
 
 
-def _analyze(captures: tuple[str, ...], read: str | None, profile: str, timeout: float, rpc_timeout: float,  # noqa: ANN202
-             jobs: int, chain: bool):
-    from pd_analyze.analysis import analyze, expand
+def _files(captures: tuple[str, ...], read: str | None, profile: str) -> list[str]:
+    from pd_analyze.analysis import expand
 
     given = _inputs(captures, read)
     paths = expand(given)
@@ -275,12 +274,13 @@ def _analyze(captures: tuple[str, ...], read: str | None, profile: str, timeout:
         raise click.UsageError(dump.safe(f"no capture files matched {' '.join(given)} (a directory is searched for "
                                          "*.pcap, *.pcapng, *.cap and *.gz files)"))
     _checker(profile)  # a bad profile is a usage error before any file is read
-    return analyze(paths, profile, timeout, rpc_timeout, _progress() if jobs == 1 else None, jobs, chain)
+    return paths
 
 
 def _timeouts(func: Callable) -> Callable:
     func = click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
-                        help="Analyse files in N parallel processes (same tables as one process).")(func)
+                        help="Analyse files in N parallel processes, or one large uncompressed pcap in N parts "
+                             "(same tables as one process; each worker returns its file's rows whole).")(func)
     func = click.option("--chain", is_flag=True,
                         help="The files continue one another (ring buffer): pair across file boundaries.")(func)
     func = click.option("--timeout", type=SECONDS, default=10.0, show_default=True,
@@ -295,8 +295,10 @@ def _timeouts(func: Callable) -> Callable:
 @click.option("--out", "out_dir", default="pd-report", show_default=True, metavar="DIR",
               help="Directory for transactions, parameters, findings and changes files.")
 @click.option("--format", "fmt", type=click.Choice(["csv", "parquet", "json", "html"]), default="csv",
-              show_default=True, help="html: DIR/report.html (self-contained: summary, plots, tables, "
-                                      "drill-down) plus the tables as CSV.")
+              show_default=True, help="csv, parquet (DIR/<table>/capture=<file>/part-0.parquet) and json (JSON "
+                                      "Lines) are written in chunks as the capture is read, so memory stays flat "
+                                      "whatever its size. html: DIR/report.html (self-contained: summary, plots, "
+                                      "tables, drill-down) plus the tables as CSV; it holds every table in memory.")
 @profile_option
 @_timeouts
 def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fmt: str, profile: str,
@@ -304,18 +306,25 @@ def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fm
     """Pair requests with responses; write the tables and print a summary (worst offenders first)."""
     from pd_analyze import report
 
-    analysis = _analyze(captures, read, profile, timeout, rpc_timeout, jobs, chain)
-    written = report.write_tables(analysis, out_dir, "csv" if fmt == "html" else fmt)
-    if fmt == "html":
+    paths = _files(captures, read, profile)
+    progress = _progress() if jobs == 1 else None
+    if fmt == "html":  # plots and drill-down need the whole tables
         from pd_analyze import html_report
+        from pd_analyze.analysis import analyze
 
+        analysis = analyze(paths, profile, timeout, rpc_timeout, progress, jobs, chain)
+        written = report.write_tables(analysis, out_dir, "csv")
         written.append(html_report.write(analysis, f"{out_dir}/report.html",
                                          tables_dir_note="the CSV files beside this page"))
-    click.echo("\n".join(dump.safe(line) for line in report.summary(analysis).split("\n")))
+        text, errors = report.summary(analysis), analysis.errors
+    else:
+        streamed = report.stream(paths, out_dir, fmt, (profile, timeout, rpc_timeout), progress, jobs, chain)
+        written, text, errors = streamed.written, streamed.summary, streamed.errors
+    click.echo("\n".join(dump.safe(line) for line in text.split("\n")))
     click.echo("\nWrote " + ", ".join(written), err=True)
-    for error in analysis.errors:
+    for error in errors:
         click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
-    sys.exit(EXIT_USAGE if analysis.errors else EXIT_OK)
+    sys.exit(EXIT_USAGE if errors else EXIT_OK)
 
 
 @main.command("audit", epilog=AUDIT_EXAMPLES)
@@ -327,32 +336,40 @@ def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fm
 @_timeouts
 def audit_command(captures: tuple[str, ...], read: str | None, fail_on: str, profile: str, timeout: float,
                   rpc_timeout: float, jobs: int, chain: bool) -> None:
-    """Findings like a linter (file:frame: severity rule message); exit 1 at the --fail-on threshold."""
-    from pd_analyze.rules import SEVERITY_RANK
+    """Findings like a linter (file:frame: severity rule message); exit 1 at the --fail-on threshold.
 
-    analysis = _analyze(captures, read, profile, timeout, rpc_timeout, jobs, chain)
-    f = analysis.findings.sort_values(["capture", "frame"], kind="stable")
-    for row in f.itertuples():
-        txn = f" [txn {row.txn}]" if not _missing(row.txn) else ""
-        click.echo(dump.safe(f"{row.capture}:{row.frame}: {row.severity} {row.rule} {row.name}: {row.message}{txn}"))
-    counts = f.severity.value_counts()
-    files = len(analysis.captures)
-    click.echo(f"{len(f)} findings in {files} capture{'s' if files != 1 else ''}: "
-               + ", ".join(f"{counts.get(s, 0)} {s}" for s in ("error", "warning", "info")))
-    for error in analysis.errors:
+    Findings are sorted by capture and frame through a bounded on-disk sort: memory stays flat."""
+    from pd_analyze import report
+    from pd_analyze.rules import SEVERITY_RANK
+    from pd_analyze.tables_out import SEVERITIES
+
+    paths = _files(captures, read, profile)
+    rows, results = report.stream_findings(paths, (profile, timeout, rpc_timeout), jobs, chain,
+                                           progress=_progress() if jobs == 1 else None)
+    counts: dict[str, int] = dict.fromkeys(SEVERITIES, 0)
+    total = worst = 0
+    for capture, frame, txn, severity, rule, name, *_, message in rows:
+        severity = severity if severity in counts else "nan"  # as pandas shows a value outside the categories
+        txn_note = f" [txn {txn}]" if txn is not None else ""
+        click.echo(dump.safe(f"{capture}:{_na(frame)}: {severity} {rule} {name}: {message}{txn_note}"))
+        total += 1
+        if severity in counts:
+            counts[severity] += 1
+            worst = max(worst, SEVERITY_RANK[severity])
+    files = len(results)
+    click.echo(f"{total} findings in {files} capture{'s' if files != 1 else ''}: "
+               + ", ".join(f"{counts[s]} {s}" for s in ("error", "warning", "info")))
+    errors = [f"{c.path}: {c.error}" for c in results if c.error]
+    for error in errors:
         click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
-    if analysis.errors:
+    if errors:
         sys.exit(EXIT_USAGE)
-    worst = max((SEVERITY_RANK[s] for s in f.severity.astype(str)), default=0)
     threshold = SEVERITY_RANK.get(fail_on, 99)
     sys.exit(EXIT_FINDINGS if worst >= threshold else EXIT_OK)
 
 
-def _missing(value: object) -> bool:
-    try:
-        return bool(value != value) or value is None or str(value) == "<NA>"
-    except TypeError:
-        return True
+def _na(value: object) -> str:
+    return "<NA>" if value is None else str(value)
 
 
 @main.command("fields")

@@ -1,25 +1,39 @@
-"""The report: the four tables written as files, and a summary worst offenders first."""
+"""The report: the four tables written as files, and a summary worst offenders first.
+
+`stream` is the command line's path: each row, as the pipeline closes it, is counted into the summary
+and formatted as the line its file will hold (CSV, JSON; Parquet keeps the row), then goes into a spool
+(a bounded external sort) that hands the lines on in table order and in chunks, so memory does not grow
+with the capture. `write_tables` and `summary` do the same from an Analysis already in memory.
+"""
 
 from __future__ import annotations
 
 import os
-import re
+import shutil
+import tempfile
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
-import pandas as pd
+from pd_analyze.spool import Spool
+from pd_analyze.summary import TOP, Summary
+from pd_analyze.tables_out import COLUMNS, Rows, sort_key
+from pd_analyze.writers import neutralise, open_table
 
-from pd_analyze.analysis import Analysis
-from pd_analyze.tables_out import COLUMNS
+if TYPE_CHECKING:
+    from pd_analyze.analysis import Analysis, CaptureResult
+    from pd_analyze.transactions import Transaction
+
+__all__ = ["CHUNK_ROWS", "TABLES", "Streamed", "neutralise", "stream", "stream_findings", "summary", "write_tables"]
 
 TABLES = tuple(COLUMNS)
-_FORMULA = re.compile(r"^[=+\-@\t\r]")
-_NUMBER = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$")
+CHUNK_ROWS = 4096  # rows per table held for sorting, and per chunk written
 
 
-def neutralise(text: object) -> object:
-    """A cell a spreadsheet would run as a formula gets a leading apostrophe; numbers stay numbers."""
-    if isinstance(text, str) and _FORMULA.match(text) and not _NUMBER.match(text):
-        return "'" + text
-    return text
+def _by_capture(name: str, fmt: str) -> bool:
+    """Parquet writes one partition file at a time, so its findings come grouped by capture (within a
+    capture the order is the table's: a partition holds the same rows in the same order either way)."""
+    return fmt == "parquet" and name == "findings"
 
 
 def write_tables(analysis: Analysis, out_dir: str, fmt: str) -> list[str]:
@@ -27,98 +41,121 @@ def write_tables(analysis: Analysis, out_dir: str, fmt: str) -> list[str]:
     os.makedirs(out_dir, exist_ok=True)
     written = []
     for name in TABLES:
-        df: pd.DataFrame = getattr(analysis, name)
-        path = os.path.join(out_dir, f"{name}.{'jsonl' if fmt == 'json' else fmt}")
-        if fmt == "csv":
-            safe = df.copy()
-            for col in safe.columns:
-                if safe[col].dtype == "string" or isinstance(safe[col].dtype, pd.CategoricalDtype):
-                    safe[col] = safe[col].astype("object").map(neutralise)
-            safe.to_csv(path, index=False)
-        elif fmt == "parquet":
-            path = _parquet_dataset(df, os.path.join(out_dir, name))
-        else:
-            df.to_json(path, orient="records", lines=True, date_format="iso", date_unit="us")
-        written.append(path)
+        writer = open_table(out_dir, name, fmt)
+        rows = sorted(getattr(analysis.rows, name), key=sort_key(name, _by_capture(name, fmt)))  # stable
+        for i in range(0, len(rows), CHUNK_ROWS):
+            writer.write(rows[i:i + CHUNK_ROWS])
+        written.append(writer.close())
     return written
 
 
-def _parquet_dataset(df: pd.DataFrame, path: str) -> str:
-    """A Hive-partitioned dataset DIR/<table>/capture=<file>/part-0.parquet (DuckDB, Spark, Dask read it)."""
-    os.makedirs(path, exist_ok=True)
-    if df.empty:  # no partition to write: one file keeps the schema
-        df.to_parquet(os.path.join(path, "part-0.parquet"), index=False)
-        return path
-    df.to_parquet(path, index=False, partition_cols=["capture"], existing_data_behavior="delete_matching",
-                  basename_template="part-{i}.parquet")
-    return path
-
-
-def _ms(seconds: float) -> str:
-    return "-" if pd.isna(seconds) else f"{seconds * 1000:.1f}"
-
-
-def summary(analysis: Analysis, top: int = 10) -> str:
+def summary(analysis: Analysis, top: int = TOP) -> str:
     """Verdict counts; NAKs by device, DO, PNU and error; B5 retries; latency per device."""
-    t, p = analysis.transactions, analysis.parameters
-    lines = []
-    for row in analysis.accounting.itertuples():
-        line = (f"{row.capture}: {row.read} frames read = {row.decoded} decoded + {row.skipped} skipped + "
-                f"{row.malformed} malformed; {row.transactions} transactions")
-        lines.append(line + (f"; ERROR {row.error}" if row.error else ""))
-        for kind, reasons in (("skipped", row.skipped_by_reason), ("malformed", row.malformed_by_reason)):
-            if reasons:  # the invariant by reason: every frame is accounted for
-                lines.append(f"  {kind}: " + "; ".join(f"{n} {why}" for why, n in
-                                                       sorted(reasons.items(), key=lambda item: -item[1])))
-    lines.append("")
-    if t.empty:
-        lines.append("No PROFIdrive transactions found.")
-        return "\n".join(lines)
-    counts = t.verdict.value_counts()
-    lines.append(f"Transactions: {len(t)}  " + "  ".join(f"{v}={counts.get(v, 0)}" for v in
-                                                         ("ok", "nak", "reference_mismatch", "timeout",
-                                                          "pnio_error", "malformed")))
-    failed = t[t.verdict != "ok"]
-    if not failed.empty:
-        lines.append("")
-        lines.append("Failures by device (worst first):")
-        by_dev = failed.groupby("device", observed=True).verdict.value_counts().unstack(fill_value=0)
-        by_dev = by_dev.assign(total=by_dev.sum(axis=1)).sort_values("total", ascending=False)
-        for dev, row in by_dev.head(top).iterrows():
-            detail = ", ".join(f"{k}={int(v)}" for k, v in row.items() if k != "total" and v)
-            lines.append(f"  {dev:<16} {int(row.total):>6}  ({detail})")
-    errs = p[p.error.fillna("") != ""]
-    if not errs.empty:
-        lines.append("")
-        lines.append("NAKs by PNU and error number (worst first):")
-        grouped = errs.groupby(["device", "do", "param", "error", "error_text"], observed=True, dropna=False)
-        for (dev, do, param, err, text), n in grouped.size().sort_values(ascending=False).head(top).items():
-            lines.append(f"  {n:>6}  {dev} DO {do} {param} error {err} ({text})")
-        lines.append("  by error number: " + ", ".join(f"{e}={n}" for e, n in errs.error.value_counts().items()))
-        lines.append("  by DO: " + ", ".join(f"{d}={n}" for d, n in errs["do"].value_counts().items()))
-    b5 = t[t.b5_retries > 0]
-    lines.append("")
-    lines.append(f"B5 retries: {int(t.b5_retries.sum())} in {len(b5)} transactions"
-                 + (f" (max {int(t.b5_retries.max())} in transaction {int(t.loc[t.b5_retries.idxmax(), 'txn'])})"
-                    if len(b5) else ""))
-    done = t[t.t_total.notna()]
-    if not done.empty:
-        lines.append("")
-        lines.append("Latency per device, ms (write to final response; slowest first):")
-        lines.append(f"  {'device':<16} {'n':>6} {'p50':>8} {'p90':>8} {'p99':>8} {'max':>8}  write rtt p50")
-        stats = done.groupby("device", observed=True).agg(
-            n=("t_total", "size"), p50=("t_total", lambda s: s.quantile(0.5)),
-            p90=("t_total", lambda s: s.quantile(0.9)), p99=("t_total", lambda s: s.quantile(0.99)),
-            max=("t_total", "max"), w50=("t_write_rtt", lambda s: s.quantile(0.5)))
-        for dev, row in stats.sort_values("p90", ascending=False).head(top).iterrows():
-            lines.append(f"  {dev:<16} {int(row.n):>6} {_ms(row.p50):>8} {_ms(row.p90):>8} {_ms(row.p99):>8} "
-                         f"{_ms(row['max']):>8}  {_ms(row.w50)}")
-    f = analysis.findings
-    if not f.empty:
-        lines.append("")
-        sev = f.severity.value_counts()
-        lines.append(f"Findings: {len(f)}  " + "  ".join(f"{s}={sev.get(s, 0)}" for s in ("error", "warning", "info")))
-        for (rule, name), n in f.groupby(["rule", "name"], observed=True).size().sort_values(
-                ascending=False).head(top).items():
-            lines.append(f"  {n:>6}  {rule} {name}")
-    return "\n".join(lines)
+    acc = Summary()
+    for name in ("transactions", "parameters", "findings"):
+        acc.add(name, getattr(analysis.rows, name))
+    return acc.text(analysis.captures, top)
+
+
+class _Table:
+    """Where `Rows` puts one table's rows in the streaming report: into the summary, and, as the line the
+    file will hold (CSV, JSON) or as the row (Parquet), into the spool that orders them."""
+
+    BATCH = 256  # rows gathered before they go on: one summary call per batch, not per row
+
+    def __init__(self, name: str, writer: Any, spool: Spool, acc: Summary) -> None:
+        self.name, self.spool, self.acc = name, spool, acc
+        self.line = getattr(writer, "line", None)
+        self._batch: list[tuple] = []
+
+    def append(self, row: tuple) -> None:
+        self._batch.append(row)
+        if len(self._batch) >= self.BATCH:
+            self.flush()
+
+    def extend(self, rows: Iterable[tuple]) -> None:
+        for row in rows:
+            self.append(row)
+
+    def flush(self) -> None:
+        batch, self._batch = self._batch, []
+        self.acc.add(self.name, batch)
+        line, append = self.line, self.spool.append
+        for row in batch:
+            append(row, None if line is None else line(row))
+
+
+@dataclass
+class Streamed:
+    """What `stream` wrote and found."""
+
+    written: list[str]
+    summary: str
+    captures: list[CaptureResult]
+    peak_held: dict[str, int] = field(default_factory=dict)  # most rows of each table in memory at once
+
+    @property
+    def errors(self) -> list[str]:
+        return [f"{c.path}: {c.error}" for c in self.captures if c.error]
+
+
+def stream(files: list[str], out_dir: str, fmt: str, settings: tuple[str, float, float],
+           progress: Callable[[str, int], None] | None = None, jobs: int = 1, chain: bool = False,
+           chunk_rows: int = CHUNK_ROWS) -> Streamed:
+    """The report of `files` written to `out_dir` as csv / json / parquet without holding the tables:
+    the files equal `write_tables(analyze(files))`, and the summary equals `summary(analyze(files))`."""
+    from pd_analyze.analysis import run
+
+    os.makedirs(out_dir, exist_ok=True)
+    spill = tempfile.mkdtemp(prefix=".pd-analyze-", dir=out_dir)  # beside the output: room for big files
+    writers = {name: open_table(out_dir, name, fmt) for name in TABLES}
+    try:
+        acc = Summary()
+        spools = {name: Spool(sort_key(name, _by_capture(name, fmt)), chunk_rows, spill) for name in TABLES}
+        tables = {name: _Table(name, writers[name], spools[name], acc) for name in TABLES}
+        captures = run(files, Rows(**tables), settings, progress, jobs, chain)  # type: ignore[arg-type]
+        written = []
+        for name in TABLES:
+            tables[name].flush()
+            writer = writers.pop(name)
+            for chunk in spools[name].chunks(chunk_rows):  # lines of text, or rows for Parquet
+                if tables[name].line is None:
+                    writer.write(chunk)
+                else:
+                    writer.write_lines(chunk)
+            written.append(writer.close())
+        return Streamed(written, acc.text(captures), captures, {n: s.peak_held for n, s in spools.items()})
+    finally:
+        for writer in writers.values():  # only after a failure: close what is open
+            writer.close()
+        shutil.rmtree(spill, ignore_errors=True)
+
+
+class _FindingsOnly(Rows):
+    """Rows that keep only findings (audit): the other tables are not even built."""
+
+    def add(self, capture: str, txn: Transaction, offset: int = 0) -> None:
+        for f in txn.findings:
+            self.add_finding(capture, f, txn.txn + offset)
+
+    def extend(self, other: Rows, offset: int) -> None:
+        self.findings.extend(r[:2] + ((r[2] + offset if r[2] is not None else None),) + r[3:]
+                             for r in other.findings)
+
+
+def stream_findings(files: list[str], settings: tuple[str, float, float], jobs: int = 1, chain: bool = False,
+                    chunk_rows: int = CHUNK_ROWS, progress: Callable[[str, int], None] | None = None,
+                    ) -> tuple[Iterator[tuple], list[CaptureResult]]:
+    """Findings of `files` sorted by capture and frame (ties as found), streamed: for `audit`.
+
+    The rows are read lazily; the spill files go once the iterator is exhausted or closed."""
+    from pd_analyze.analysis import run
+
+    spool = Spool(sort_key("findings", by_capture=True), chunk_rows)
+    sink = _FindingsOnly(findings=spool)  # type: ignore[arg-type]
+    try:
+        captures = run(files, sink, settings, progress, jobs, chain)
+    except BaseException:
+        spool.close()
+        raise
+    return (row for chunk in spool.chunks(chunk_rows) for row in chunk), captures

@@ -1,17 +1,16 @@
 """Closed transactions to rows of the four tidy tables: transactions, parameters, findings, changes.
 
-Columns are declared once here (name, pandas dtype, description); the DataFrames, the report files
-and `pd-analyze fields --tables` read the declaration. Rows are plain tuples collected per capture;
-pandas is only touched when a table is built, never in the per-frame loop.
+Columns are declared once here (name, dtype, description); the DataFrames, the streamed report files
+and `pd-analyze fields --tables` read the declaration. Rows are plain tuples; pandas is imported only
+when a DataFrame is built (`frame_of`), never in the per-frame loop nor on the CSV/JSON report path.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-
-import pandas as pd
+from typing import TYPE_CHECKING, Any
 
 from pd_analyze import pdtables as pt
 from pd_analyze.link import ip_text
@@ -19,8 +18,14 @@ from pd_analyze.profidrive import Block, values_of
 from pd_analyze.rules import Finding
 from pd_analyze.transactions import Transaction, param_label
 
-VERDICT_DTYPE = pd.CategoricalDtype(["ok", "nak", "reference_mismatch", "timeout", "pnio_error", "malformed"])
-SEVERITY_DTYPE = pd.CategoricalDtype(["info", "warning", "error"], ordered=True)
+if TYPE_CHECKING:
+    import pandas as pd
+
+VERDICTS = ("ok", "nak", "reference_mismatch", "timeout", "pnio_error", "malformed")
+SEVERITIES = ("info", "warning", "error")
+VERDICT = "category:verdict"  # categoricals with fixed categories (the same in every chunk and file)
+SEVERITY = "category:severity"
+FIXED_CATEGORIES = {VERDICT: (VERDICTS, False), SEVERITY: (SEVERITIES, True)}
 TIME = "datetime64[ns, UTC]"
 MAX_TIME_SECONDS = 9.2e9  # datetime64[ns] spans 1677 ... 2262
 
@@ -28,11 +33,11 @@ MAX_TIME_SECONDS = 9.2e9  # datetime64[ns] spans 1677 ... 2262
 @dataclass(frozen=True, slots=True)
 class Column:
     name: str
-    dtype: object
+    dtype: str  # a pandas dtype name, or VERDICT / SEVERITY
     description: str
 
 
-def _cols(*cols: tuple[str, object, str]) -> tuple[Column, ...]:
+def _cols(*cols: tuple[str, str, str]) -> tuple[Column, ...]:
     return tuple(Column(*c) for c in cols)
 
 
@@ -49,7 +54,7 @@ COLUMNS: Mapping[str, tuple[Column, ...]] = MappingProxyType({
         ("do", "Int64", "DO-ID"), ("n_params", "Int64", "No. of parameters"),
         ("params", "string", "parameters addressed, e.g. P964[0] P2000[0..2]"),
         ("resp_id", "category", "Response ID"),
-        ("verdict", VERDICT_DTYPE, "malformed, pnio_error, timeout, reference_mismatch, nak or ok"),
+        ("verdict", VERDICT, "malformed, pnio_error, timeout, reference_mismatch, nak or ok"),
         ("errors", "string", "PROFIdrive errors per parameter, e.g. P964[0]:0x02"),
         ("pnio_status", "string", "PNIOStatus that closed the transaction (8 hex digits), empty when none"),
         ("b5_retries", "Int64", "reads answered B5 (state conflict: not ready)"),
@@ -82,7 +87,7 @@ COLUMNS: Mapping[str, tuple[Column, ...]] = MappingProxyType({
     "findings": _cols(
         ("capture", "category", "capture file"), ("frame", "Int64", "frame number"),
         ("txn", "Int64", "transaction, empty when the frame belongs to none"),
-        ("severity", SEVERITY_DTYPE, "info, warning or error"), ("rule", "category", "rule id (protocol.md 6)"),
+        ("severity", SEVERITY, "info, warning or error"), ("rule", "category", "rule id (protocol.md 6)"),
         ("name", "category", "rule name"), ("field", "string", "field name (pd-analyze fields)"),
         ("value", "string", "observed value"), ("expected", "string", "expected value or range"),
         ("source", "string", "document the limit comes from"), ("message", "string", "one-line message"),
@@ -120,15 +125,27 @@ def _hex(value: int) -> str:
     return f"0x{value:02x}" if value >= 0 else ""
 
 
+_CHANNEL_CACHE = 65536  # channels whose text cells are remembered (a flood of new channels only clears it)
+
+
 @dataclass(slots=True)
 class Rows:
-    """Rows of the four tables for one or more captures."""
+    """Rows of the four tables for one or more captures.
+
+    The four attributes are lists for `analyze()`; the streaming report puts spools there instead
+    (anything with `append` and `extend`), so the same code builds the rows for both.
+    """
 
     transactions: list[tuple] = field(default_factory=list)
     parameters: list[tuple] = field(default_factory=list)
     findings: list[tuple] = field(default_factory=list)
     changes: list[tuple] = field(default_factory=list)
     _last_read: dict[tuple, str] = field(default_factory=dict)
+    _channels: dict[tuple, tuple[str, str, str, str]] = field(default_factory=dict)
+
+    def new_capture(self) -> None:
+        """The next rows come from a capture analysed on its own: forget the values read so far."""
+        self._last_read.clear()
 
     def extend(self, other: Rows, offset: int) -> None:
         """Append another capture's rows, its transaction numbers shifted by `offset`."""
@@ -137,39 +154,50 @@ class Rows:
                 return rows
             return [r[:col] + ((r[col] + offset if r[col] is not None else None),) + r[col + 1:] for r in rows]
 
-        self.transactions += shift(other.transactions, 0)
-        self.parameters += shift(other.parameters, 0)
-        self.findings += shift(other.findings, 2)
-        self.changes += shift(other.changes, 3)
+        self.transactions.extend(shift(other.transactions, 0))
+        self.parameters.extend(shift(other.parameters, 0))
+        self.findings.extend(shift(other.findings, 2))
+        self.changes.extend(shift(other.changes, 3))
+
+    def _channel(self, v: tuple) -> tuple[str, str, str, str]:
+        """device, controller, ARUUID and index of a channel as text (the same few channels recur)."""
+        text = self._channels.get(v)
+        if text is None:
+            if len(self._channels) >= _CHANNEL_CACHE:
+                self._channels.clear()
+            text = self._channels[v] = (ip_text(v[0]), ip_text(v[1]), _uuid(v[2]), f"0x{v[6]:04x}")
+        return text
 
     def add(self, capture: str, txn: Transaction, offset: int = 0) -> None:
         number = txn.txn + offset
-        device, controller = ip_text(txn.device), ip_text(txn.controller)
+        device, controller, ar, index = self._channel(txn.channel)
         request, response = txn.request, txn.response
         errors = []
         blocks = response.blocks if response is not None else []
         addresses = request.addresses if request is not None else []
+        written_blocks = request.blocks if request is not None else []
+        append = self.parameters.append
         for i, addr in enumerate(addresses):
             res_block = blocks[i] if i < len(blocks) else None
-            written = request.blocks[i] if request is not None and i < len(request.blocks) else None
+            written = written_blocks[i] if i < len(written_blocks) else None
             err = res_block.error if res_block is not None and res_block.is_error else -1
             label = addr.label()
             if err >= 0:
                 errors.append(f"{label}:{_hex(err)}")
             fmt = written if written is not None else res_block
-            self.parameters.append((
+            append((
                 number, capture, device, txn.do, label, addr.pnu, addr.subindex, addr.n_elems,
                 pt.ATTRIBUTE.get(addr.attr, _hex(addr.attr)),
                 pt.FORMAT_NAME.get(fmt.format, _hex(fmt.format)) if fmt is not None and not fmt.is_error else "",
                 block_values(written), block_values(res_block), _hex(err),
                 pt.error_text(err) if err >= 0 else ""))
-            self._trail(capture, txn, number, addr, written, res_block, device)
+            self._trail(capture, txn, number, addr, label, written, res_block, device)
         if response is not None and len(blocks) == 1 and blocks[0].is_error and len(addresses) > 1:
             errors = [f"*:{_hex(blocks[0].error)}"]  # header-level error: the whole request refused
         fig = txn.figures()
         v = txn.channel
         self.transactions.append((
-            number, capture, device, controller, _uuid(v[2]), f"0x{v[6]:04x}", v[3], v[4], v[5],
+            number, capture, device, controller, ar, index, v[3], v[4], v[5],
             _int(txn.ref), _hex(txn.req_id), _int(txn.do), _int(txn.n_params), param_label(txn),
             _hex(response.ident) if response is not None else "", txn.verdict, " ".join(errors), txn.pnio_status,
             txn.b5_retries, len(txn.read_req_frames), txn.rpc_retransmissions, txn.write_req_frame,
@@ -184,26 +212,30 @@ class Rows:
         self.findings.append((capture, f.frame, txn, f.severity, f.rule, f.name, f.field, f.value, f.expected,
                               f.source, f.message))
 
-    def _trail(self, capture: str, txn: Transaction, number: int, addr, written: Block | None,  # noqa: ANN001
-               res_block: Block | None, device: str) -> None:
+    def _trail(self, capture: str, txn: Transaction, number: int, addr: Any, label: str,
+               written: Block | None, res_block: Block | None, device: str) -> None:
         """The change trail, and the last values read per element to show what a change replaced."""
+        change = txn.req_id == pt.REQ_CHANGE and written is not None
+        read = txn.req_id == pt.REQ_READ and txn.verdict in ("ok", "nak") and res_block is not None \
+            and addr.attr == pt.ATTR_VALUE and not res_block.is_error
+        if not (change or read):  # neither remembers nor looks up a value: no keys needed
+            return
         count = max(addr.n_elems, 1)
         keys = [(capture, device, txn.do, addr.pnu, addr.subindex + j) for j in range(count)]
-        if txn.req_id == pt.REQ_READ and txn.verdict in ("ok", "nak") and res_block is not None \
-                and addr.attr == pt.ATTR_VALUE and not res_block.is_error:
+        if read:
             values = [_cell(v) for _, _, v, _ in values_of(res_block)]
             if len(values) == len(keys):
                 self._last_read.update(zip(keys, values, strict=True))
             elif len(values) == 1:
                 self._last_read[keys[0]] = values[0]
-        if txn.req_id != pt.REQ_CHANGE or written is None:
+        if not change:
             return
         before = [self._last_read.get(k) for k in keys]
         if res_block is not None and res_block.is_error:
             result = f"error {_hex(res_block.error)}: {pt.error_text(res_block.error)}"
         else:
             result = "ok" if txn.verdict in ("ok", "nak") else txn.verdict
-        self.changes.append((capture, device, txn.do, number, txn.write_req_frame, txn.t_start, addr.label(),
+        self.changes.append((capture, device, txn.do, number, txn.write_req_frame, txn.t_start, label,
                              addr.pnu, addr.subindex, block_values(written), result,
                              " ".join(b for b in before if b is not None) if all(before) else ""))
 
@@ -218,19 +250,60 @@ def _int(value: int) -> int | None:
     return value if value >= 0 else None
 
 
+# The order of each table: by this column, ties in the order the rows were added (a stable sort).
+SORT_COLUMN: Mapping[str, int] = MappingProxyType({"transactions": 0, "parameters": 0, "findings": 1, "changes": 3})
+_LAST = float("inf")  # a missing key sorts last, as pandas puts NA last
+
+
+def sort_key(name: str, by_capture: bool = False) -> Callable[[tuple], object]:
+    """The sort key of a table's rows; `by_capture` groups findings by capture first (audit, Parquet)."""
+    col = SORT_COLUMN[name]
+    if by_capture:
+        return lambda r: (r[0], _LAST if r[col] is None else r[col])
+    return lambda r: _LAST if r[col] is None else r[col]
+
+
+def micros(seconds: object) -> int | None:
+    """A capture time as the tables hold it: whole microseconds (None beyond datetime64[ns])."""
+    if seconds is None:
+        return None
+    s = float(seconds)  # type: ignore[arg-type]
+    if not abs(s) < MAX_TIME_SECONDS:  # NaN fails too
+        return None
+    return round(s * 1e6)
+
+
+def pandas_dtype(col: Column) -> object:
+    """The pandas dtype of a column (pandas imported here, on first use)."""
+    import pandas as pd
+
+    if col.dtype in FIXED_CATEGORIES:
+        categories, ordered = FIXED_CATEGORIES[col.dtype]
+        return pd.CategoricalDtype(list(categories), ordered=ordered)
+    return col.dtype
+
+
+def __getattr__(name: str) -> object:
+    # the pandas dtypes of the fixed categoricals, for callers that used the module constants
+    if name in ("VERDICT_DTYPE", "SEVERITY_DTYPE"):
+        return pandas_dtype(Column("", VERDICT if name == "VERDICT_DTYPE" else SEVERITY, ""))
+    raise AttributeError(name)
+
+
 def frame_of(name: str, rows: Iterable[tuple]) -> pd.DataFrame:
     """A typed DataFrame of one table from its rows."""
+    import pandas as pd
+
     cols = COLUMNS[name]
     df = pd.DataFrame.from_records(list(rows), columns=[c.name for c in cols])
     for c in cols:
         if c.dtype == TIME:  # capture times to the microsecond (float seconds carry no more)
             seconds = df[c.name].astype("float64")
             seconds = seconds.where(seconds.abs() < MAX_TIME_SECONDS)  # a pcapng time beyond datetime64: NaT
-            micros = (seconds * 1e6).round().astype("Int64")
-            df[c.name] = pd.to_datetime(micros, unit="us", utc=True).astype(TIME)
+            micro = (seconds * 1e6).round().astype("Int64")
+            df[c.name] = pd.to_datetime(micro, unit="us", utc=True).astype(TIME)
         else:
-            df[c.name] = df[c.name].astype(c.dtype)
-    order = {"transactions": ["txn"], "parameters": ["txn"], "findings": ["frame"], "changes": ["txn"]}[name]
+            df[c.name] = df[c.name].astype(pandas_dtype(c))
     if len(df):
-        df = df.sort_values(order, kind="stable").reset_index(drop=True)
+        df = df.sort_values([cols[SORT_COLUMN[name]].name], kind="stable").reset_index(drop=True)
     return df
