@@ -16,6 +16,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from functools import cached_property
+from itertools import chain
 from typing import TYPE_CHECKING
 
 from pd_analyze import capture, profiles
@@ -145,6 +146,8 @@ def run(files: list[str], rows: Rows, settings: tuple[str, float, float],
     paths (`jobs` > 1) get each file's or part's rows from the workers and hand them on in order."""
     if chain:
         return _analyze_chain(files, settings, progress, rows)
+    if jobs > 1 and _input_bytes(files) < PARALLEL_MIN_BYTES:
+        jobs = 1  # process start-up and shipping the rows back would cost more than the files take
     if jobs > 1 and len(files) == 1:
         split = _analyze_split(files[0], settings, jobs, rows)
         if split is not None:
@@ -164,6 +167,20 @@ def run(files: list[str], rows: Rows, settings: tuple[str, float, float],
         _, result = _analyze_file(path, settings, progress, rows, sum(r.transactions for r in results))
         results.append(result)
     return results
+
+
+PARALLEL_MIN_BYTES = 8 * 1024 * 1024  # captures smaller than this in all are analysed in one process
+
+
+def _input_bytes(files: list[str]) -> int:
+    """Capture bytes to analyse (a gzip file counted as its typical decompressed size)."""
+    total = 0
+    for path in files:
+        try:
+            total += os.path.getsize(path) * (5 if path.endswith(".gz") else 1)
+        except OSError:
+            total += PARALLEL_MIN_BYTES  # standard input, or the error is reported where it is read
+    return total
 
 
 def _analyze_file(path: str, settings: tuple[str, float, float],
@@ -235,15 +252,21 @@ def _analyze_range(task: tuple) -> tuple[Rows, CaptureResult]:
     marks: dict[str, Accounting] = {}
     horizon = [float("inf")]
 
+    def settled() -> bool:
+        """Nothing opened in the range is still open: no later frame can change its rows."""
+        return not any(first <= n < end for n in chain(d.open_frames(), engine.open_frames()))
+
     def source() -> Iterator[capture.RawFrame]:
-        for frame in capture.pcap_frames_from(path, offset, lead_frame):
-            if frame.number == first:
+        frames = capture.pcap_frames_from(path, offset, lead_frame, ip_only=True)
+        for frame in capture.cut_runs(frames, (first, end or first)):
+            number = frame.number - frame.run + 1 if frame.run else frame.number  # the record's first frame
+            if number == first:
                 marks["start"] = _snapshot(d.accounting)
-            if end is not None and frame.number == end:
+            if end is not None and number == end:
                 marks["end"] = _snapshot(d.accounting)
                 horizon[0] = frame.ts + timeout + rpc_timeout
-            if frame.ts > horizon[0]:
-                return  # everything opened in the range has closed by now
+            if "end" in marks and (settled() or frame.ts > horizon[0]):
+                return  # beyond the horizon, what is still open stays so (as at the end of a capture)
             yield frame
 
     rows = Rows()

@@ -223,6 +223,19 @@ def _gzip_reason(exc: BaseException) -> str:
     return f"corrupt compressed data: {text}" if isinstance(exc, zlib.error) else text
 
 
+def cut_runs(frames: Iterator[RawFrame], cuts: tuple[int, ...]) -> Iterator[RawFrame]:
+    """The frames, with every run of skipped frames that spans a cut (a frame number that must start
+    a record, e.g. the first frame of a split part) cut in two there."""
+    for frame in frames:
+        if frame.run > 1:
+            first = frame.number - frame.run + 1
+            for cut in sorted(c for c in cuts if first < c <= frame.number):
+                yield frame._replace(number=cut - 1, run=cut - first)  # time of the run's last frame
+                first = cut
+            frame = frame._replace(run=frame.number - first + 1)
+        yield frame
+
+
 def pcap_split_points(path: str, parts: int) -> list[tuple[int, int, float]] | None:
     """(frame number, byte offset, time) of every 512th record of an uncompressed classic pcap, to
     split it among processes; None for any other file (those are analysed in one process)."""

@@ -179,3 +179,13 @@ def test_ip_only_ignored_for_other_link_types(tmp_path):
     path = tmp_path / "raw.pcap"
     path.write_bytes(pcap([(1, 0, RT_FRAME), (2, 0, RT_FRAME)], linktype=101))
     assert [(f.number, f.run) for f in frames(str(path), ip_only=True)] == [(1, 0), (2, 0)]
+
+
+def test_cut_runs_at_split_frames(tmp_path):
+    from pd_analyze.capture import cut_runs
+
+    data = [RT_FRAME] * 5 + [IP_FRAME] + [RT_FRAME] * 4
+    path = tmp_path / "runs.pcap"
+    path.write_bytes(pcap([(n, 0, d) for n, d in enumerate(data, 1)]))
+    got = [(f.number, f.run) for f in cut_runs(frames(str(path), ip_only=True), (3, 5, 6, 8, 20))]
+    assert got == [(2, 2), (4, 2), (5, 1), (6, 0), (7, 1), (10, 3)]

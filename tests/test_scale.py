@@ -25,7 +25,10 @@ def split_pcap(src: Path, cut: int, a: Path, b: Path) -> None:
     b.write_bytes(header + b"".join(records[cut:]))
 
 
-def test_jobs_gives_identical_tables():
+def test_jobs_gives_identical_tables(monkeypatch):
+    from pd_analyze import analysis
+
+    monkeypatch.setattr(analysis, "PARALLEL_MIN_BYTES", 0)  # the samples are small: force the processes
     files = sorted(str(p) for p in SAMPLES.glob("*.pcap*"))[:8]
     one = pd_analyze.analyze(files)
     two = pd_analyze.analyze(files, jobs=2)
@@ -88,6 +91,7 @@ def test_jobs_splits_one_large_capture_identically(tmp_path, monkeypatch):
     count = make_capture(path, 12_000, pnio_share=0.5)
     # a short lead-in, so the second part really starts mid-stream with calls and channels open
     monkeypatch.setattr(analysis, "LEAD_IN", 0.5)
+    monkeypatch.setattr(analysis, "PARALLEL_MIN_BYTES", 0)
     one = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2)
     two = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2, jobs=2)
     assert int(one.accounting.read.iloc[0]) == int(two.accounting.read.iloc[0]) == count
@@ -95,3 +99,20 @@ def test_jobs_splits_one_large_capture_identically(tmp_path, monkeypatch):
     assert len(one.transactions) > 900
     for name in ("transactions", "parameters", "findings", "changes"):
         pd.testing.assert_frame_equal(getattr(one, name), getattr(two, name))
+
+
+def test_small_inputs_are_analysed_in_one_process(monkeypatch):
+    """Process start-up would cost more than a few small captures take: --jobs runs them in-process."""
+    import concurrent.futures
+
+    from pd_analyze import analysis
+
+    def no_pool(*args, **kwargs):
+        raise AssertionError("a process pool was started")
+
+    monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor", no_pool)
+    files = sorted(str(p) for p in SAMPLES.glob("*.pcap*"))[:8]
+    assert analysis._input_bytes(files) < analysis.PARALLEL_MIN_BYTES
+    two = pd_analyze.analyze(files, jobs=2)
+    pd.testing.assert_frame_equal(pd_analyze.analyze(files).transactions, two.transactions)
+    assert analysis._input_bytes(["x.pcap.gz", "-"]) == 2 * analysis.PARALLEL_MIN_BYTES  # unknown: parallel
