@@ -8,6 +8,7 @@ response may use different DREP byte orders.
 from __future__ import annotations
 
 import hashlib
+from collections import OrderedDict
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -340,7 +341,9 @@ class CallTable:
 
     def __init__(self) -> None:
         self.open: dict[tuple[bytes, int], Call] = {}
-        self.closed: dict[tuple[bytes, int], Call] = {}
+        # oldest first, evicted from the front for ever: an OrderedDict pops it in O(1), where a dict's
+        # iterator would walk over every slot freed before (quadratic once the table is full)
+        self.closed: OrderedDict[tuple[bytes, int], Call] = OrderedDict()
         self.open_bytes = 0
         self.closed_bytes = 0
         self.evicted = 0  # open calls dropped by the caps
@@ -401,7 +404,7 @@ class CallTable:
             self.closed_bytes += call.cost - (old.cost if old is not None else 0)
             self.closed[key] = call
             while self.closed and (len(self.closed) > MAX_CLOSED_CALLS or self.closed_bytes > MAX_CLOSED_BYTES):
-                self.closed_bytes -= self.closed.pop(next(iter(self.closed))).cost
+                self.closed_bytes -= self.closed.popitem(last=False)[1].cost
         return call
 
     def finish(self) -> list[Finding]:
