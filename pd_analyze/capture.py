@@ -18,7 +18,7 @@ import os
 import struct
 import sys
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import BinaryIO, NamedTuple
 
 import dpkt
@@ -287,14 +287,28 @@ def _pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, with_offsets: b
     pos = 0  # in buf; base is the file offset of buf[0]
     number = 0
     run = 0  # frames skipped since the last one yielded (ip_only)
-    run_sec = run_frac = 0
+    run_buf, run_pos = b"", 0  # where the last of them is, for its time
+    # the skip loop reads caplen and the EtherType (taken in the file's byte order, so compared with
+    # the IP EtherTypes read the same way) in one unpack, without cutting the frame out
+    skip_unpack = struct.Struct("<8xI16xH" if little else ">8xI16xH").unpack_from
+    ip_types = frozenset(struct.unpack("<H" if little else ">H", t)[0] for t in IP_ETHERTYPES)
     while True:
+        if skip_non_ip:  # most records of a PROFINET capture: counted here, a few operations each
+            limit = len(buf) - 30
+            while pos <= limit:
+                caplen, etype = skip_unpack(buf, pos)
+                end = pos + 16 + caplen
+                if caplen < 14 or etype in ip_types or caplen > MAX_CAPLEN or end > len(buf):
+                    break  # the general path below takes it (or reports the damage)
+                number += 1
+                run += 1
+                run_buf, run_pos, pos = buf, pos, end
         if len(buf) - pos < 16:
             buf = buf[pos:] + _read(path, stream, _CHUNK, base + pos)
             base += pos
             pos = 0
             if run and (len(buf) < 16):  # the run ends here: account for it before the end or the damage
-                yield RawFrame(number, run_sec + run_frac / divisor, linktype, b"", 0, run)
+                yield _run_record(number, run_buf, run_pos, unpack, divisor, linktype, run)
                 run = 0
             if not buf:
                 return
@@ -303,7 +317,7 @@ def _pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, with_offsets: b
         sec, frac, caplen, _orig = unpack(buf, pos)
         if caplen > MAX_CAPLEN:
             if run:
-                yield RawFrame(number, run_sec + run_frac / divisor, linktype, b"", 0, run)
+                yield _run_record(number, run_buf, run_pos, unpack, divisor, linktype, run)
             raise CaptureError(path, f"record length {caplen} exceeds {MAX_CAPLEN} bytes (corrupt record "
                                      "header)", base + pos)
         end = pos + 16 + caplen
@@ -313,17 +327,17 @@ def _pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, with_offsets: b
             pos, end = 0, 16 + caplen
             if end > len(buf):
                 if run:
-                    yield RawFrame(number, run_sec + run_frac / divisor, linktype, b"", 0, run)
+                    yield _run_record(number, run_buf, run_pos, unpack, divisor, linktype, run)
                 raise CaptureError(path, f"record data truncated ({len(buf) - 16} of {caplen} bytes present)",
                                    base)
         number += 1
         if skip_non_ip and caplen >= 14 and buf[pos + 28:pos + 30] not in IP_ETHERTYPES:
             run += 1
-            run_sec, run_frac = sec, frac
+            run_buf, run_pos = buf, pos
             pos = end
             continue
         if run:
-            yield RawFrame(number - 1, run_sec + run_frac / divisor, linktype, b"", 0, run)
+            yield _run_record(number - 1, run_buf, run_pos, unpack, divisor, linktype, run)
             run = 0
         if with_offsets:  # split points: the offset of every 512th record, no frame data
             if number % 512 == 1:
@@ -334,6 +348,13 @@ def _pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, with_offsets: b
 
 
 _CHUNK = 1 << 20
+
+
+def _run_record(number: int, buf: bytes, pos: int, unpack: Callable, divisor: float, linktype: int,
+                run: int) -> RawFrame:
+    """The record standing for `run` skipped frames up to `number`, timed as the last (its header at pos)."""
+    sec, frac = unpack(buf, pos)[:2]
+    return RawFrame(number, sec + frac / divisor, linktype, b"", 0, run)
 
 
 def _read(path: str, stream: BinaryIO, size: int, offset: int) -> bytes:

@@ -189,3 +189,20 @@ def test_cut_runs_at_split_frames(tmp_path):
     path.write_bytes(pcap([(n, 0, d) for n, d in enumerate(data, 1)]))
     got = [(f.number, f.run) for f in cut_runs(frames(str(path), ip_only=True), (3, 5, 6, 8, 20))]
     assert got == [(2, 2), (4, 2), (5, 1), (6, 0), (7, 1), (10, 3)]
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+def test_ip_only_runs_across_read_chunks(tmp_path, order):
+    """Runs longer than a read chunk (1 MiB), in both byte orders: same frames, numbers and times."""
+    rt = RT_FRAME + bytes(440)  # 6,000 of them fill more than a chunk
+    data = [IP_FRAME if n % 2500 == 3 else rt for n in range(1, 6_001)]
+    path = tmp_path / "long.pcap"
+    path.write_bytes(b"".join([pcap([], order=order)] + [
+        struct.pack(order + "IIII", n, n % 1000, len(d), len(d)) + d for n, d in enumerate(data, 1)]))
+    every = list(frames(str(path)))
+    got = list(frames(str(path), ip_only=True))
+    assert sum(f.run or 1 for f in got) == len(every) == 6_000
+    assert [f for f in got if not f.run] == [f for f in every if f.data == IP_FRAME]
+    for f in got:
+        if f.run:  # the run ends at its number and carries that frame's time
+            assert f.ts == every[f.number - 1].ts and all(e.data == rt for e in every[f.number - f.run:f.number])
