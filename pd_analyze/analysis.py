@@ -23,7 +23,7 @@ from pd_analyze import capture, profiles
 from pd_analyze.capture import CaptureError
 from pd_analyze.dissect import DEFAULT_RPC_TIMEOUT, Accounting, Dissector, dissect, dissect_frames
 from pd_analyze.pd_checks import Checker
-from pd_analyze.tables_out import COLUMNS, Rows, frame_of
+from pd_analyze.tables_out import COLUMNS, Rows, frame_of, stitch_values_before
 from pd_analyze.transactions import DEFAULT_TXN_TIMEOUT, Transaction, TransactionEngine, iter_closed
 
 if TYPE_CHECKING:
@@ -206,9 +206,10 @@ def _analyze_split(path: str, settings: tuple[str, float, float], jobs: int, row
     known, and reading past its end until everything opened in its range has closed; parts are
     stitched in frame order.
 
-    The result equals one process whenever no dependency reaches further back than the lead-in: a
-    Request Reference reused after a longer idle channel (T1), and the value read before a change
-    (`changes.value_before`) when that read lies further back, are the known exceptions."""
+    The value read before a change (`changes.value_before`) may lie further back than the lead-in: a
+    part lists the changes it cannot resolve, and the parent fills them in from the reads of the parts
+    before (`stitch_values_before`). The one dependency still bounded by the lead-in: a Request
+    Reference reused after the channel was idle longer than that (T1) is not flagged."""
     points = capture.pcap_split_points(path, jobs)
     if points is None:
         return None
@@ -223,9 +224,11 @@ def _analyze_split(path: str, settings: tuple[str, float, float], jobs: int, row
     from concurrent.futures import ProcessPoolExecutor
 
     total = CaptureResult(path, Accounting())
+    reads: dict[tuple, tuple[int, str]] = {}  # the values read before the part at hand, per element
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         parts = pool.map(_analyze_range, tasks)
         for part_rows, result in parts:  # stitched in frame order, each part handed on as it arrives
+            stitch_values_before(part_rows, reads)
             rows.extend(part_rows, total.transactions)
             _add_part(total, result)
     return total
@@ -270,7 +273,7 @@ def _analyze_range(task: tuple) -> tuple[Rows, CaptureResult]:
             yield frame
 
     rows = Rows()
-    part = Rows()
+    part = Rows(split_end=end)
 
     def in_range(frame: int) -> bool:
         return frame >= first and (end is None or frame < end)
@@ -282,7 +285,13 @@ def _analyze_range(task: tuple) -> tuple[Rows, CaptureResult]:
     rows.transactions = [r for r in part.transactions if r[0] and in_range(r[write_frame])]  # txn 0: lead-in
     numbered = {r[0] for r in rows.transactions}
     rows.parameters = [r for r in part.parameters if r[0] in numbered]
-    rows.changes = [r for r in part.changes if r[3] in numbered]
+    moved: dict[int, int] = {}  # index in part.changes -> index in rows.changes
+    for i, row in enumerate(part.changes):
+        if row[3] in numbered:
+            moved[i] = len(rows.changes)
+            rows.changes.append(row)
+    rows.unresolved = [(moved[i], keys, before) for i, keys, before in part.unresolved if i in moved]
+    rows.reads = part.reads
     rows.findings = [r for r in part.findings if (r[2] in numbered) or (r[2] is None and in_range(r[1]))]
     result.transactions = len(rows.transactions)
     return rows, result

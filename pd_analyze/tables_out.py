@@ -142,6 +142,12 @@ class Rows:
     changes: list[tuple] = field(default_factory=list)
     _last_read: dict[tuple, str] = field(default_factory=dict)
     _channels: dict[tuple, tuple[str, str, str, str]] = field(default_factory=dict)
+    # A part of a split capture (`split_end`: its range ends before that frame; 0 = not a part) cannot
+    # see reads before its lead-in: it lists the changes whose value_before it does not know, and the
+    # last value read per element with the frame that closed the read, for the parent to stitch.
+    split_end: int | None = 0
+    unresolved: list[tuple[int, list[tuple], list[str | None]]] = field(default_factory=list)
+    reads: dict[tuple, tuple[int, str]] = field(default_factory=dict)
 
     def new_capture(self) -> None:
         """The next rows come from a capture analysed on its own: forget the values read so far."""
@@ -224,13 +230,16 @@ class Rows:
         keys = [(capture, device, txn.do, addr.pnu, addr.subindex + j) for j in range(count)]
         if read:
             values = [_cell(v) for _, _, v, _ in values_of(res_block)]
-            if len(values) == len(keys):
-                self._last_read.update(zip(keys, values, strict=True))
-            elif len(values) == 1:
-                self._last_read[keys[0]] = values[0]
+            pairs = list(zip(keys, values, strict=True)) if len(values) == len(keys) else \
+                [(keys[0], values[0])] if len(values) == 1 else []
+            self._last_read.update(pairs)
+            if self.split_end != 0 and (self.split_end is None or txn.read_res_frame < self.split_end):
+                self.reads.update((k, (txn.read_res_frame, v)) for k, v in pairs)
         if not change:
             return
         before = [self._last_read.get(k) for k in keys]
+        if self.split_end != 0 and not all(before):
+            self.unresolved.append((len(self.changes), keys, before))
         if res_block is not None and res_block.is_error:
             result = f"error {_hex(res_block.error)}: {pt.error_text(res_block.error)}"
         else:
@@ -238,6 +247,19 @@ class Rows:
         self.changes.append((capture, device, txn.do, number, txn.write_req_frame, txn.t_start, label,
                              addr.pnu, addr.subindex, block_values(written), result,
                              " ".join(b for b in before if b is not None) if all(before) else ""))
+
+
+def stitch_values_before(part: Rows, known: dict[tuple, tuple[int, str]]) -> None:
+    """Fill in a split part's unknown `value_before` from `known` (the reads of the parts before it,
+    each closed before this part's range began), then add the part's own reads to `known`."""
+    for index, keys, before in part.unresolved:
+        values = [b if b is not None else known.get(k, (0, None))[1] for k, b in zip(keys, before, strict=True)]
+        if all(values):
+            row = part.changes[index]
+            part.changes[index] = (*row[:-1], " ".join(values))
+    for key, (frame, value) in part.reads.items():
+        if frame > known.get(key, (0, ""))[0]:
+            known[key] = (frame, value)
 
 
 def _uuid(raw: bytes) -> str:

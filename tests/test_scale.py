@@ -116,3 +116,32 @@ def test_small_inputs_are_analysed_in_one_process(monkeypatch):
     two = pd_analyze.analyze(files, jobs=2)
     pd.testing.assert_frame_equal(pd_analyze.analyze(files).transactions, two.transactions)
     assert analysis._input_bytes(["x.pcap.gz", "-"]) == 2 * analysis.PARALLEL_MIN_BYTES  # unknown: parallel
+
+
+def test_split_parts_stitch_value_before_from_reads_before_their_lead_in(tmp_path, monkeypatch):
+    """A change in the second part whose parameter was last read long before (beyond the lead-in):
+    the parent fills in value_before from the earlier part's reads, so the tables equal one process."""
+    from pd_analyze import analysis
+    from pd_analyze.synth.profidrive import ParamAddress as P
+    from pd_analyze.synth.profidrive import change_ok, change_request, pd_response, read_request, value_block
+    from pd_analyze.synth.samples import session
+    from pd_analyze.synth.scenario import Capture
+    from pd_analyze.synth.writers import pcap_bytes
+
+    cap = Capture()
+    s = session(cap, 1)
+    s.parameter_access(read_request(1, 1, [P(1120, n_elems=2)]), pd_response(1, 1, 1, [value_block(0x43, [7, 8])]))
+    for ref in range(2, 3000):  # some 10 s of other reads: the lead-in below reaches back 0.5 s only
+        s.parameter_access(read_request(ref % 255 + 1, 1, [P(964)]), pd_response(ref % 255 + 1, 1, 1,
+                                                                                   [value_block(0x42, [3])]))
+        cap.clock.advance_us(3000)
+    s.parameter_access(change_request(9, 1, [(P(1120, n_elems=2), value_block(0x43, [9, 9]))]), change_ok(9, 1, 1))
+    path = tmp_path / "late_change.pcap"
+    path.write_bytes(pcap_bytes(cap.frames))
+    monkeypatch.setattr(analysis, "LEAD_IN", 0.5)
+    monkeypatch.setattr(analysis, "PARALLEL_MIN_BYTES", 0)
+    one = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2)
+    two = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2, jobs=2)
+    assert one.changes.value_before.tolist() == ["7 8"]
+    for name in ("transactions", "parameters", "findings", "changes"):
+        pd.testing.assert_frame_equal(getattr(one, name), getattr(two, name))
