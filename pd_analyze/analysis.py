@@ -23,8 +23,8 @@ from pd_analyze import capture, profiles
 from pd_analyze.capture import CaptureError
 from pd_analyze.dissect import DEFAULT_RPC_TIMEOUT, Accounting, Dissector, dissect, dissect_frames
 from pd_analyze.pd_checks import Checker
-from pd_analyze.tables_out import COLUMNS, Rows, frame_of, stitch_values_before
-from pd_analyze.transactions import DEFAULT_TXN_TIMEOUT, Transaction, TransactionEngine, iter_closed
+from pd_analyze.tables_out import COLUMNS, Rows, frame_of, stitch_part, stitch_values_before
+from pd_analyze.transactions import DEFAULT_TXN_TIMEOUT, LastDone, Transaction, TransactionEngine, iter_closed
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -206,10 +206,13 @@ def _analyze_split(path: str, settings: tuple[str, float, float], jobs: int, row
     known, and reading past its end until everything opened in its range has closed; parts are
     stitched in frame order.
 
-    The value read before a change (`changes.value_before`) may lie further back than the lead-in: a
-    part lists the changes it cannot resolve, and the parent fills them in from the reads of the parts
-    before (`stitch_values_before`). The one dependency still bounded by the lead-in: a Request
-    Reference reused after the channel was idle longer than that (T1) is not flagged."""
+    Some dependencies reach further back than any lead-in: the value read before a change
+    (`changes.value_before`), for T1 a channel's last transaction, and the numbers of transactions
+    messages name. A part lists what it cannot resolve and marks those numbers, and the parent fills
+    them in from the parts before (`stitch_values_before`, `stitch_part`), so the tables equal one
+    process. Still bounded by the lead-in: a duplicate RPC PDU arriving more than LEAD_IN seconds
+    after its call closed is an orphan to the part, and an IP or CL fragment set that spans more
+    than LEAD_IN seconds is missing its earlier pieces."""
     points = capture.pcap_split_points(path, jobs)
     if points is None:
         return None
@@ -225,10 +228,14 @@ def _analyze_split(path: str, settings: tuple[str, float, float], jobs: int, row
 
     total = CaptureResult(path, Accounting())
     reads: dict[tuple, tuple[int, str]] = {}  # the values read before the part at hand, per element
+    channels: dict[tuple, LastDone] = {}  # the last transaction per channel before it
+    numbers: dict[int, int] = {}  # transaction numbers by write request frame, for the next lead-in
+    next_leads = [task[2] for task in tasks[1:]] + [0]
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         parts = pool.map(_analyze_range, tasks)
-        for part_rows, result in parts:  # stitched in frame order, each part handed on as it arrives
+        for (part_rows, result), keep_from in zip(parts, next_leads, strict=True):  # in frame order, as they arrive
             stitch_values_before(part_rows, reads)
+            stitch_part(part_rows, total.transactions, channels, numbers, keep_from)
             rows.extend(part_rows, total.transactions)
             _add_part(total, result)
     return total
@@ -292,7 +299,13 @@ def _analyze_range(task: tuple) -> tuple[Rows, CaptureResult]:
             rows.changes.append(row)
     rows.unresolved = [(moved[i], keys, before) for i, keys, before in part.unresolved if i in moved]
     rows.reads = part.reads
-    rows.findings = [r for r in part.findings if (r[2] in numbered) or (r[2] is None and in_range(r[1]))]
+    kept_before = [0]  # kept_before[i]: findings kept among part.findings[:i], to move the T1 slots
+    for r in part.findings:
+        if (r[2] in numbered) or (r[2] is None and in_range(r[1])):
+            rows.findings.append(r)
+        kept_before.append(len(rows.findings))
+    rows.reuse_slots = [(kept_before[at], *rest) for at, *rest in part.reuse_slots if rest[-1] in numbered]
+    rows.channel_last = part.channel_last
     result.transactions = len(rows.transactions)
     return rows, result
 

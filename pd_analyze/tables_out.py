@@ -7,6 +7,7 @@ when a DataFrame is built (`frame_of`), never in the per-frame loop nor on the C
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -16,7 +17,7 @@ from pd_analyze import pdtables as pt
 from pd_analyze.link import ip_text
 from pd_analyze.profidrive import Block, values_of
 from pd_analyze.rules import Finding
-from pd_analyze.transactions import Transaction, param_label
+from pd_analyze.transactions import PART_MARK, LastDone, Transaction, param_label, reuse_finding
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -148,6 +149,10 @@ class Rows:
     split_end: int | None = 0
     unresolved: list[tuple[int, list[tuple], list[str | None]]] = field(default_factory=list)
     reads: dict[tuple, tuple[int, str]] = field(default_factory=dict)
+    # Likewise for T1: where a Request Reference check waits for the channel's last transaction
+    # (findings index, capture, channel, ref, frame, txn), and each channel's last transaction here.
+    reuse_slots: list[tuple[int, str, tuple, int, int, int]] = field(default_factory=list)
+    channel_last: dict[tuple, tuple[int, int, str]] = field(default_factory=dict)
 
     def new_capture(self) -> None:
         """The next rows come from a capture analysed on its own: forget the values read so far."""
@@ -211,12 +216,17 @@ class Rows:
             " ".join(map(str, sorted(txn.frames))),
             txn.t_start, fig["t_write_rtt"], fig["t_total"], fig["t_final_read_rtt"], fig["t_first_read_gap"],
             txn.capture_ended, txn.closed_by))
+        if self.split_end != 0:
+            if txn.reuse_slot is not None:
+                at, frame = txn.reuse_slot
+                self.reuse_slots.append((len(self.findings) + at, capture, txn.channel, txn.ref, frame, number))
+            if txn.txn and (self.split_end is None or txn.write_req_frame < self.split_end):
+                self.channel_last[txn.channel] = (number, txn.ref, txn.verdict)
         for f in txn.findings:
             self.add_finding(capture, f, number)
 
     def add_finding(self, capture: str, f: Finding, txn: int | None = None) -> None:
-        self.findings.append((capture, f.frame, txn, f.severity, f.rule, f.name, f.field, f.value, f.expected,
-                              f.source, f.message))
+        self.findings.append(finding_row(capture, f, txn))
 
     def _trail(self, capture: str, txn: Transaction, number: int, addr: Any, label: str,
                written: Block | None, res_block: Block | None, device: str) -> None:
@@ -247,6 +257,40 @@ class Rows:
         self.changes.append((capture, device, txn.do, number, txn.write_req_frame, txn.t_start, label,
                              addr.pnu, addr.subindex, block_values(written), result,
                              " ".join(b for b in before if b is not None) if all(before) else ""))
+
+
+def finding_row(capture: str, f: Finding, txn: int | None) -> tuple:
+    return (capture, f.frame, txn, f.severity, f.rule, f.name, f.field, f.value, f.expected, f.source, f.message)
+
+
+def stitch_part(part: Rows, offset: int, channels: dict[tuple, LastDone], numbers: dict[int, int],
+                keep_from: int) -> None:
+    """Make a split part's findings read as in one process, before its numbers are shifted by `offset`.
+
+    T1 for the transactions whose channel's last transaction the part did not know: `channels` holds
+    each channel's last transaction in the parts before; the part's own go there afterwards. The marks
+    messages name transactions by (transactions.PART_MARK) become numbers in the whole capture: the
+    part's own shifted, a lead-in one's looked up by its write request frame in `numbers` (the parts
+    before); there go the part's own transactions from frame `keep_from` on (the next part's lead-in)."""
+    for at, capture, channel, ref, frame, number in reversed(part.reuse_slots):
+        last = channels.get(channel)
+        found = reuse_finding(last, ref, frame) if last is not None else None
+        if found is not None:
+            part.findings.insert(at, finding_row(capture, found, number))
+
+    def number_of(mark: re.Match) -> str:
+        value = int(mark.group(2))
+        return str(value + offset if mark.group(1) == "T" else numbers.get(value, 0))
+
+    for i, row in enumerate(part.findings):
+        if "\x00" in row[8] or "\x00" in row[10]:  # expected, message
+            part.findings[i] = (*row[:8], PART_MARK.sub(number_of, row[8]), row[9], PART_MARK.sub(number_of, row[10]))
+    for channel, (number, ref, verdict) in part.channel_last.items():
+        channels[channel] = LastDone(str(number + offset), ref, verdict)
+    for frame in [f for f in numbers if f < keep_from]:
+        del numbers[frame]
+    write_frame = [c.name for c in COLUMNS["transactions"]].index("write_req_frame")
+    numbers.update((row[write_frame], row[0] + offset) for row in part.transactions if row[write_frame] >= keep_from)
 
 
 def stitch_values_before(part: Rows, known: dict[tuple, tuple[int, str]]) -> None:

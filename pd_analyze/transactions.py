@@ -7,6 +7,7 @@ State is kept only for open channels and open RPC calls; a closed transaction is
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -75,6 +76,7 @@ class Transaction:
     frames: list[int] = field(default_factory=list)
     findings: list[Finding] = field(default_factory=list)
     verdict: str = ""
+    reuse_slot: tuple[int, int] | None = None  # split part, channel's last transaction unknown: (findings index, frame)
 
     @property
     def device(self) -> bytes:
@@ -100,12 +102,30 @@ class Transaction:
         }
 
 
-class _Last(NamedTuple):
+class LastDone(NamedTuple):
     """What T1/T4 need of the last closed transaction of a channel."""
 
-    txn: int
+    txn: str  # its number as the messages name it (see TransactionEngine.name)
     ref: int
     verdict: str
+
+
+def reuse_finding(last: LastDone, ref: int, frame: int) -> Finding | None:
+    """T1: a write with the Request Reference of the channel's last transaction (a retry after a failure)."""
+    if last.ref != ref:
+        return None
+    if last.verdict in ("ok", "nak"):
+        return finding("reference_reused", frame, "pd.ref", ref, f"a reference other than {last.ref}",
+                       f"Request Reference {ref} reused from transaction {last.txn}")
+    if last.verdict in ("pnio_error", "timeout"):
+        return finding("retry", frame, "pd.ref", ref, "",
+                       f"retry of transaction {last.txn} ({last.verdict}) with the same reference")
+    return None
+
+
+# In a split part, messages name transactions by a mark the parent replaces with the number in the
+# whole capture: its number in the part (T), or the frame of its write request for a lead-in one (F).
+PART_MARK = re.compile("\x00([TF])(\\d+)\x00")
 
 
 def _cost(txn: Transaction) -> int:
@@ -134,9 +154,15 @@ class TransactionEngine:
         self._pending: dict[Channel, Transaction] = {}  # open transactions by channel, in opening order
         self._by_ar: dict[tuple, dict[Channel, Transaction]] = {}  # the same by device, controller, AR
         self._pending_bytes = 0
-        self._last_done: dict[Channel, _Last] = {}  # last closed transaction per channel (T1, T4)
+        self._last_done: dict[Channel, LastDone] = {}  # last closed transaction per channel (T1, T4)
         self._calls: dict[int, _Call] = {}  # by request frame number
         self._now = float("-inf")
+
+    def name(self, txn: Transaction) -> str:
+        """A transaction's number as a message names it (a mark in a split part, see PART_MARK)."""
+        if not self.number_from:
+            return str(txn.txn)
+        return f"\x00T{txn.txn}\x00" if txn.txn else f"\x00F{txn.write_req_frame}\x00"
 
     # --- the frame loop ---------------------------------------------------------------------
     def feed(self, res: FrameResult) -> list[Transaction]:
@@ -229,20 +255,19 @@ class TransactionEngine:
         old = self._pending.get(channel)
         if old is not None:
             txn.findings.append(finding("write_while_pending", pdu.frame, "pd.ref", txn.ref,
-                                        f"none pending (transaction {old.txn})",
-                                        f"write while transaction {old.txn} (ref {old.ref}, frame "
+                                        f"none pending (transaction {self.name(old)})",
+                                        f"write while transaction {self.name(old)} (ref {old.ref}, frame "
                                         f"{old.write_req_frame}) is pending: it ends as a timeout"))
             closed.append(self._close(old, "superseded"))
         last = self._last_done.get(channel)
-        if last is not None and last.ref == txn.ref:
-            if last.verdict in ("ok", "nak"):
-                txn.findings.append(finding("reference_reused", pdu.frame, "pd.ref", txn.ref,
-                                            f"a reference other than {last.ref}",
-                                            f"Request Reference {txn.ref} reused from transaction {last.txn}"))
-            elif last.verdict in ("pnio_error", "timeout"):
-                txn.findings.append(finding("retry", pdu.frame, "pd.ref", txn.ref, "",
-                                            f"retry of transaction {last.txn} ({last.verdict}) with the same "
-                                            "reference"))
+        if last is None and self.number_from and txn.txn:
+            # a split part: the channel's last transaction lies before the lead-in; the parent decides
+            # T1 (tables_out.stitch_reference_reuse)
+            txn.reuse_slot = (len(txn.findings), pdu.frame)
+        elif last is not None:
+            reuse = reuse_finding(last, txn.ref, pdu.frame)
+            if reuse is not None:
+                txn.findings.append(reuse)
         self._pending[channel] = txn
         self._by_ar.setdefault(channel[:3], {})[channel] = txn
         self._pending_bytes += _cost(txn)
@@ -287,7 +312,7 @@ class TransactionEngine:
                 txn.findings.append(finding(
                     "fallback_pairing", pdu.frame, "iod.index", f"{v[rec.B_SLOT]}/{v[rec.B_SUBSLOT]}/"
                     f"{v[rec.B_INDEX]:#06x}", f"{txn.channel[4]}/{txn.channel[5]}/{txn.channel[6]:#06x}",
-                    f"read addressed differently from the write of transaction {txn.txn} (paired by device, "
+                    f"read addressed differently from the write of transaction {self.name(txn)} (paired by device, "
                     "controller and AR)"))
         if txn is None:
             self.loose.append(finding("read_without_request", pdu.frame, "iod.index", f"{v[rec.B_INDEX]:#06x}",
@@ -371,7 +396,8 @@ class TransactionEngine:
         """Close a pending transaction the caps cannot hold any longer: a timeout, closed_by "evicted"."""
         txn.findings.append(finding("txn_evicted", frame, "pd.ref", txn.ref,
                                     f"<= {MAX_PENDING} pending, {MAX_TXN_FRAMES} frames each",
-                                    f"{why}: transaction {txn.txn} (frame {txn.write_req_frame}) ends as a timeout"))
+                                    f"{why}: transaction {self.name(txn)} (frame {txn.write_req_frame}) ends as a "
+                                    "timeout"))
         return self._close(txn, "evicted")
 
     def _close(self, txn: Transaction, why: str) -> Transaction:
@@ -390,7 +416,8 @@ class TransactionEngine:
         if why in ("deadline", "superseded", "capture_end", "evicted") and not txn.pnio_status and txn.b5_retries:
             txn.pnio_status = f"DE80{PNIORW_STATE_CONFLICT:02X}00"  # last answer was B5 (txn.last_status)
         self._last_done.pop(txn.channel, None)
-        self._last_done[txn.channel] = _Last(txn.txn, txn.ref, txn.verdict)  # not the transaction: it is handed on
+        # not the transaction itself: it is handed on
+        self._last_done[txn.channel] = LastDone(self.name(txn), txn.ref, txn.verdict)
         if len(self._last_done) > MAX_OPEN_CALLS:
             del self._last_done[next(iter(self._last_done))]
         return txn

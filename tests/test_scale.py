@@ -145,3 +145,35 @@ def test_split_parts_stitch_value_before_from_reads_before_their_lead_in(tmp_pat
     assert one.changes.value_before.tolist() == ["7 8"]
     for name in ("transactions", "parameters", "findings", "changes"):
         pd.testing.assert_frame_equal(getattr(one, name), getattr(two, name))
+
+
+def test_split_parts_stitch_reference_reuse_across_the_split(tmp_path, monkeypatch):
+    """T1 on the first write of a channel in the second part: its last transaction lies in the lead-in
+    (numbered by the first part) or before it (the channel idle longer); both as in one process."""
+    from pd_analyze import analysis
+    from pd_analyze.synth.profidrive import ParamAddress as P
+    from pd_analyze.synth.profidrive import pd_response, read_request, value_block
+    from pd_analyze.synth.samples import session
+    from pd_analyze.synth.scenario import Capture
+    from pd_analyze.synth.writers import pcap_bytes
+
+    cap = Capture()
+    busy, idle = session(cap, 1), session(cap, 2)
+
+    def access(s, ref: int) -> None:
+        s.parameter_access(read_request(ref, 1, [P(964)]), pd_response(ref, 1, 1, [value_block(0x42, [3])]))
+
+    access(idle, 9)
+    for _ in range(1500):  # the busy channel keeps reference 5 (T1 each time), some 4 s in all
+        access(busy, 5)
+        cap.clock.advance_us(2500)
+    access(idle, 9)  # idle for 4 s, far beyond the 0.5 s lead-in
+    path = tmp_path / "reuse.pcap"
+    path.write_bytes(pcap_bytes(cap.frames))
+    monkeypatch.setattr(analysis, "LEAD_IN", 0.5)
+    monkeypatch.setattr(analysis, "PARALLEL_MIN_BYTES", 0)
+    one = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2)
+    two = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2, jobs=3)
+    assert one.findings.name.value_counts().to_dict() == {"reference_reused": 1499 + 1}
+    for name in ("transactions", "parameters", "findings", "changes"):
+        pd.testing.assert_frame_equal(getattr(one, name), getattr(two, name))
