@@ -76,6 +76,13 @@ def split_classes(path: Path, chosen: set[int], yes: Path, no: Path) -> tuple[in
     return counts[0], counts[1]
 
 
+def repeat(path: Path, times: int, out: Path) -> int:
+    """The records of `path` written `times` over, one after the other; returns the count written.
+    (Skipped frames cost so little that one copy of them runs shorter than start-up varies.)"""
+    header = file_header(path)
+    return write(out, header, (rec for _ in range(times) for rec in records(path)))
+
+
 def head(path: Path, frames: int, out: Path) -> int:
     """The first `frames` records of `path` as a pcap of their own; returns the count written."""
     recs = records(path)
