@@ -216,14 +216,13 @@ def _analyze_split(path: str, settings: tuple[str, float, float], jobs: int, row
     points = capture.pcap_split_points(path, jobs)
     if points is None:
         return None
-    step = len(points) // jobs
-    bounds = [points[i * step] for i in range(jobs)]
+    leads = _lead_points(points, max(LEAD_IN, settings[1] + settings[2]))
+    starts = _balanced_starts(leads, len(points), jobs)
     tasks = []
-    for k, (first, _offset, ts) in enumerate(bounds):
-        lead_in = max(LEAD_IN, settings[1] + settings[2])
-        lead = next((p for p in reversed(points) if p[2] <= ts - lead_in and p[0] <= first), points[0])
-        end = bounds[k + 1][0] if k + 1 < len(bounds) else None
-        tasks.append((path, lead[1], lead[0], first, end, settings))
+    for k, start in enumerate(starts):
+        lead = points[leads[start]]
+        end = points[starts[k + 1]][0] if k + 1 < len(starts) else None
+        tasks.append((path, lead[1], lead[0], points[start][0], end, settings))
     from concurrent.futures import ProcessPoolExecutor
 
     total = CaptureResult(path, Accounting())
@@ -239,6 +238,34 @@ def _analyze_split(path: str, settings: tuple[str, float, float], jobs: int, row
             rows.extend(part_rows, total.transactions)
             _add_part(total, result)
     return total
+
+
+def _lead_points(points: list[tuple[int, int, float]], lead_in: float) -> list[int]:
+    """For each split point, the latest point at least `lead_in` seconds of capture time before it
+    (the first point when there is none): where a part starting there begins to replay."""
+    out = []
+    for i, (_number, _offset, ts) in enumerate(points):
+        j = i
+        while j > 0 and points[j][2] > ts - lead_in:
+            j -= 1
+        out.append(j)
+    return out
+
+
+def _balanced_starts(leads: list[int], count: int, jobs: int) -> list[int]:
+    """The split points (indices) where the parts start, so that each reads about as many records,
+    its lead-in included: the later parts get shorter ranges, as they replay more before them."""
+    for work in range(-(-count // jobs), count + 1):
+        starts = [0]
+        for _ in range(jobs - 1):
+            nxt = (leads[starts[-1]] if len(starts) > 1 else 0) + work
+            if nxt <= starts[-1] or nxt >= count:
+                break
+            starts.append(nxt)
+        if len(starts) == jobs and count - leads[starts[-1]] <= work:
+            return starts
+    step = count // jobs  # too few points to balance (lead-ins longer than the parts): equal ranges
+    return [i * step for i in range(jobs)]
 
 
 def _add_part(total: CaptureResult, result: CaptureResult) -> None:

@@ -177,3 +177,17 @@ def test_split_parts_stitch_reference_reuse_across_the_split(tmp_path, monkeypat
     assert one.findings.name.value_counts().to_dict() == {"reference_reused": 1499 + 1}
     for name in ("transactions", "parameters", "findings", "changes"):
         pd.testing.assert_frame_equal(getattr(one, name), getattr(two, name))
+
+
+def test_split_parts_read_about_as_much_with_their_lead_in():
+    from pd_analyze import analysis
+
+    points = [(i * 512 + 1, 24 + i * 40_000, i * 0.1) for i in range(1000)]  # a split point every 0.1 s
+    leads = analysis._lead_points(points, 20.0)
+    assert leads[:3] == [0, 0, 0] and leads[500] == 300  # 200 points = 20 s before
+    for jobs in (2, 3, 4):
+        starts = analysis._balanced_starts(leads, len(points), jobs)
+        ends = [*starts[1:], len(points)]
+        work = [end - (leads[start] if k else 0) for k, (start, end) in enumerate(zip(starts, ends, strict=True))]
+        assert starts[0] == 0 and starts == sorted(starts) and max(work) - min(work) <= 1, (jobs, work)
+    assert analysis._balanced_starts(analysis._lead_points(points[:4], 20.0), 4, 2) == [0, 2]  # no room: halves
