@@ -286,7 +286,7 @@ def test_transaction_engine_state_is_bounded() -> None:
     pending = {t.txn for t in engine._pending.values()}
     referenced = {t.txn for c in engine._calls.values() for t in c.txns if t is not None}
     assert referenced <= pending  # no closed transaction is kept alive by its calls
-    assert all(isinstance(v, transactions._Last) for v in engine._last_done.values())
+    assert all(isinstance(v, transactions.LastDone) for v in engine._last_done.values())
 
 
 def test_long_b5_polling_is_linear_and_bounded() -> None:
