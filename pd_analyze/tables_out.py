@@ -105,13 +105,15 @@ COLUMNS: Mapping[str, tuple[Column, ...]] = MappingProxyType({
 })
 
 
-def block_values(block: Block | None) -> str:
-    """Values of a value block as one text cell (strings quoted, scaled types raw)."""
+def block_values(block: Block | None, values: list | None = None) -> str:
+    """Values of a value block as one text cell (strings quoted, scaled types raw); `values`: its
+    values_of, when the caller has them already."""
     if block is None or block.is_error or block.format in (pt.FMT_ZERO, pt.FMT_AKD_ZERO):
         return ""
+    values = values_of(block) if values is None else values
     if pt.FORMATS.get(block.format, pt.FORMATS[0x41]).kind in ("hex", "bits", "nibbles"):
-        return " ".join(f"0x{v:0{2 * block.size}x}" for _, _, v, _ in values_of(block) if isinstance(v, int))
-    return " ".join(_cell(value) for _, _, value, _ in values_of(block))
+        return " ".join(f"0x{v:0{2 * block.size}x}" for _, _, v, _ in values if isinstance(v, int))
+    return " ".join(_cell(value) for _, _, value, _ in values)
 
 
 def _cell(value: object) -> str:
@@ -196,13 +198,14 @@ class Rows:
             if err >= 0:
                 errors.append(f"{label}:{_hex(err)}")
             fmt = written if written is not None else res_block
+            read_values = values_of(res_block) if res_block is not None and not res_block.is_error else None
             append((
                 number, capture, device, txn.do, label, addr.pnu, addr.subindex, addr.n_elems,
                 pt.ATTRIBUTE.get(addr.attr, _hex(addr.attr)),
                 pt.FORMAT_NAME.get(fmt.format, _hex(fmt.format)) if fmt is not None and not fmt.is_error else "",
-                block_values(written), block_values(res_block), _hex(err),
+                block_values(written), block_values(res_block, read_values), _hex(err),
                 pt.error_text(err) if err >= 0 else ""))
-            self._trail(capture, txn, number, addr, label, written, res_block, device)
+            self._trail(capture, txn, number, addr, label, written, res_block, device, read_values)
         if response is not None and len(blocks) == 1 and blocks[0].is_error and len(addresses) > 1:
             errors = [f"*:{_hex(blocks[0].error)}"]  # header-level error: the whole request refused
         fig = txn.figures()
@@ -229,7 +232,7 @@ class Rows:
         self.findings.append(finding_row(capture, f, txn))
 
     def _trail(self, capture: str, txn: Transaction, number: int, addr: Any, label: str,
-               written: Block | None, res_block: Block | None, device: str) -> None:
+               written: Block | None, res_block: Block | None, device: str, read_values: list | None) -> None:
         """The change trail, and the last values read per element to show what a change replaced."""
         change = txn.req_id == pt.REQ_CHANGE and written is not None
         read = txn.req_id == pt.REQ_READ and txn.verdict in ("ok", "nak") and res_block is not None \
@@ -239,7 +242,7 @@ class Rows:
         count = max(addr.n_elems, 1)
         keys = [(capture, device, txn.do, addr.pnu, addr.subindex + j) for j in range(count)]
         if read:
-            values = [_cell(v) for _, _, v, _ in values_of(res_block)]
+            values = [_cell(v) for _, _, v, _ in (read_values if read_values is not None else values_of(res_block))]
             pairs = list(zip(keys, values, strict=True)) if len(values) == len(keys) else \
                 [(keys[0], values[0])] if len(values) == 1 else []
             self._last_read.update(pairs)
