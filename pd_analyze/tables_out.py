@@ -201,8 +201,8 @@ class Rows:
             read_values = values_of(res_block) if res_block is not None and not res_block.is_error else None
             append((
                 number, capture, device, txn.do, label, addr.pnu, addr.subindex, addr.n_elems,
-                pt.ATTRIBUTE.get(addr.attr, _hex(addr.attr)),
-                pt.FORMAT_NAME.get(fmt.format, _hex(fmt.format)) if fmt is not None and not fmt.is_error else "",
+                pt.ATTRIBUTE.get(addr.attr) or _hex(addr.attr),  # (a default argument is built every time)
+                (pt.FORMAT_NAME.get(fmt.format) or _hex(fmt.format)) if fmt is not None and not fmt.is_error else "",
                 block_values(written), block_values(res_block, read_values), _hex(err),
                 pt.error_text(err) if err >= 0 else ""))
             self._trail(capture, txn, number, addr, label, written, res_block, device, read_values)
