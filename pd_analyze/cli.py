@@ -7,6 +7,7 @@ usage. Data goes to stdout, progress and errors to stderr; no traceback ever rea
 from __future__ import annotations
 
 import gc
+import os
 import sys
 from collections.abc import Callable
 
@@ -327,10 +328,36 @@ def _timeouts(func: Callable) -> Callable:
 def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fmt: str, profile: str,
                    timeout: float, rpc_timeout: float, jobs: int, chain: bool) -> None:
     """Pair requests with responses; write the tables and print a summary (worst offenders first)."""
+    paths = _files(captures, read, profile)
+    _writable(out_dir)
+    progress = _progress() if jobs == 1 else None
+    try:
+        written, text, errors = _report(paths, out_dir, fmt, profile, timeout, rpc_timeout, progress, jobs, chain)
+    except OSError as exc:  # the disk filled up, the directory went away...
+        raise click.ClickException(dump.safe(f"cannot write the report to {out_dir}: {exc}")) from None
+    click.echo("\n".join(dump.safe(line) for line in text.split("\n")))
+    click.echo("\nWrote " + ", ".join(written), err=True)
+    for error in errors:
+        click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
+    sys.exit(EXIT_USAGE if errors else EXIT_OK)
+
+
+def _writable(out_dir: str) -> None:
+    """--out must be a directory we can write to: said before any capture is read."""
+    import tempfile
+
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+        tempfile.TemporaryFile(dir=out_dir).close()
+    except OSError as exc:
+        raise click.UsageError(dump.safe(f"--out {out_dir}: cannot write there ({exc.strerror or exc})")) from None
+
+
+def _report(paths: list[str], out_dir: str, fmt: str, profile: str, timeout: float, rpc_timeout: float,
+            progress: Callable[[str, int], None] | None, jobs: int, chain: bool) -> tuple[list[str], str, list[str]]:
+    """The files written, the summary text and the capture errors."""
     from pd_analyze import report
 
-    paths = _files(captures, read, profile)
-    progress = _progress() if jobs == 1 else None
     if fmt == "html":  # plots and drill-down need the whole tables
         from pd_analyze import html_report
         from pd_analyze.analysis import analyze
@@ -343,11 +370,7 @@ def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fm
     else:
         streamed = report.stream(paths, out_dir, fmt, (profile, timeout, rpc_timeout), progress, jobs, chain)
         written, text, errors = streamed.written, streamed.summary, streamed.errors
-    click.echo("\n".join(dump.safe(line) for line in text.split("\n")))
-    click.echo("\nWrote " + ", ".join(written), err=True)
-    for error in errors:
-        click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
-    sys.exit(EXIT_USAGE if errors else EXIT_OK)
+    return written, text, errors
 
 
 @main.command("audit", epilog=AUDIT_EXAMPLES)

@@ -252,3 +252,13 @@ def test_bad_usage_helpful_message_exit_2(args, text):
     r = run(*args)
     err = r.stderr.decode()
     assert r.returncode == 2 and text in err and "Traceback" not in err, (args, err)
+
+
+def test_report_to_an_unwritable_place_is_a_usage_error(tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    proc = run("report", "sample_pcaps/worked_example.pcap", "--out", str(blocker / "out"))
+    assert proc.returncode == 2
+    err = proc.stderr.decode().strip().splitlines()
+    assert err[-1] == f"Error: --out {blocker / 'out'}: cannot write there (Not a directory)"
+    assert "Traceback" not in proc.stderr.decode() and not (blocker.parent / "out").exists()
