@@ -146,8 +146,9 @@ def run(files: list[str], rows: Rows, settings: tuple[str, float, float],
     paths (`jobs` > 1) get each file's or part's rows from the workers and hand them on in order."""
     if chain:
         return _analyze_chain(files, settings, progress, rows)
-    if jobs > 1 and _input_bytes(files) < PARALLEL_MIN_BYTES:
-        jobs = 1  # process start-up and shipping the rows back would cost more than the files take
+    if jobs > 1 and ("-" in files or _input_bytes(files) < PARALLEL_MIN_BYTES):
+        jobs = 1  # standard input is one stream; for small files, process start-up and shipping the rows
+        # back would cost more than the files take
     if jobs > 1 and len(files) == 1:
         split = _analyze_split(files[0], settings, jobs, rows)
         if split is not None:

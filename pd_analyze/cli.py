@@ -334,6 +334,8 @@ def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fm
     try:
         written, text, errors = _report(paths, out_dir, fmt, profile, timeout, rpc_timeout, progress, jobs, chain)
     except OSError as exc:  # the disk filled up, the directory went away...
+        if exc.filename is not None and not os.path.abspath(exc.filename).startswith(os.path.abspath(out_dir)):
+            raise  # not the report's files: a fault to report
         raise click.ClickException(dump.safe(f"cannot write the report to {out_dir}: {exc}")) from None
     click.echo("\n".join(dump.safe(line) for line in text.split("\n")))
     click.echo("\nWrote " + ", ".join(written), err=True)

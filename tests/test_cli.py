@@ -262,3 +262,10 @@ def test_report_to_an_unwritable_place_is_a_usage_error(tmp_path):
     err = proc.stderr.decode().strip().splitlines()
     assert err[-1] == f"Error: --out {blocker / 'out'}: cannot write there (Not a directory)"
     assert "Traceback" not in proc.stderr.decode() and not (blocker.parent / "out").exists()
+
+
+def test_report_from_standard_input_with_jobs(tmp_path):
+    """Standard input is one stream: --jobs analyses it in one process."""
+    proc = run("report", "-r", "-", "--jobs", "2", "--out", str(tmp_path), stdin=Path(SAMPLE).read_bytes())
+    assert proc.returncode == 0, proc.stderr.decode()
+    assert (tmp_path / "transactions.csv").read_text().count("\n") == 2  # header and the one transaction
