@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import glob
+import math
 import os
 from bisect import bisect_right
 from collections import Counter
@@ -199,6 +200,7 @@ def _analyze_file(path: str, settings: tuple[str, float, float],
 
 
 LEAD_IN = 20.0  # seconds of capture time a split part replays before its range (> txn + rpc timeouts)
+PART_LEAD_INS = 10  # a split part spans at most this many lead-ins of capture time (a tenth replayed)
 
 
 def _analyze_split(path: str, settings: tuple[str, float, float], jobs: int, rows: Rows) -> CaptureResult | None:
@@ -217,8 +219,13 @@ def _analyze_split(path: str, settings: tuple[str, float, float], jobs: int, row
     points = capture.pcap_split_points(path, jobs)
     if points is None:
         return None
-    leads = _lead_points(points, max(LEAD_IN, settings[1] + settings[2]))
-    starts = _balanced_starts(leads, len(points), jobs)
+    lead_in = max(LEAD_IN, settings[1] + settings[2])
+    leads = _lead_points(points, lead_in)
+    # A worker returns its part's rows whole: on a long capture, parts of at most PART_LEAD_INS lead-ins
+    # (more parts than workers) keep that bounded whatever the length, at a lead-in's replay per part.
+    duration = max(0.0, points[-1][2] - points[0][2])
+    parts = max(jobs, min(len(points) // 2, math.ceil(duration / (PART_LEAD_INS * lead_in))))
+    starts = _balanced_starts(leads, len(points), parts)
     tasks = []
     for k, start in enumerate(starts):
         lead = points[leads[start]]
@@ -245,11 +252,14 @@ def _lead_points(points: list[tuple[int, int, float]], lead_in: float) -> list[i
     """For each split point, the latest point at least `lead_in` seconds of capture time before it
     (the first point when there is none): where a part starting there begins to replay."""
     out = []
+    j = 0  # moves forward only while the times do (linear in the points)
     for i, (_number, _offset, ts) in enumerate(points):
-        j = i
-        while j > 0 and points[j][2] > ts - lead_in:
-            j -= 1
-        out.append(j)
+        while j < i and points[j + 1][2] <= ts - lead_in:
+            j += 1
+        k = j
+        while k > 0 and points[k][2] > ts - lead_in:  # the time went backwards: look further back
+            k -= 1
+        out.append(k)
     return out
 
 

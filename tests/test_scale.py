@@ -191,3 +191,29 @@ def test_split_parts_read_about_as_much_with_their_lead_in():
         work = [end - (leads[start] if k else 0) for k, (start, end) in enumerate(zip(starts, ends, strict=True))]
         assert starts[0] == 0 and starts == sorted(starts) and max(work) - min(work) <= 1, (jobs, work)
     assert analysis._balanced_starts(analysis._lead_points(points[:4], 20.0), 4, 2) == [0, 2]  # no room: halves
+
+
+def test_long_captures_split_into_parts_of_bounded_length(tmp_path, monkeypatch):
+    """More parts than workers once a capture is longer than PART_LEAD_INS lead-ins: each worker's rows
+    stay bounded by a part's length, and the tables still equal one process."""
+    from pd_analyze import analysis
+    from pd_analyze.synth.mixed import make_capture
+
+    path = tmp_path / "long.pcap"
+    make_capture(path, 12_000, pnio_share=0.5)
+    monkeypatch.setattr(analysis, "LEAD_IN", 0.05)
+    monkeypatch.setattr(analysis, "PART_LEAD_INS", 4)
+    monkeypatch.setattr(analysis, "PARALLEL_MIN_BYTES", 0)
+    tasks = []
+    real = analysis._analyze_range
+    monkeypatch.setattr(analysis, "_analyze_range", lambda task: (tasks.append(task), real(task))[1])
+    from concurrent.futures import ThreadPoolExecutor  # the counting wrapper cannot be pickled
+
+    monkeypatch.setattr("concurrent.futures.ProcessPoolExecutor", ThreadPoolExecutor)
+    one = pd_analyze.analyze(str(path), timeout=0.02, rpc_timeout=0.02)
+    two = pd_analyze.analyze(str(path), timeout=0.02, rpc_timeout=0.02, jobs=2)
+    assert len(tasks) > 2
+    for name in ("transactions", "parameters", "findings", "changes"):
+        pd.testing.assert_frame_equal(getattr(one, name), getattr(two, name))
+    points = [(1, 24, 0.0), (513, 99, 5.0), (1025, 199, 3.0), (1537, 299, 30.0)]  # time goes back at 2
+    assert analysis._lead_points(points, 2.5) == [0, 0, 0, 2]
