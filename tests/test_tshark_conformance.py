@@ -28,7 +28,6 @@ installs tshark, so a skipped conformance test there is an error).
 from __future__ import annotations
 
 import copy
-import os
 import re
 from collections import Counter
 from collections.abc import Callable
@@ -40,6 +39,7 @@ import pytest
 from pd_analyze import profidrive
 from pd_analyze import record as rec
 from tests import tshark_fields as tf
+from tests.support import unavailable
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "sample_pcaps"
@@ -72,24 +72,13 @@ def capture_files() -> list[Path]:
     return found
 
 
-def _ci() -> bool:
-    return os.environ.get("CI", "").strip().lower() not in ("", "0", "false", "no")
-
-
 def require_tshark() -> None:
     """Skip (developer machine) or fail (CI) when tshark 4.0 is not there."""
     if tf.TSHARK is None:
-        message = tf.INSTALL_HINT
-        if _ci():
-            pytest.fail(f"{message} -- CI is set, and the tshark conformance test must not be skipped in CI",
-                        pytrace=False)
-        pytest.skip(message)
+        unavailable(tf.INSTALL_HINT)
     version = tf.tshark_version()
     if not re.search(r"\b4\.0\.\d+", version):
-        message = f"the conformance exceptions are written for tshark 4.0, found {version!r}"
-        if _ci():
-            pytest.fail(message, pytrace=False)
-        pytest.skip(message)
+        unavailable(f"the conformance exceptions are written for tshark 4.0, found {version!r}")
 
 
 @pytest.fixture(scope="session")
@@ -934,10 +923,7 @@ def test_fields(tshark: None, conformance_cache: dict[str, tf.Conformance], path
 def test_captures_present() -> None:
     """Something to compare: sample_pcaps/ is in the repository; ../shared/captures may be absent."""
     if not CAPTURES:
-        message = f"no captures in {SAMPLES} or {SHARED}"
-        if _ci():
-            pytest.fail(message + " -- CI is set, the conformance test must not be skipped", pytrace=False)
-        pytest.skip(message)
+        unavailable(f"no captures in {SAMPLES} or {SHARED}")
     if not SHARED.is_dir():
         pytest.skip(f"{SHARED} absent: the shared real-world captures are not compared")
 
