@@ -181,7 +181,7 @@ def _input_bytes(files: list[str]) -> int:
         try:
             total += os.path.getsize(path) * (5 if path.endswith(".gz") else 1)
         except OSError:
-            total += PARALLEL_MIN_BYTES  # standard input, or the error is reported where it is read
+            total += PARALLEL_MIN_BYTES  # unreadable: its error is reported where it is read
     return total
 
 

@@ -647,9 +647,6 @@ def dissect(path: str, annotate: bool = False, rpc_timeout: float = DEFAULT_RPC_
     return dissect_frames(capture.frames(path, ip_only=True), dissector or Dissector(annotate, rpc_timeout))
 
 
-_IP_ETHERTYPES = capture.IP_ETHERTYPES
-
-
 def dissect_frames(frames: Iterable[capture.RawFrame], d: Dissector) -> Iterator[FrameResult]:
     """The frame loop over any frame source (one file, or a chain of files numbered as one)."""
     accounting, not_ip = d.accounting, d.accounting.skipped
@@ -662,7 +659,7 @@ def dissect_frames(frames: Iterable[capture.RawFrame], d: Dissector) -> Iterator
                 accounting.read += frame.run
                 not_ip[link.SKIP_NOT_IPV4] += frame.run
                 continue
-            if frame.linktype == LINKTYPE_ETHERNET and frame.data[12:14] not in _IP_ETHERTYPES:
+            if frame.linktype == LINKTYPE_ETHERNET and frame.data[12:14] not in capture.IP_ETHERTYPES:
                 accounting.read += 1
                 not_ip[link.SKIP_NOT_IPV4] += 1
                 continue

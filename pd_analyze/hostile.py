@@ -159,17 +159,20 @@ def run(kind: str, count: int, dump: bool = False, seed: int = 1, tables: bool =
                 evicted[f.name] += int(f.value) - 100 if " in all; " in f.message else 1
     last = 0.0
 
-    def results(res_list: list) -> None:
+    def closed(txns: list) -> None:
         nonlocal transactions
+        for txn in txns:
+            transactions += 1
+            tally(txn.findings)
+            if rows is not None:
+                rows.add(kind, txn)
+
+    def results(res_list: list) -> None:
         for res in res_list:
             if dump:
                 dump_mod.mark_checks(res, checks.CHECKED_FIELDS)
                 dump_mod.frame_text(res)
-            for txn in engine.feed(res):
-                transactions += 1
-                tally(txn.findings)
-                if rows is not None:
-                    rows.add(kind, txn)
+            closed(engine.feed(res))
         if rows is not None:
             for f in engine.loose + d.loose_findings:
                 rows.add_finding(kind, f)
@@ -182,11 +185,7 @@ def run(kind: str, count: int, dump: bool = False, seed: int = 1, tables: bool =
         last = raw.ts
         results(d.feed(raw))
     results(d.finish())
-    for txn in engine.finish(last):
-        transactions += 1
-        tally(txn.findings)
-        if rows is not None:
-            rows.add(kind, txn)
+    closed(engine.finish(last))
     if rows is not None:
         from pd_analyze.tables_out import COLUMNS, frame_of
 

@@ -122,10 +122,29 @@ class _Returned:
         return text
 
 
-class CsvWriter:
-    """One CSV file, header first; text cells a spreadsheet would run as a formula get an apostrophe.
+class _LineWriter:
+    """A text file of one line per row: `line(row)` is a row's text, written by `write_lines`;
+    `write(rows)` does both."""
 
-    `line(row)` is a row's text, written by `write_lines`; `write(rows)` does both."""
+    path: str
+    _file: Any
+
+    def line(self, row: tuple) -> str:
+        raise NotImplementedError
+
+    def write_lines(self, lines: Sequence[str]) -> None:
+        self._file.write("".join(lines))
+
+    def write(self, rows: Sequence[tuple]) -> None:
+        self.write_lines([self.line(row) for row in rows])
+
+    def close(self) -> str:
+        self._file.close()
+        return self.path
+
+
+class CsvWriter(_LineWriter):
+    """One CSV file, header first; text cells a spreadsheet would run as a formula get an apostrophe."""
 
     def __init__(self, path: str, name: str) -> None:
         self.path = path
@@ -143,21 +162,9 @@ class CsvWriter:
                 cells[i] = "'" + v
         return self._line(cells)
 
-    def write_lines(self, lines: Sequence[str]) -> None:
-        self._file.write("".join(lines))
 
-    def write(self, rows: Sequence[tuple]) -> None:
-        self.write_lines([self.line(row) for row in rows])
-
-    def close(self) -> str:
-        self._file.close()
-        return self.path
-
-
-class JsonWriter:
-    """JSON Lines, ASCII only: one object per row, null for a missing value.
-
-    `line(row)` is a row's text, written by `write_lines`; `write(rows)` does both."""
+class JsonWriter(_LineWriter):
+    """JSON Lines, ASCII only: one object per row, null for a missing value."""
 
     def __init__(self, path: str, name: str) -> None:
         self.path = path
@@ -173,16 +180,6 @@ class JsonWriter:
             if cells[i] is not None and not math.isfinite(cells[i]):
                 cells[i] = None
         return self._encode(dict(zip(self._names, cells, strict=True))) + "\n"
-
-    def write_lines(self, lines: Sequence[str]) -> None:
-        self._file.write("".join(lines))
-
-    def write(self, rows: Sequence[tuple]) -> None:
-        self.write_lines([self.line(row) for row in rows])
-
-    def close(self) -> str:
-        self._file.close()
-        return self.path
 
 
 class ParquetWriter:

@@ -13,6 +13,24 @@ from pd_analyze.capture import frames
 SAMPLES = Path("sample_pcaps")
 
 
+def assert_same_tables(one: pd_analyze.Analysis, two: pd_analyze.Analysis) -> None:
+    for name in ("transactions", "parameters", "findings", "changes"):
+        pd.testing.assert_frame_equal(getattr(one, name), getattr(two, name))
+
+
+def split_and_whole(path: Path, monkeypatch: pytest.MonkeyPatch, jobs: int) -> tuple:
+    """One process, and `jobs` processes over parts with a 0.5 s lead-in (short timeouts to match):
+    the parts really start mid-stream with calls and channels open. Their tables must be equal."""
+    from pd_analyze import analysis
+
+    monkeypatch.setattr(analysis, "LEAD_IN", 0.5)
+    monkeypatch.setattr(analysis, "PARALLEL_MIN_BYTES", 0)
+    one = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2)
+    two = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2, jobs=jobs)
+    assert_same_tables(one, two)
+    return one, two
+
+
 def split_pcap(src: Path, cut: int, a: Path, b: Path) -> None:
     """Write frames 1..cut to a and the rest to b (a ring buffer's two files)."""
     raw = src.read_bytes()
@@ -32,8 +50,7 @@ def test_jobs_gives_identical_tables(monkeypatch):
     files = sorted(str(p) for p in SAMPLES.glob("*.pcap*"))[:8]
     one = pd_analyze.analyze(files)
     two = pd_analyze.analyze(files, jobs=2)
-    for name in ("transactions", "parameters", "findings", "changes"):
-        pd.testing.assert_frame_equal(getattr(one, name), getattr(two, name))
+    assert_same_tables(one, two)
     assert one.transactions.txn.tolist() == list(range(1, len(one.transactions) + 1))
 
 
@@ -84,21 +101,14 @@ def test_dask_api_on_a_local_two_worker_cluster():
 
 
 def test_jobs_splits_one_large_capture_identically(tmp_path, monkeypatch):
-    from pd_analyze import analysis
     from pd_analyze.synth.mixed import make_capture
 
     path = tmp_path / "mixed.pcap"
     count = make_capture(path, 12_000, pnio_share=0.5)
-    # a short lead-in, so the second part really starts mid-stream with calls and channels open
-    monkeypatch.setattr(analysis, "LEAD_IN", 0.5)
-    monkeypatch.setattr(analysis, "PARALLEL_MIN_BYTES", 0)
-    one = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2)
-    two = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2, jobs=2)
+    one, two = split_and_whole(path, monkeypatch, jobs=2)
     assert int(one.accounting.read.iloc[0]) == int(two.accounting.read.iloc[0]) == count
     assert two.accounting.balanced.all()
     assert len(one.transactions) > 900
-    for name in ("transactions", "parameters", "findings", "changes"):
-        pd.testing.assert_frame_equal(getattr(one, name), getattr(two, name))
 
 
 def test_small_inputs_are_analysed_in_one_process(monkeypatch):
@@ -121,7 +131,6 @@ def test_small_inputs_are_analysed_in_one_process(monkeypatch):
 def test_split_parts_stitch_value_before_from_reads_before_their_lead_in(tmp_path, monkeypatch):
     """A change in the second part whose parameter was last read long before (beyond the lead-in):
     the parent fills in value_before from the earlier part's reads, so the tables equal one process."""
-    from pd_analyze import analysis
     from pd_analyze.synth.profidrive import ParamAddress as P
     from pd_analyze.synth.profidrive import change_ok, change_request, pd_response, read_request, value_block
     from pd_analyze.synth.samples import session
@@ -138,19 +147,13 @@ def test_split_parts_stitch_value_before_from_reads_before_their_lead_in(tmp_pat
     s.parameter_access(change_request(9, 1, [(P(1120, n_elems=2), value_block(0x43, [9, 9]))]), change_ok(9, 1, 1))
     path = tmp_path / "late_change.pcap"
     path.write_bytes(pcap_bytes(cap.frames))
-    monkeypatch.setattr(analysis, "LEAD_IN", 0.5)
-    monkeypatch.setattr(analysis, "PARALLEL_MIN_BYTES", 0)
-    one = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2)
-    two = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2, jobs=2)
+    one, two = split_and_whole(path, monkeypatch, jobs=2)
     assert one.changes.value_before.tolist() == ["7 8"]
-    for name in ("transactions", "parameters", "findings", "changes"):
-        pd.testing.assert_frame_equal(getattr(one, name), getattr(two, name))
 
 
 def test_split_parts_stitch_reference_reuse_across_the_split(tmp_path, monkeypatch):
     """T1 on the first write of a channel in the second part: its last transaction lies in the lead-in
     (numbered by the first part) or before it (the channel idle longer); both as in one process."""
-    from pd_analyze import analysis
     from pd_analyze.synth.profidrive import ParamAddress as P
     from pd_analyze.synth.profidrive import pd_response, read_request, value_block
     from pd_analyze.synth.samples import session
@@ -170,13 +173,8 @@ def test_split_parts_stitch_reference_reuse_across_the_split(tmp_path, monkeypat
     access(idle, 9)  # idle for 4 s, far beyond the 0.5 s lead-in
     path = tmp_path / "reuse.pcap"
     path.write_bytes(pcap_bytes(cap.frames))
-    monkeypatch.setattr(analysis, "LEAD_IN", 0.5)
-    monkeypatch.setattr(analysis, "PARALLEL_MIN_BYTES", 0)
-    one = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2)
-    two = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2, jobs=3)
+    one, two = split_and_whole(path, monkeypatch, jobs=3)
     assert one.findings.name.value_counts().to_dict() == {"reference_reused": 1499 + 1}
-    for name in ("transactions", "parameters", "findings", "changes"):
-        pd.testing.assert_frame_equal(getattr(one, name), getattr(two, name))
 
 
 def test_split_parts_read_about_as_much_with_their_lead_in():
@@ -213,7 +211,6 @@ def test_long_captures_split_into_parts_of_bounded_length(tmp_path, monkeypatch)
     one = pd_analyze.analyze(str(path), timeout=0.02, rpc_timeout=0.02)
     two = pd_analyze.analyze(str(path), timeout=0.02, rpc_timeout=0.02, jobs=2)
     assert len(tasks) > 2
-    for name in ("transactions", "parameters", "findings", "changes"):
-        pd.testing.assert_frame_equal(getattr(one, name), getattr(two, name))
+    assert_same_tables(one, two)
     points = [(1, 24, 0.0), (513, 99, 5.0), (1025, 199, 3.0), (1537, 299, 30.0)]  # time goes back at 2
     assert analysis._lead_points(points, 2.5) == [0, 0, 0, 2]
