@@ -11,7 +11,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from pd_analyze import capture
-from pd_analyze.dissect import Dissector, dissect_frames
+from pd_analyze.protocol.dissector import Dissector, dissect_frames
 
 _FILE_HEADER = 24
 _RECORD_HEADER = 16

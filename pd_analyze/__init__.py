@@ -8,7 +8,7 @@ __all__ = ["Analysis", "analyze"]
 def __getattr__(name: str) -> object:
     # The API pulls in pandas: import it on first use, so `pd-analyze dump` starts fast.
     if name in __all__:
-        from pd_analyze import analysis
+        from pd_analyze.analysis import api as analysis
 
         return getattr(analysis, name)
     raise AttributeError(name)

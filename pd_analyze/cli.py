@@ -13,12 +13,15 @@ from collections.abc import Callable
 
 import click
 
-from pd_analyze import __version__, checks, dump, profiles
+from pd_analyze import __version__
 from pd_analyze.capture import CaptureError
-from pd_analyze.decode import decode, parse_hex
-from pd_analyze.dissect import DEFAULT_RPC_TIMEOUT, Dissector, dissect
-from pd_analyze.pd_checks import Checker
-from pd_analyze.registry import FIELDS
+from pd_analyze.model.fields import FIELDS
+from pd_analyze.output import dump
+from pd_analyze.output.decode import decode, parse_hex
+from pd_analyze.protocol import pnio_checks as checks
+from pd_analyze.protocol import profiles
+from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT, Dissector, dissect
+from pd_analyze.protocol.profidrive_checks import Checker
 
 EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
 _COLOURS = {"error": "red", "warning": "yellow", "info": "cyan", "frame": "green", "dim": "bright_black"}
@@ -290,7 +293,7 @@ def _progress() -> Callable[[str, int], None] | None:
 
 
 def _files(captures: tuple[str, ...], read: str | None, profile: str) -> list[str]:
-    from pd_analyze.analysis import expand
+    from pd_analyze.analysis.api import expand
 
     given = _inputs(captures, read)
     paths = expand(given)
@@ -358,11 +361,11 @@ def _writable(out_dir: str) -> None:
 def _report(paths: list[str], out_dir: str, fmt: str, profile: str, timeout: float, rpc_timeout: float,
             progress: Callable[[str, int], None] | None, jobs: int, chain: bool) -> tuple[list[str], str, list[str]]:
     """The files written, the summary text and the capture errors."""
-    from pd_analyze import report
+    from pd_analyze.output import report
 
     if fmt == "html":  # plots and drill-down need the whole tables
-        from pd_analyze import html_report
-        from pd_analyze.analysis import analyze
+        from pd_analyze.analysis.api import analyze
+        from pd_analyze.output import html_report
 
         analysis = analyze(paths, profile, timeout, rpc_timeout, progress, jobs, chain)
         written = report.write_tables(analysis, out_dir, "csv")
@@ -387,9 +390,9 @@ def audit_command(captures: tuple[str, ...], read: str | None, fail_on: str, pro
     """Findings like a linter (file:frame: severity rule message); exit 1 at the --fail-on threshold.
 
     Findings are sorted by capture and frame through a bounded on-disk sort: memory stays flat."""
-    from pd_analyze import report
-    from pd_analyze.rules import SEVERITY_RANK
-    from pd_analyze.tables_out import SEVERITIES
+    from pd_analyze.analysis.rows import SEVERITIES
+    from pd_analyze.model.rules import SEVERITY_RANK
+    from pd_analyze.output import report
 
     paths = _files(captures, read, profile)
     rows, results = report.stream_findings(paths, (profile, timeout, rpc_timeout), jobs, chain,

@@ -12,9 +12,12 @@ from pathlib import Path
 
 import pytest
 
-from pd_analyze import checks, dump, registry, structs
-from pd_analyze.dissect import Dissector, FrameResult, dissect
-from pd_analyze.structs import Field, Layout
+from pd_analyze.model import fields as registry
+from pd_analyze.model import layout as structs
+from pd_analyze.model.layout import Field, Layout
+from pd_analyze.output import dump
+from pd_analyze.protocol import pnio_checks as checks
+from pd_analyze.protocol.dissector import Dissector, FrameResult, dissect
 
 REPO = Path(__file__).resolve().parent.parent
 SAMPLES = sorted(p for p in (REPO / "sample_pcaps").iterdir() if p.is_file() and p.name != "README.md")
@@ -149,7 +152,7 @@ def test_worked_example_read_response_text_exactly() -> None:
 
 
 def test_equal_bytes_at_another_offset_are_written_at_theirs() -> None:
-    from pd_analyze.dissect import Layer
+    from pd_analyze.protocol.dissector import Layer
 
     layout = Layout("test", ">", (("udp.sport", "H"), ("udp.dport", "H"), ("rpc.activity", "16s")))
     buf = bytes(range(20))

@@ -1,6 +1,6 @@
-"""The fuzz harness (pd_analyze.fuzz): a quick deterministic run, and proof that it catches what it claims to.
+"""The fuzz harness (devtools.fuzz): a quick deterministic run, and proof that it catches what it claims to.
 
-The long run (1,000,000 mutated frames, README "Robustness") is `python -m pd_analyze.fuzz --frames 1000000
+The long run (1,000,000 mutated frames, README "Robustness") is `python -m devtools.fuzz --frames 1000000
 --seed 1 --jobs 2`; this quick run feeds 100,000 mutated frames (about half a minute on two cores).
 """
 
@@ -11,8 +11,11 @@ from pathlib import Path
 
 import pytest
 
-from pd_analyze import capture, dump, fuzz, profidrive, rpc
-from pd_analyze.dissect import Accounting
+from devtools import fuzz
+from pd_analyze import capture
+from pd_analyze.output import dump
+from pd_analyze.protocol import profidrive, rpc
+from pd_analyze.protocol.dissector import Accounting
 
 QUICK_FRAMES = 100_000
 QUICK_SEED = 20_260_101

@@ -24,10 +24,10 @@ import pandas as pd
 import pytest
 
 import pd_analyze
-from pd_analyze import html_report
-from pd_analyze.synth import samples
-from pd_analyze.synth.profidrive import ParamAddress, error_block, pd_response, read_request, value_block
-from pd_analyze.synth.scenario import Capture
+from devtools.synth import samples
+from devtools.synth.profidrive import ParamAddress, error_block, pd_response, read_request, value_block
+from devtools.synth.scenario import Capture
+from pd_analyze.output import html_report
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = sorted(p for p in (REPO / "sample_pcaps").iterdir() if p.is_file() and p.name != "README.md")

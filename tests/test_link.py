@@ -2,8 +2,8 @@
 
 import struct
 
-from pd_analyze import link
-from pd_analyze.link import LinkDecoder
+from pd_analyze.protocol import link
+from pd_analyze.protocol.link import LinkDecoder
 
 SRC, DST = bytes([192, 168, 0, 1]), bytes([192, 168, 0, 2])
 

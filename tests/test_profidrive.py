@@ -5,11 +5,7 @@ import struct
 
 import pytest
 
-from pd_analyze import pdtables as pt
-from pd_analyze import profidrive as pd
-from pd_analyze import profiles
-from pd_analyze.pd_checks import Checker
-from pd_analyze.synth.profidrive import (
+from devtools.synth.profidrive import (
     ParamAddress,
     change_request,
     error_block,
@@ -19,6 +15,10 @@ from pd_analyze.synth.profidrive import (
     value_block,
     zero_block,
 )
+from pd_analyze.model import pd_values as pt
+from pd_analyze.protocol import profidrive as pd
+from pd_analyze.protocol import profiles
+from pd_analyze.protocol.profidrive_checks import Checker
 from tests.worked_example import FRAME1_WRITE_REQ, FRAME6_READ_RES
 
 GENERIC = Checker(profiles.generic())

@@ -15,13 +15,14 @@ import tempfile
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pd_analyze import capture, link, profidrive, profiles, rpc
-from pd_analyze import record as rec
-from pd_analyze.dissect import Dissector
-from pd_analyze.fuzz import check_result
-from pd_analyze.pd_checks import Checker
-from pd_analyze.tables import LINKTYPE_ETHERNET, LINKTYPE_RAW, LINKTYPE_SLL, LINKTYPE_SLL2
-from pd_analyze.transactions import TransactionEngine
+from devtools.fuzz import check_result
+from pd_analyze import capture
+from pd_analyze.analysis.transactions import TransactionEngine
+from pd_analyze.model.values import LINKTYPE_ETHERNET, LINKTYPE_RAW, LINKTYPE_SLL, LINKTYPE_SLL2
+from pd_analyze.protocol import link, profidrive, profiles, rpc
+from pd_analyze.protocol import pnio as rec
+from pd_analyze.protocol.dissector import Dissector
+from pd_analyze.protocol.profidrive_checks import Checker
 
 EXAMPLES = int(os.environ.get("PD_HYPOTHESIS_EXAMPLES", "300"))  # more for a longer hunt
 SETTINGS = settings(max_examples=EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -16,14 +16,17 @@ from pathlib import Path
 import pytest
 
 import pd_analyze
-from pd_analyze import capture, fuzz, hostile, link, profidrive, rpc, transactions
-from pd_analyze.dissect import MAX_HELD_FIELDS, MAX_LOOSE_FINDINGS, Dissector
-from pd_analyze.rules import finding
-from pd_analyze.synth import samples
-from pd_analyze.synth.profidrive import ParamAddress, change_ok, change_request, value_block
-from pd_analyze.synth.scenario import Capture
-from pd_analyze.tables_out import Rows, frame_of
-from pd_analyze.transactions import TransactionEngine
+from devtools import fuzz, hostile
+from devtools.synth import samples
+from devtools.synth.profidrive import ParamAddress, change_ok, change_request, value_block
+from devtools.synth.scenario import Capture
+from pd_analyze.analysis import transactions
+from pd_analyze.analysis.rows import Rows, frame_of
+from pd_analyze.analysis.transactions import TransactionEngine
+from pd_analyze.capture import reader as capture
+from pd_analyze.model.rules import finding
+from pd_analyze.protocol import link, profidrive, rpc
+from pd_analyze.protocol.dissector import MAX_HELD_FIELDS, MAX_LOOSE_FINDINGS, Dissector
 from tests.test_capture import FRAME_A, block, epb, idb, shb
 
 REPO = Path(__file__).resolve().parents[1]
@@ -40,7 +43,7 @@ def test_every_frame_is_accounted_for(path: str) -> None:
     assert row.read == frames and bool(row.balanced)
     assert row.read == row.decoded + sum(row.skipped_by_reason.values()) + sum(row.malformed_by_reason.values())
     assert (row.skipped, row.malformed) == (sum(row.skipped_by_reason.values()), sum(row.malformed_by_reason.values()))
-    from pd_analyze import report
+    from pd_analyze.output import report
 
     text = report.summary(a)
     assert f"{row.read} frames read = {row.decoded} decoded + {row.skipped} skipped + {row.malformed} malformed" in text
@@ -347,7 +350,7 @@ def test_hostile_captures_keep_memory_bounded() -> None:
 
 
 def test_hostile_command_line() -> None:
-    r = subprocess.run([sys.executable, "-m", "pd_analyze.hostile", "--kind", "ip", "--frames", "5000", "--json"],
+    r = subprocess.run([sys.executable, "-m", "devtools.hostile", "--kind", "ip", "--frames", "5000", "--json"],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     result = json.loads(r.stdout)
@@ -357,8 +360,8 @@ def test_hostile_command_line() -> None:
 
 def test_skipped_runs_give_the_same_results_and_accounting(tmp_path):
     """The reader's runs of non-IP frames (ip_only) change nothing but the speed."""
-    from pd_analyze.dissect import dissect_frames
-    from pd_analyze.synth.mixed import make_capture
+    from devtools.synth.mixed import make_capture
+    from pd_analyze.protocol.dissector import dissect_frames
 
     path = tmp_path / "mixed.pcap"
     count = make_capture(path, 3000, pnio_share=0.2)

@@ -1,9 +1,9 @@
 """Exact values of the CL-RPC header, NDR args and IOD headers (protocol.md 2, worked example 9)."""
 
-from pd_analyze import record as rec
-from pd_analyze import rpc
-from pd_analyze.structs import Field
-from pd_analyze.tables import OP_READ, OP_WRITE
+from pd_analyze.model.layout import Field
+from pd_analyze.model.values import OP_READ, OP_WRITE
+from pd_analyze.protocol import pnio as rec
+from pd_analyze.protocol import rpc
 from tests.worked_example import FRAME1_WRITE_REQ, FRAME4_NDR, FRAME6_READ_RES
 
 

@@ -19,11 +19,11 @@ from pathlib import Path
 
 import pytest
 
-from pd_analyze import profiles
-from pd_analyze.dissect import Dissector, dissect
-from pd_analyze.pd_checks import Checker
-from pd_analyze.rules import RULES
-from pd_analyze.transactions import VERDICTS, TransactionEngine, iter_closed
+from pd_analyze.analysis.transactions import VERDICTS, TransactionEngine, iter_closed
+from pd_analyze.model.rules import RULES
+from pd_analyze.protocol import profiles
+from pd_analyze.protocol.dissector import Dissector, dissect
+from pd_analyze.protocol.profidrive_checks import Checker
 
 SAMPLE_DIR = Path(__file__).resolve().parent.parent / "sample_pcaps"
 EXPECTED_DIR = SAMPLE_DIR / "expected"
@@ -185,8 +185,8 @@ def test_transactions_exactly_as_intended(name: str) -> None:
 
 def test_date_seven_bytes_with_pad_is_not_taken_for_padded_dates() -> None:
     """pd_commissioning ref 3: a 7-byte Date list with odd count carries the 3.2 pad byte; 8 only when 7 fails."""
-    from pd_analyze import profidrive as pd
-    from pd_analyze.synth.profidrive import date_value, pd_response, value_block
+    from devtools.synth.profidrive import date_value, pd_response, value_block
+    from pd_analyze.protocol import profidrive as pd
 
     day = date_value(2026, 1, 1, 12, 0, 0)
     for blocks in ([value_block(0x32, [day]), value_block(0x06, [7])],  # Date x1 + pad, then a block
@@ -206,9 +206,9 @@ def test_date_seven_bytes_with_pad_is_not_taken_for_padded_dates() -> None:
 
 def test_plausible_index_47_both_directions() -> None:
     """pd_global_and_dpv1_index frames 22 and 28: positive responses over 0x002F are PROFIdrive too."""
-    from pd_analyze import profidrive as pd
-    from pd_analyze.synth.profidrive import ParamAddress, change_ok, change_request, pd_response, read_request
-    from pd_analyze.synth.profidrive import value_block as vb
+    from devtools.synth.profidrive import ParamAddress, change_ok, change_request, pd_response, read_request
+    from devtools.synth.profidrive import value_block as vb
+    from pd_analyze.protocol import profidrive as pd
 
     read_res = pd_response(5, 0x01, 1, [vb(0x42, [0x1234])])
     assert pd.plausible(read_res) and pd.plausible(read_res, response=True) and not pd.plausible(read_res, False)
@@ -222,7 +222,7 @@ def test_plausible_index_47_both_directions() -> None:
 
 def test_unknown_response_id_header_only_is_complete() -> None:
     """pd_out_of_range ref 22: a header-only record with Response ID 0x05 decodes completely (verdict from Q3)."""
-    from pd_analyze import profidrive as pd
+    from pd_analyze.protocol import profidrive as pd
 
     found: list = []
     assert pd.parse_response(bytes([22, 0x05, 1, 1]), 1, found).complete and found == []

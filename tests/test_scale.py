@@ -21,7 +21,7 @@ def assert_same_tables(one: pd_analyze.Analysis, two: pd_analyze.Analysis) -> No
 def split_and_whole(path: Path, monkeypatch: pytest.MonkeyPatch, jobs: int) -> tuple:
     """One process, and `jobs` processes over parts with a 0.5 s lead-in (short timeouts to match):
     the parts really start mid-stream with calls and channels open. Their tables must be equal."""
-    from pd_analyze import analysis
+    from pd_analyze.analysis import api as analysis
 
     monkeypatch.setattr(analysis, "LEAD_IN", 0.5)
     monkeypatch.setattr(analysis, "PARALLEL_MIN_BYTES", 0)
@@ -44,7 +44,7 @@ def split_pcap(src: Path, cut: int, a: Path, b: Path) -> None:
 
 
 def test_jobs_gives_identical_tables(monkeypatch):
-    from pd_analyze import analysis
+    from pd_analyze.analysis import api as analysis
 
     monkeypatch.setattr(analysis, "PARALLEL_MIN_BYTES", 0)  # the samples are small: force the processes
     files = sorted(str(p) for p in SAMPLES.glob("*.pcap*"))[:8]
@@ -71,7 +71,7 @@ def test_chain_pairs_a_transaction_split_over_two_files(tmp_path):
 
 
 def test_parquet_dataset_partitioned_by_capture(tmp_path):
-    from pd_analyze import report
+    from pd_analyze.output import report
 
     files = [str(SAMPLES / "record_rw_le.pcap"), str(SAMPLES / "worked_example.pcap")]
     analysis = pd_analyze.analyze(files)
@@ -85,7 +85,7 @@ def test_parquet_dataset_partitioned_by_capture(tmp_path):
 
 def test_dask_api_on_a_local_two_worker_cluster():
     distributed = pytest.importorskip("distributed")
-    import pd_analyze.dask as pdd
+    import pd_analyze.analysis.distributed as pdd
 
     files = [str(SAMPLES / "record_rw_le.pcap"), str(SAMPLES / "worked_example.pcap"),
              str(SAMPLES / "vlan_stacked.pcap")]
@@ -101,7 +101,7 @@ def test_dask_api_on_a_local_two_worker_cluster():
 
 
 def test_jobs_splits_one_large_capture_identically(tmp_path, monkeypatch):
-    from pd_analyze.synth.mixed import make_capture
+    from devtools.synth.mixed import make_capture
 
     path = tmp_path / "mixed.pcap"
     count = make_capture(path, 12_000, pnio_share=0.5)
@@ -115,7 +115,7 @@ def test_small_inputs_are_analysed_in_one_process(monkeypatch):
     """Process start-up would cost more than a few small captures take: --jobs runs them in-process."""
     import concurrent.futures
 
-    from pd_analyze import analysis
+    from pd_analyze.analysis import api as analysis
 
     def no_pool(*args, **kwargs):
         raise AssertionError("a process pool was started")
@@ -131,11 +131,11 @@ def test_small_inputs_are_analysed_in_one_process(monkeypatch):
 def test_split_parts_stitch_value_before_from_reads_before_their_lead_in(tmp_path, monkeypatch):
     """A change in the second part whose parameter was last read long before (beyond the lead-in):
     the parent fills in value_before from the earlier part's reads, so the tables equal one process."""
-    from pd_analyze.synth.profidrive import ParamAddress as P
-    from pd_analyze.synth.profidrive import change_ok, change_request, pd_response, read_request, value_block
-    from pd_analyze.synth.samples import session
-    from pd_analyze.synth.scenario import Capture
-    from pd_analyze.synth.writers import pcap_bytes
+    from devtools.synth.profidrive import ParamAddress as P
+    from devtools.synth.profidrive import change_ok, change_request, pd_response, read_request, value_block
+    from devtools.synth.samples import session
+    from devtools.synth.scenario import Capture
+    from devtools.synth.writers import pcap_bytes
 
     cap = Capture()
     s = session(cap, 1)
@@ -154,11 +154,11 @@ def test_split_parts_stitch_value_before_from_reads_before_their_lead_in(tmp_pat
 def test_split_parts_stitch_reference_reuse_across_the_split(tmp_path, monkeypatch):
     """T1 on the first write of a channel in the second part: its last transaction lies in the lead-in
     (numbered by the first part) or before it (the channel idle longer); both as in one process."""
-    from pd_analyze.synth.profidrive import ParamAddress as P
-    from pd_analyze.synth.profidrive import pd_response, read_request, value_block
-    from pd_analyze.synth.samples import session
-    from pd_analyze.synth.scenario import Capture
-    from pd_analyze.synth.writers import pcap_bytes
+    from devtools.synth.profidrive import ParamAddress as P
+    from devtools.synth.profidrive import pd_response, read_request, value_block
+    from devtools.synth.samples import session
+    from devtools.synth.scenario import Capture
+    from devtools.synth.writers import pcap_bytes
 
     cap = Capture()
     busy, idle = session(cap, 1), session(cap, 2)
@@ -178,7 +178,7 @@ def test_split_parts_stitch_reference_reuse_across_the_split(tmp_path, monkeypat
 
 
 def test_split_parts_read_about_as_much_with_their_lead_in():
-    from pd_analyze import analysis
+    from pd_analyze.analysis import api as analysis
 
     points = [(i * 512 + 1, 24 + i * 40_000, i * 0.1) for i in range(1000)]  # a split point every 0.1 s
     leads = analysis._lead_points(points, 20.0)
@@ -194,8 +194,8 @@ def test_split_parts_read_about_as_much_with_their_lead_in():
 def test_long_captures_split_into_parts_of_bounded_length(tmp_path, monkeypatch):
     """More parts than workers once a capture is longer than PART_LEAD_INS lead-ins: each worker's rows
     stay bounded by a part's length, and the tables still equal one process."""
-    from pd_analyze import analysis
-    from pd_analyze.synth.mixed import make_capture
+    from devtools.synth.mixed import make_capture
+    from pd_analyze.analysis import api as analysis
 
     path = tmp_path / "long.pcap"
     make_capture(path, 12_000, pnio_share=0.5)

@@ -15,10 +15,10 @@ import pandas as pd
 import pytest
 
 import pd_analyze
-from pd_analyze import report
-from pd_analyze.spool import FAN_IN, Spool
-from pd_analyze.summary import quantile
-from pd_analyze.writers import neutralise
+from pd_analyze.output import report
+from pd_analyze.output.spool import FAN_IN, Spool
+from pd_analyze.output.summary import quantile
+from pd_analyze.output.writers import neutralise
 
 SAMPLES = Path("sample_pcaps")
 ALL = sorted(str(p) for p in SAMPLES.glob("*.pcap*"))
@@ -27,9 +27,9 @@ TABLES = ("transactions", "parameters", "findings", "changes")
 
 
 def _settings() -> tuple[str, float, float]:
-    from pd_analyze.dissect import DEFAULT_RPC_TIMEOUT
-    from pd_analyze.profiles import DEFAULT
-    from pd_analyze.transactions import DEFAULT_TXN_TIMEOUT
+    from pd_analyze.analysis.transactions import DEFAULT_TXN_TIMEOUT
+    from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT
+    from pd_analyze.protocol.profiles import DEFAULT
 
     return (DEFAULT, DEFAULT_TXN_TIMEOUT, DEFAULT_RPC_TIMEOUT)
 
@@ -177,7 +177,7 @@ def test_audit_streams_findings_by_capture_and_frame(samples):
 def test_rows_held_stay_bounded_while_a_long_capture_streams(tmp_path):
     """Not timed: with 64 rows per table allowed in memory, a capture of thousands of transactions is
     written with never more than a small multiple of 64 rows held, and the files are still exact."""
-    from pd_analyze.synth.mixed import make_capture
+    from devtools.synth.mixed import make_capture
 
     path = tmp_path / "mixed.pcap"
     make_capture(path, 40_000, pnio_share=0.5)

@@ -1,4 +1,4 @@
-"""Exact-value tests of the sample generator (pd_analyze.synth).
+"""Exact-value tests of the sample generator (devtools.synth).
 
 The generator is the ground truth for the decoder's tests, so each layer is
 checked against an independent parse (dpkt for Ethernet/IP/UDP, struct for
@@ -18,8 +18,8 @@ from pathlib import Path
 import dpkt
 import pytest
 
-from pd_analyze.synth import link, pnio, profidrive, rpc, samples, scenario, writers
-from pd_analyze.synth.__main__ import main as synth_main
+from devtools.synth import link, pnio, profidrive, rpc, samples, scenario, writers
+from devtools.synth.__main__ import main as synth_main
 
 SAMPLE_DIR = Path(__file__).resolve().parent.parent / "sample_pcaps"
 EPOCH = 1_767_225_600
@@ -552,7 +552,7 @@ INTERLEAVED = {"pd_interleaved.pcap", "pd_timeouts.pcap"}  # sessions on their o
 
 
 def test_pd_samples_registered_deterministic_with_expectations() -> None:
-    from pd_analyze.synth import pd_samples
+    from devtools.synth import pd_samples
 
     names = [s.name for s in samples.SAMPLES if s.name.startswith("pd_")]
     assert names == list(pd_samples.EXPECTED) and len(names) == 10
@@ -575,7 +575,7 @@ def test_pd_samples_registered_deterministic_with_expectations() -> None:
 
 
 def test_intent_frames_and_profiles() -> None:
-    from pd_analyze.synth.expect import Intent, dumps
+    from devtools.synth.expect import Intent, dumps
 
     cap = scenario.Capture()
     s = samples.session(cap, 1)
@@ -603,7 +603,7 @@ def test_intent_frames_and_profiles() -> None:
 def test_intent_figures_from_the_calls() -> None:
     """Figures of protocol.md 7.6 from the generator's frames: truncated to the file's resolution, B5
     answers and the closing PNIOStatus from the calls, loose transaction-level findings."""
-    from pd_analyze.synth.expect import Intent, dumps
+    from devtools.synth.expect import Intent, dumps
 
     cap = scenario.Capture(scenario.Clock(scenario.EPOCH_NS + 999))
     s = samples.session(cap, 1, rtt_us=1000.5, gap_us=500)

@@ -73,9 +73,9 @@ def test_retransmissions_of_an_unanswered_call_count_in_a_timeout(tmp_path):
     """protocol.md 7.6: rpc_retransmissions counts the duplicate request PDUs of the transaction, also of a call
     that is never answered (the CL-RPC client re-sends it before the transaction times out). The engine
     used to add a call's copies only when its response arrived, so this timeout reported 0."""
-    from pd_analyze.synth import pnio, samples
-    from pd_analyze.synth.profidrive import ParamAddress, read_request
-    from pd_analyze.synth.scenario import Capture
+    from devtools.synth import pnio, samples
+    from devtools.synth.profidrive import ParamAddress, read_request
+    from devtools.synth.scenario import Capture
 
     cap = Capture()
     s = samples.session(cap, 1)
@@ -95,8 +95,8 @@ def test_retransmissions_of_an_unanswered_call_count_in_a_timeout(tmp_path):
 def test_open_frames_follow_the_worked_example():
     """What a split part waits for before it stops reading: open calls, reassemblies, pending transactions."""
     from pd_analyze import capture
-    from pd_analyze.dissect import Dissector
-    from pd_analyze.transactions import TransactionEngine
+    from pd_analyze.analysis.transactions import TransactionEngine
+    from pd_analyze.protocol.dissector import Dissector
 
     d, engine = Dissector(), TransactionEngine()
     seen = []

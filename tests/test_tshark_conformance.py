@@ -36,8 +36,8 @@ from pathlib import Path
 
 import pytest
 
-from pd_analyze import profidrive
-from pd_analyze import record as rec
+from pd_analyze.protocol import pnio as rec
+from pd_analyze.protocol import profidrive
 from tests import tshark_fields as tf
 from tests.support import unavailable
 
@@ -1084,11 +1084,11 @@ def test_pd_views_compare_exact_values(tshark: None, conformance_cache: dict[str
 
 def _synthetic_bugs() -> tuple[bytes, dict[int, str]]:
     """A capture with the 8.3 bugs the sample captures do not show (#4, #6, #7, #11), built with
-    pd_analyze.synth, and the frame each rule must explain."""
-    from pd_analyze.synth.profidrive import ParamAddress as P
-    from pd_analyze.synth.profidrive import change_request, error_block, pd_response, read_request, value_block
-    from pd_analyze.synth.samples import pcap_of, session
-    from pd_analyze.synth.scenario import Capture
+    devtools.synth, and the frame each rule must explain."""
+    from devtools.synth.profidrive import ParamAddress as P
+    from devtools.synth.profidrive import change_request, error_block, pd_response, read_request, value_block
+    from devtools.synth.samples import pcap_of, session
+    from devtools.synth.scenario import Capture
 
     cap = Capture()
     s = session(cap, 1)

@@ -21,12 +21,12 @@ from pathlib import Path
 
 import pytest
 
-from pd_analyze import profiles
-from pd_analyze.synth import samples
+from devtools.synth import samples
+from pd_analyze.protocol import profiles
 
 REPO = Path(__file__).resolve().parents[1]
 CRAFTED = REPO / "sample_pcaps" / "crafted_strings.pcap"
-HTML_MODULE = importlib.util.find_spec("pd_analyze.html_report") is not None
+HTML_MODULE = importlib.util.find_spec("pd_analyze.output.html_report") is not None
 # What the capture carries (exactly as the sample generator writes it)
 MARKUP = ("<script>alert(1)", '"><img src=x onerror=alert(2)>', "javascript:alert(3)", "' onmouseover='alert(4)",
           "<svg/onload=a()>")

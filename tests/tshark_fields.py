@@ -41,9 +41,9 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from pd_analyze import registry
 from pd_analyze.capture import CaptureError
-from pd_analyze.dissect import Dissector, FrameResult, dissect
+from pd_analyze.model import fields as registry
+from pd_analyze.protocol.dissector import Dissector, FrameResult, dissect
 
 TSHARK = shutil.which("tshark")
 INSTALL_HINT = "tshark not installed: apt-get install tshark"

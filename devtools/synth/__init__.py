@@ -1,0 +1,11 @@
+"""Deterministic generator of sample PROFINET IO / PROFIdrive captures.
+
+Layers: link/rpc/pnio/profidrive (pure encoders, re-exported by encode),
+writers (pcap, pcapng, gzip), scenario (clock, hosts, PNIO sessions),
+samples (the files in sample_pcaps/). `python -m devtools.synth [OUTDIR]`
+regenerates every sample byte for byte.
+"""
+
+# The PROFIdrive samples (pd_*.pcap) register themselves in samples.SAMPLES on import.
+from . import pd_samples as pd_samples
+from . import txn_samples as txn_samples

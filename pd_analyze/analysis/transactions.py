@@ -1,0 +1,480 @@
+"""PROFIdrive transactions (protocol.md 7): write a parameter request, poll with reads, get the response.
+
+`TransactionEngine.feed` takes the dissector's frame results in frame order and returns the
+transactions that closed, each with its verdict, figures, per-parameter results and findings.
+State is kept only for open channels and open RPC calls; a closed transaction is handed on at once.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+from pd_analyze.model import pd_values as pt
+from pd_analyze.model.rules import Finding, finding
+from pd_analyze.model.values import (
+    INDEX_WRITE_MULTIPLE,
+    OP_READ,
+    OP_READ_IMPLICIT,
+    OP_WRITE,
+    PNIORW_STATE_CONFLICT,
+    PROFIDRIVE_INDICES,
+    PTYPE_FAULT,
+    PTYPE_REJECT,
+    PTYPE_REQUEST,
+    PTYPE_RESPONSE,
+)
+from pd_analyze.protocol import pnio as rec
+from pd_analyze.protocol.dissector import FrameResult, Pdu
+from pd_analyze.protocol.pnio import Status
+from pd_analyze.protocol.profidrive import Parsed, footprint
+
+DEFAULT_TXN_TIMEOUT = 10.0
+DEFAULT_B5_THRESHOLD = 50
+MAX_OPEN_CALLS = 65_536
+MAX_PENDING = 16_384  # open transactions (the oldest ends as a timeout, closed_by "evicted")
+MAX_PENDING_BYTES = 32 * 1024 * 1024  # what they keep alive, by _cost
+MAX_TXN_FRAMES = 10_000  # frames of one transaction (10 s of B5 polling every millisecond)
+FRAME_COST = 1024  # bytes a transaction keeps per frame (frame lists, its RPC calls)
+VERDICTS = ("malformed", "pnio_error", "timeout", "reference_mismatch", "nak", "ok")
+
+Channel = tuple  # device, controller, AR, API, slot, subslot, index (protocol.md 7.2)
+
+
+@dataclass(slots=True)
+class Transaction:
+    """One parameter access: the write of a request, its reads, and how it ended."""
+
+    txn: int
+    channel: Channel
+    request: Parsed | None
+    write_req_frame: int
+    t_start: float
+    ref: int = -1
+    req_id: int = -1
+    do: int = -1
+    n_params: int = -1
+    response: Parsed | None = None
+    write_res_frame: int = 0
+    t_write_res: float | None = None
+    read_req_frames: list[int] = field(default_factory=list)
+    t_read_reqs: list[float] = field(default_factory=list)
+    read_res_frame: int = 0
+    t_read_res: float | None = None
+    b5_retries: int = 0
+    last_b5_res: float | None = None
+    rpc_retransmissions: int = 0
+    rpc_calls: list = field(default_factory=list)  # the RPC calls of its requests: their copies are its retransmissions
+    pnio_status: str = ""
+    malformed: bool = False
+    mismatch: bool = False
+    closed_by: str = ""  # "response", "pnio_error", "deadline", "superseded", "capture_end"
+    capture_ended: bool = False
+    fallback: bool = False
+    frames: list[int] = field(default_factory=list)
+    findings: list[Finding] = field(default_factory=list)
+    verdict: str = ""
+    reuse_slot: tuple[int, int] | None = None  # split part, channel's last transaction unknown: (findings index, frame)
+
+    @property
+    def device(self) -> bytes:
+        return self.channel[0]
+
+    @property
+    def controller(self) -> bytes:
+        return self.channel[1]
+
+    def figures(self) -> dict[str, float | None]:
+        """Timing figures of protocol.md 7.6 (seconds; None where the capture has no such frame)."""
+        res = self.t_write_res
+        final_req = self.t_read_reqs[-1] if self.t_read_reqs else None
+        done = self.t_read_res if self.closed_by == "response" else None
+        return {
+            "t_write_rtt": None if res is None else res - self.t_start,
+            "t_total": None if done is None else done - self.t_start,
+            "t_final_read_rtt": None if done is None or final_req is None else done - final_req,
+            "t_first_read_gap": None if res is None or not self.t_read_reqs else self.t_read_reqs[0] - res,
+            "t_ready_after": None if res is None or done is None else (
+                0.0 if self.last_b5_res is None else self.last_b5_res - res),
+            "t_ready_by": None if res is None or done is None or final_req is None else final_req - res,
+        }
+
+
+class LastDone(NamedTuple):
+    """What T1/T4 need of the last closed transaction of a channel."""
+
+    txn: str  # its number as the messages name it (see TransactionEngine.name)
+    ref: int
+    verdict: str
+
+
+def reuse_finding(last: LastDone, ref: int, frame: int) -> Finding | None:
+    """T1: a write with the Request Reference of the channel's last transaction (a retry after a failure)."""
+    if last.ref != ref:
+        return None
+    if last.verdict in ("ok", "nak"):
+        return finding("reference_reused", frame, "pd.ref", ref, f"a reference other than {last.ref}",
+                       f"Request Reference {ref} reused from transaction {last.txn}")
+    if last.verdict in ("pnio_error", "timeout"):
+        return finding("retry", frame, "pd.ref", ref, "",
+                       f"retry of transaction {last.txn} ({last.verdict}) with the same reference")
+    return None
+
+
+# In a split part, messages name transactions by a mark the parent replaces with the number in the
+# whole capture: its number in the part (T), or the frame of its write request for a lead-in one (F).
+PART_MARK = re.compile("\x00([TF])(\\d+)\x00")
+
+
+def _cost(txn: Transaction) -> int:
+    """Bytes a pending transaction keeps alive beyond its frames: the parsed request, findings."""
+    return 1024 + (footprint(txn.request) if txn.request is not None else 0)
+
+
+@dataclass(slots=True)
+class _Call:
+    """What an open write/read call is about, by its request frame."""
+
+    kind: str  # "write" or "read"
+    txns: list[Transaction | None]  # per PROFIdrive block (write), or the one read target
+    channel: Channel | None = None
+
+
+class TransactionEngine:
+    """Channel state machines over dissected frames (protocol.md 7.3)."""
+
+    def __init__(self, txn_timeout: float = DEFAULT_TXN_TIMEOUT, b5_threshold: int = DEFAULT_B5_THRESHOLD) -> None:
+        self.txn_timeout = txn_timeout
+        self.b5_threshold = b5_threshold
+        self.loose: list[Finding] = []  # findings of frames that belong to no transaction, drained by callers
+        self.number_from = 0  # frames before this only warm up the state (a split capture's lead-in): txn 0
+        self._next = 1
+        self._pending: dict[Channel, Transaction] = {}  # open transactions by channel, in opening order
+        self._by_ar: dict[tuple, dict[Channel, Transaction]] = {}  # the same by device, controller, AR
+        self._pending_bytes = 0
+        self._last_done: dict[Channel, LastDone] = {}  # last closed transaction per channel (T1, T4)
+        self._calls: dict[int, _Call] = {}  # by request frame number
+        self._now = float("-inf")
+
+    def name(self, txn: Transaction) -> str:
+        """A transaction's number as a message names it (a mark in a split part, see PART_MARK)."""
+        if not self.number_from:
+            return str(txn.txn)
+        return f"\x00T{txn.txn}\x00" if txn.txn else f"\x00F{txn.write_req_frame}\x00"
+
+    # --- the frame loop ---------------------------------------------------------------------
+    def feed(self, res: FrameResult) -> list[Transaction]:
+        self._now = max(self._now, res.ts)
+        closed = self._expire()
+        owner = self._frame(res, closed)
+        if owner is not None and owner.txn:
+            owner.findings += res.findings
+            if not owner.frames or (owner.frames[-1] < res.frame or res.frame not in owner.frames):
+                owner.frames.append(res.frame)  # results come in frame order: one comparison, as a rule
+                if not owner.closed_by:
+                    self._pending_bytes += FRAME_COST
+                    if len(owner.frames) > MAX_TXN_FRAMES:
+                        closed.append(self._evict(owner, res.frame, f"more than {MAX_TXN_FRAMES} frames"))
+        else:
+            self.loose += res.findings
+        return closed
+
+    def open_frames(self) -> Iterator[int]:
+        """Write request frame of every pending transaction."""
+        return (txn.write_req_frame for txn in self._pending.values())
+
+    def finish(self, last_ts: float) -> list[Transaction]:
+        """Capture end: every open transaction is a timeout, marked capture_ended if its deadline lies beyond."""
+        out = []
+        for txn in list(self._pending.values()):
+            txn.capture_ended = txn.t_start + self.txn_timeout > last_ts
+            out.append(self._close(txn, "capture_end"))
+        self._calls.clear()
+        return out
+
+    def _expire(self) -> list[Transaction]:
+        due = []
+        for txn in self._pending.values():  # in opening order: stop at the first not yet due
+            if txn.t_start + self.txn_timeout >= self._now:
+                break
+            due.append(txn)
+        return [self._close(txn, "deadline") for txn in due]
+
+    def _frame(self, res: FrameResult, closed: list[Transaction]) -> Transaction | None:
+        pdu = res.pdu
+        if pdu is None or pdu.opnum not in (OP_READ, OP_WRITE, OP_READ_IMPLICIT):
+            return None
+        if pdu.ptype == PTYPE_REQUEST:
+            if pdu.retransmission:
+                return self._retransmitted(pdu)
+            return self._write_request(pdu, res, closed) if pdu.opnum == OP_WRITE else self._read_request(pdu, res)
+        if pdu.ptype in (PTYPE_RESPONSE, PTYPE_FAULT, PTYPE_REJECT) and pdu.request is not None \
+                and not pdu.retransmission:
+            call = self._calls.pop(pdu.request.frame, None)
+            if call is None:
+                return None
+            if call.kind == "write":
+                return self._write_response(pdu, call, res, closed)
+            return self._read_response(pdu, call, res, closed)
+        return None
+
+    # --- writes -----------------------------------------------------------------------------
+    def _write_request(self, pdu: Pdu, res: FrameResult, closed: list[Transaction]) -> Transaction | None:
+        stub = pdu.stub
+        if stub is None:
+            return None
+        opened: list[Transaction | None] = []
+        for block in stub.blocks:
+            if block.layout is not rec.WRITE_REQ or block.index == INDEX_WRITE_MULTIPLE:
+                continue
+            if block.index not in PROFIDRIVE_INDICES or (block.pd is None and len(block.record) == block.record_len):
+                opened.append(None)  # not PROFIdrive (or index 0x002F that is not): no transaction
+                continue
+            opened.append(self._open(pdu, block, res, closed))
+        if not any(opened):
+            return None
+        self._remember(pdu.frame, _Call("write", opened))
+        return next(t for t in opened if t is not None)
+
+    def _open(self, pdu: Pdu, block: rec.Block, res: FrameResult, closed: list[Transaction]) -> Transaction:
+        v = block.values
+        channel = (pdu.dst, pdu.src, v[rec.B_AR], v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], v[rec.B_INDEX])
+        parsed = block.pd[0] if isinstance(block.pd, tuple) else None
+        first = pdu.fragments[0] if pdu.fragments else pdu.frame  # timed at its first frame (7.6)
+        start = pdu.first_ts if pdu.first_ts is not None else pdu.ts
+        txn = Transaction(self._next if first >= self.number_from else 0, channel, parsed, first, start)
+        txn.frames.extend(pdu.fragments)
+        txn.rpc_calls.append(pdu.request)
+        self._next += 1 if txn.txn else 0
+        record = block.record
+        if len(record) >= 4:
+            txn.ref, txn.req_id, txn.do, txn.n_params = record[0], record[1], record[2], record[3]
+        txn.malformed = pdu.malformed or parsed is None or not parsed.complete
+        old = self._pending.get(channel)
+        if old is not None:
+            txn.findings.append(finding("write_while_pending", pdu.frame, "pd.ref", txn.ref,
+                                        f"none pending (transaction {self.name(old)})",
+                                        f"write while transaction {self.name(old)} (ref {old.ref}, frame "
+                                        f"{old.write_req_frame}) is pending: it ends as a timeout"))
+            closed.append(self._close(old, "superseded"))
+        last = self._last_done.get(channel)
+        if last is None and self.number_from and txn.txn:
+            # a split part: the channel's last transaction lies before the lead-in; the parent decides
+            # T1 (tables_out.stitch_reference_reuse)
+            txn.reuse_slot = (len(txn.findings), pdu.frame)
+        elif last is not None:
+            reuse = reuse_finding(last, txn.ref, pdu.frame)
+            if reuse is not None:
+                txn.findings.append(reuse)
+        self._pending[channel] = txn
+        self._by_ar.setdefault(channel[:3], {})[channel] = txn
+        self._pending_bytes += _cost(txn)
+        while len(self._pending) > 1 and (len(self._pending) > MAX_PENDING or self._pending_bytes > MAX_PENDING_BYTES):
+            oldest = next(iter(self._pending.values()))
+            closed.append(self._evict(oldest, pdu.frame, "transaction table full"))
+        return txn
+
+    def _write_response(self, pdu: Pdu, call: _Call, res: FrameResult,
+                        closed: list[Transaction]) -> Transaction | None:
+        statuses = _write_statuses(pdu, len(call.txns))
+        first = None
+        for txn, status in zip(call.txns, statuses, strict=False):
+            if txn is None or txn.closed_by:
+                continue
+            first = first or txn
+            txn.write_res_frame = pdu.frame
+            txn.t_write_res = pdu.ts
+            txn.malformed |= pdu.malformed
+            if pdu.ptype in (PTYPE_FAULT, PTYPE_REJECT):
+                txn.pnio_status = f"{pdu.fault_status or 0:08X}"
+                closed.append(self._close(txn, "pnio_error"))
+            elif status is not None and not status.ok:
+                txn.pnio_status = status.text()
+                closed.append(self._close(txn, "pnio_error"))
+        return first
+
+    # --- reads ------------------------------------------------------------------------------
+    def _read_request(self, pdu: Pdu, res: FrameResult) -> Transaction | None:
+        stub = pdu.stub
+        if stub is None or not stub.blocks or stub.blocks[0].index not in PROFIDRIVE_INDICES:
+            return None
+        block = stub.blocks[0]
+        v = block.values
+        ar = block.target_ar if v[rec.B_AR] == rec.NIL_UUID and block.target_ar else v[rec.B_AR]
+        channel = (pdu.dst, pdu.src, ar, v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], v[rec.B_INDEX])
+        txn = self._pending.get(channel)
+        if txn is None:
+            txn = next(iter(self._by_ar.get(channel[:3], {}).values()), None)  # the oldest pending there
+            if txn is not None and not txn.fallback:
+                txn.fallback = True
+                txn.findings.append(finding(
+                    "fallback_pairing", pdu.frame, "iod.index", f"{v[rec.B_SLOT]}/{v[rec.B_SUBSLOT]}/"
+                    f"{v[rec.B_INDEX]:#06x}", f"{txn.channel[4]}/{txn.channel[5]}/{txn.channel[6]:#06x}",
+                    f"read addressed differently from the write of transaction {self.name(txn)} (paired by device, "
+                    "controller and AR)"))
+        if txn is None:
+            self.loose.append(finding("read_without_request", pdu.frame, "iod.index", f"{v[rec.B_INDEX]:#06x}",
+                                      "a pending parameter request", "read on a PROFIdrive index with no "
+                                                                     "pending write on the channel"))
+            self._remember(pdu.frame, _Call("read", [None], channel))
+            return None
+        txn.read_req_frames.append(pdu.fragments[0] if pdu.fragments else pdu.frame)
+        txn.t_read_reqs.append(pdu.first_ts if pdu.first_ts is not None else pdu.ts)
+        txn.frames.extend(pdu.fragments)
+        txn.rpc_calls.append(pdu.request)
+        self._remember(pdu.frame, _Call("read", [txn], channel))
+        return txn
+
+    def _read_response(self, pdu: Pdu, call: _Call, res: FrameResult,
+                       closed: list[Transaction]) -> Transaction | None:
+        txn = call.txns[0]
+        if txn is None or txn.closed_by:
+            return None
+        txn.malformed |= pdu.malformed
+        if pdu.ptype in (PTYPE_FAULT, PTYPE_REJECT):
+            txn.pnio_status = f"{pdu.fault_status or 0:08X}"
+            txn.read_res_frame, txn.t_read_res = pdu.frame, pdu.ts
+            closed.append(self._close(txn, "pnio_error"))
+            return txn
+        status = pdu.stub.status if pdu.stub is not None else None
+        if status is not None and not status.ok:
+            if status.code1 == PNIORW_STATE_CONFLICT and status.decode == 0x80:
+                txn.b5_retries += 1
+                txn.last_b5_res = pdu.ts
+                if txn.b5_retries == self.b5_threshold + 1:
+                    txn.findings.append(finding("b5_polling", pdu.frame, "ndr.status.code1", txn.b5_retries,
+                                                f"<= {self.b5_threshold}", f"more than {self.b5_threshold} "
+                                                "B5 (not ready) answers"))
+                return txn
+            txn.pnio_status = status.text()
+            txn.read_res_frame, txn.t_read_res = pdu.frame, pdu.ts
+            closed.append(self._close(txn, "pnio_error"))
+            return txn
+        txn.read_res_frame, txn.t_read_res = pdu.frame, pdu.ts
+        block = next((b for b in (pdu.stub.blocks if pdu.stub else []) if b.index in PROFIDRIVE_INDICES), None)
+        parsed = block.pd[0] if block is not None and isinstance(block.pd, tuple) else None
+        txn.response = parsed
+        if parsed is None or not parsed.complete:
+            txn.malformed = True
+        else:
+            txn.findings += self._mirroring(txn, parsed, pdu.frame)
+        closed.append(self._close(txn, "response"))
+        return txn
+
+    def _mirroring(self, txn: Transaction, r: Parsed, frame: int) -> list[Finding]:
+        """Q2-Q5: the response mirrors the request (protocol.md 6.4)."""
+        out = []
+        if txn.ref >= 0 and r.ref != txn.ref:
+            out.append(finding("reference_mismatch", frame, "pd.ref", r.ref, txn.ref,
+                               f"response reference {r.ref} does not mirror the request's {txn.ref}"))
+            txn.mismatch = True
+        want = {pt.REQ_READ: (pt.RES_READ, pt.RES_READ_NAK), pt.REQ_CHANGE: (pt.RES_CHANGE, pt.RES_CHANGE_NAK)}
+        expected = want.get(txn.req_id, (pt.RES_NOT_SUPPORTED,))
+        if r.ident not in expected:
+            out.append(finding("response_id_mismatch", frame, "pd.resp_id", f"{r.ident:#04x}",
+                               "/".join(f"{e:#04x}" for e in expected),
+                               f"Response ID {r.ident:#04x} does not answer Request ID {txn.req_id:#04x}"))
+            txn.mismatch = True
+        if txn.do >= 0 and r.do != txn.do:
+            out.append(finding("do_not_mirrored", frame, "pd.do", r.do, txn.do, "DO-ID not mirrored"))
+        header_level = r.ident & 0x80 and len(r.blocks) == 1 and r.blocks[0].is_error
+        if txn.n_params >= 0 and r.n != txn.n_params and not header_level:
+            out.append(finding("n_params_not_mirrored", frame, "pd.n_params", r.n, txn.n_params,
+                               "No. of parameters not mirrored"))
+        return out
+
+    def _retransmitted(self, pdu: Pdu) -> Transaction | None:
+        call = self._calls.get(pdu.request.frame) if pdu.request is not None else None
+        if call is None:
+            return None
+        return next((t for t in call.txns if t is not None), None)
+
+    # --- closing ----------------------------------------------------------------------------
+    def _evict(self, txn: Transaction, frame: int, why: str) -> Transaction:
+        """Close a pending transaction the caps cannot hold any longer: a timeout, closed_by "evicted"."""
+        txn.findings.append(finding("txn_evicted", frame, "pd.ref", txn.ref,
+                                    f"<= {MAX_PENDING} pending, {MAX_TXN_FRAMES} frames each",
+                                    f"{why}: transaction {self.name(txn)} (frame {txn.write_req_frame}) ends as a "
+                                    "timeout"))
+        return self._close(txn, "evicted")
+
+    def _close(self, txn: Transaction, why: str) -> Transaction:
+        if self._pending.get(txn.channel) is txn:
+            del self._pending[txn.channel]
+            self._pending_bytes -= _cost(txn) + FRAME_COST * len(txn.frames)
+            same_ar = self._by_ar.get(txn.channel[:3], {})
+            same_ar.pop(txn.channel, None)
+            if not same_ar:
+                self._by_ar.pop(txn.channel[:3], None)
+            self._forget_calls(txn)
+        txn.closed_by = why
+        txn.verdict = _verdict(txn)
+        # copies seen so far, of answered and unanswered calls alike (protocol.md 7.6)
+        txn.rpc_retransmissions = sum(c.copies for c in txn.rpc_calls if c is not None)
+        if why in ("deadline", "superseded", "capture_end", "evicted") and not txn.pnio_status and txn.b5_retries:
+            txn.pnio_status = f"DE80{PNIORW_STATE_CONFLICT:02X}00"  # last answer was B5 (txn.last_status)
+        self._last_done.pop(txn.channel, None)
+        # not the transaction itself: it is handed on
+        self._last_done[txn.channel] = LastDone(self.name(txn), txn.ref, txn.verdict)
+        if len(self._last_done) > MAX_OPEN_CALLS:
+            del self._last_done[next(iter(self._last_done))]
+        return txn
+
+    def _forget_calls(self, txn: Transaction) -> None:
+        """A closed transaction's calls need no state: a late answer to them belongs to no transaction."""
+        for frame in txn.frames:  # its requests' frames among them (a reassembled one: the completing frame)
+            call = self._calls.get(frame)
+            if call is not None and all(t is None or t is txn or t.closed_by for t in call.txns):
+                del self._calls[frame]
+
+    def _remember(self, frame: int, call: _Call) -> None:
+        self._calls[frame] = call
+        if len(self._calls) > MAX_OPEN_CALLS:
+            del self._calls[next(iter(self._calls))]
+
+
+def _verdict(txn: Transaction) -> str:
+    """protocol.md 7.4: the first matching rule wins."""
+    if txn.malformed:
+        return "malformed"
+    if txn.closed_by == "pnio_error":
+        return "pnio_error"
+    if txn.closed_by in ("deadline", "superseded", "capture_end", "evicted"):
+        return "timeout"
+    if txn.mismatch:
+        return "reference_mismatch"
+    if txn.response is not None and txn.response.ident & 0x80:
+        return "nak"
+    return "ok"
+
+
+def _write_statuses(pdu: Pdu, count: int) -> list[Status | None]:
+    """The status per PROFIdrive write of the call: the inner block status in a Write-Multiple."""
+    stub = pdu.stub
+    if stub is None:
+        return [None] * count
+    if len(stub.blocks) > 1:
+        inner = [b.status for b in stub.blocks[1:]]
+        if stub.status is not None and not stub.status.ok and not any(s and not s.ok for s in inner):
+            return [stub.status] * count  # the whole Write-Multiple failed
+        return inner
+    status = stub.status if stub.status is not None and not stub.status.ok else (
+        stub.blocks[0].status if stub.blocks else stub.status)
+    return [status] * count
+
+
+def param_label(txn: Transaction) -> str:
+    """P964[0] P2000[0..2]: the parameters of a transaction."""
+    if txn.request is None:
+        return ""
+    return " ".join(a.label() for a in txn.request.addresses)
+
+
+def iter_closed(engine: TransactionEngine, results: Iterator[FrameResult], last: list[float]) -> Iterator[Transaction]:
+    """Feed frame results through the engine; yields transactions as they close (then at the end)."""
+    for res in results:
+        last[0] = max(last[0], res.ts)
+        yield from engine.feed(res)
+    yield from engine.finish(last[0])

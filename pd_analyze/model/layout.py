@@ -1,0 +1,272 @@
+"""Fixed structures declared once as data, used by the fast path and the dump alike.
+
+A Layout lists its fields in wire order as (registry name, struct code). It compiles to one
+`struct.Struct`, so the fast path unpacks a whole header in one call and works on the tuple; the
+dump asks the same Layout to annotate that tuple (offset, length, raw bytes, shown value). There is
+no second parser, so the two paths cannot disagree.
+"""
+
+from __future__ import annotations
+
+import struct
+import uuid
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from dataclasses import field as dc_field
+from socket import inet_ntoa
+
+from pd_analyze.model import fields as registry
+from pd_analyze.model.values import flag_names, name_of
+
+
+@dataclass(slots=True)
+class Field:
+    """One annotated field of a dissected frame."""
+
+    name: str
+    offset: int
+    length: int
+    raw: bytes
+    value: object
+    show: str
+    check: str = ""
+    shared: Shown | None = dc_field(default=None, compare=False, repr=False)  # set by Layout.annotate
+
+    def as_dict(self) -> dict[str, object]:
+        return {"name": self.name, "offset": self.offset, "length": self.length,
+                "raw": self.raw.hex(), "value": json_value(self.value), "show": self.show,
+                "check": self.check}
+
+
+class Shown:
+    """One value of one Layout field as shown: kept in the Layout's memo and shared by the fields of later
+    frames with the same bytes, so that each renderer formats it once (`json`, `text`: theirs to fill,
+    with the offset they were made for). A field may use them only while its name, length, value, show
+    and raw are still these."""
+
+    __slots__ = ("json", "json_at", "length", "name", "raw", "show", "text", "text_at", "value")
+
+    def __init__(self, name: str, length: int, value: object, show: str, raw: bytes) -> None:
+        self.name, self.length, self.value, self.show, self.raw = name, length, value, show, raw
+        self.json = self.text = ""
+        self.json_at = self.text_at = -1
+
+    def holds(self, f: Field) -> bool:
+        """`f` is still as annotated from this value (identity, not equality: the objects themselves)."""
+        return (f.value is self.value and f.show is self.show and f.raw is self.raw and f.name is self.name
+                and f.length == self.length)
+
+
+def json_value(value: object) -> object:
+    if isinstance(value, bytes | bytearray | memoryview):
+        return bytes(value).hex()
+    if isinstance(value, tuple):
+        return list(value)
+    return value
+
+
+class Layout:
+    """A fixed-size structure: fields in wire order with struct codes, one byte order."""
+
+    __slots__ = ("codes", "defs", "names", "offsets", "order", "plan", "positions", "size", "sizes", "struct",
+                 "title")
+
+    def __init__(self, title: str, order: str, fields: tuple[tuple[str, str], ...]) -> None:
+        self.title = title
+        self.order = order
+        self.names = tuple(name for name, _ in fields)
+        self.codes = tuple(code for _, code in fields)
+        self.struct = struct.Struct(order + "".join(self.codes))
+        self.size = self.struct.size
+        offsets, sizes, pos = [], [], 0
+        for code in self.codes:
+            size = struct.calcsize(order + code)
+            offsets.append(pos)
+            sizes.append(size)
+            pos += size
+        self.offsets = tuple(offsets)
+        self.sizes = tuple(sizes)
+        self.positions = {name: i for i, name in enumerate(self.names)}
+        # registry entries resolved once (a typo in a declaration fails at import, not at run time)
+        self.defs = tuple(registry.field(name) for name in self.names)
+        # what annotate needs per field, decided here rather than for every frame of a dump; the memo
+        # keeps recent (value, shown text) pairs, as most header fields repeat from frame to frame
+        little = order == "<"
+        self.plan = tuple((fdef.name, rel, size, {}, _converter(fdef, little), shower(fdef))
+                          for fdef, rel, size in zip(self.defs, self.offsets, self.sizes, strict=True))
+
+    def unpack(self, buf: bytes, offset: int = 0) -> tuple:
+        return self.struct.unpack_from(buf, offset)
+
+    def index(self, name: str) -> int:
+        return self.positions[name]
+
+    def annotate(self, buf: bytes, offset: int, values: tuple, base: int = 0) -> list[Field]:
+        """Fields of the structure at `offset` in `buf`; `base` is added to shown offsets.
+
+        `values` as unpacked by this Layout's struct: each field's values are of one type, so equal
+        values convert and show alike and the memo may key on the value (its bytes are compared too)."""
+        copy = type(buf) is not bytes  # a slice of bytes is bytes already; of anything else, copied
+        at = base + offset
+        out = []
+        for (name, rel, size, memo, conv, show_value), value in zip(self.plan, values, strict=True):
+            raw = buf[offset + rel:offset + rel + size]
+            if copy:
+                raw = bytes(raw)
+            known = memo.get(value)
+            if known is None or known.raw != raw:
+                if len(memo) >= _MEMO_SIZE:  # a field whose values keep changing (sequence numbers...)
+                    memo.clear()
+                converted = value if conv is None else conv(value)
+                known = memo[value] = Shown(name, size, converted, show_value(converted), raw)
+            out.append(Field(name, at + rel, size, known.raw, known.value, known.show, "", known))
+        return out
+
+
+_MEMO_SIZE = 256  # per Layout field; a Shown with its texts is some 400 bytes
+
+
+Converter = Callable[[object], object]
+Shower = Callable[[object], str]
+
+
+def convert(name: str, value: object, little: bool = False) -> object:
+    """The registry value of a raw unpacked item (UUIDs to text, byte strings kept)."""
+    conv = _converter(registry.field(name), little)
+    return value if conv is None else conv(value)
+
+
+def _converter(fdef: registry.FieldDef, little: bool) -> Converter | None:
+    if fdef.type == registry.UUID:
+        return _uuid_le if little else _uuid_be
+    if fdef.type == registry.IPV4:
+        return lambda value: inet_ntoa(value) if isinstance(value, bytes) else value
+    return None
+
+
+def _uuid_be(value: object) -> object:
+    # formatted from the hex digits: uuid.UUID objects cost several times more, once per UUID field
+    if not isinstance(value, bytes):
+        return value
+    if len(value) != 16:
+        return str(uuid.UUID(bytes=value))  # its error for a wrong length
+    h = value.hex()
+    return f"{h[:8]}-{h[8:12]}-{h[12:16]}-{h[16:20]}-{h[20:]}"
+
+
+def _uuid_le(value: object) -> object:
+    # the first three groups little-endian (DCE NDR), the rest as on the wire
+    if not isinstance(value, bytes):
+        return value
+    if len(value) != 16:
+        return str(uuid.UUID(bytes_le=value))  # its error for a wrong length
+    return _uuid_be(value[3::-1] + value[5:3:-1] + value[7:5:-1] + value[8:])
+
+
+def show(name: str, value: object) -> str:
+    """How a value is shown: hex or decimal by type, with its value-table name."""
+    found = _SHOW_BY_NAME.get(name)
+    if found is None:
+        found = shower(registry.field(name))
+        if len(_SHOW_BY_NAME) < 65_536:  # concrete indexed names; beyond that, looked up each time
+            _SHOW_BY_NAME[name] = found
+    return found(value)
+
+
+def show_def(fdef: registry.FieldDef, value: object) -> str:
+    """The definition of how a value is shown; `shower` gives the same text faster (tests hold the two equal)."""
+    kind = fdef.type
+    if kind == registry.UINT and fdef.values is None:
+        return str(value)
+    if kind == registry.HEX and isinstance(value, int):
+        text = f"0x{value:0{_hex_width(fdef.name, value)}x}"
+    elif kind == registry.FLAGS and isinstance(value, int):
+        names = flag_names(fdef.flags or {}, value)
+        text = f"0x{value:02x}" + (f" ({names})" if names else "")
+    elif kind == registry.BYTES and isinstance(value, bytes | bytearray):
+        text = _bytes_text(bytes(value))
+    elif kind == registry.TIME and isinstance(value, float):
+        text = f"{value:.9f}"
+    elif kind == registry.FLOAT and isinstance(value, float):
+        text = f"{value:.6f} s"
+    elif kind == registry.LIST and isinstance(value, tuple | list):
+        text = ", ".join(str(v) for v in value)
+    else:
+        text = str(value)
+    meaning = name_of(fdef.values, value)
+    return f"{text} ({meaning})" if meaning else text
+
+
+def shower(fdef: registry.FieldDef) -> Shower:
+    """show_def for one field, with its type, value table, flag bits and hex width resolved once."""
+    found = _SHOWERS.get(fdef.name)
+    if found is None:
+        found = _SHOWERS[fdef.name] = _with_meaning(_text_of(fdef), fdef.values)
+    return found
+
+
+_SHOWERS: dict[str, Shower] = {}  # by registry (template) name
+_SHOW_BY_NAME: dict[str, Shower] = {}  # by concrete name, for show()
+
+
+def _text_of(fdef: registry.FieldDef) -> Shower:
+    kind = fdef.type
+    if kind == registry.HEX:
+        width = _hex_width(fdef.name, 0)  # the width a small value gets; only 2 grows with the value
+        if width == 2:
+            return lambda v: (f"0x{v:04x}" if v > 0xFF else f"0x{v:02x}") if isinstance(v, int) else str(v)
+        form = f"0x{{:0{width}x}}".format
+        return lambda v: form(v) if isinstance(v, int) else str(v)
+    if kind == registry.FLAGS:
+        bits = sorted((fdef.flags or {}).items(), reverse=True)  # as flag_names orders them
+
+        def flags(v: object) -> str:
+            if not isinstance(v, int):
+                return str(v)
+            names = ", ".join(name for bit, name in bits if v & bit)
+            return f"0x{v:02x} ({names})" if names else f"0x{v:02x}"
+        return flags
+    if kind == registry.BYTES:
+        return lambda v: _bytes_text(bytes(v)) if isinstance(v, bytes | bytearray) else str(v)
+    if kind == registry.TIME:
+        return lambda v: f"{v:.9f}" if isinstance(v, float) else str(v)
+    if kind == registry.FLOAT:
+        return lambda v: f"{v:.6f} s" if isinstance(v, float) else str(v)
+    if kind == registry.LIST:
+        return lambda v: ", ".join(str(x) for x in v) if isinstance(v, tuple | list) else str(v)
+    return str
+
+
+def _with_meaning(text: Shower, table: Mapping[int, str] | None) -> Shower:
+    if table is None:
+        return text
+    get = table.get
+
+    def shown(v: object) -> str:
+        meaning = get(v, "") if isinstance(v, int) else ""
+        return f"{text(v)} ({meaning})" if meaning else text(v)
+    return shown
+
+
+def _hex_width(name: str, value: int) -> int:
+    if name.endswith((".api", ".fault_status")):
+        return 8
+    return 4 if value > 0xFF or name.endswith((".index", ".block_type", "hint", ".subslot", ".id")) else 2
+
+
+def _bytes_text(raw: bytes, limit: int = 32) -> str:
+    if len(raw) == 6:  # MAC address
+        return ":".join(f"{b:02x}" for b in raw)
+    text = raw[:limit].hex(" ")
+    return text + (f" ... ({len(raw)} bytes)" if len(raw) > limit else "")
+
+
+def plain(name: str, offset: int, buf: bytes, length: int, value: object, base: int = 0) -> Field:
+    """A field outside any Layout (variable-length parts, derived values)."""
+    raw = bytes(buf[offset:offset + length]) if length else b""
+    return Field(name, base + offset, length, raw, value, show(name, value))
+
+
+def derived(name: str, value: object) -> Field:
+    """A field computed by the analyser, not read from the wire (links, reassembly)."""
+    return Field(name, -1, 0, b"", value, show(name, value))

@@ -1,0 +1,224 @@
+"""The Wireshark-style dump: a text tree or JSON Lines, one entry per PNIO RPC frame."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Iterable
+
+from pd_analyze.model.layout import Field, json_value
+from pd_analyze.model.rules import ERROR, INFO, WARNING, Finding
+from pd_analyze.protocol.dissector import FrameResult
+
+Style = Callable[[str, str], str]  # (text, role) -> text, roles: severity names, "frame", "dim"
+_SEV_LETTER = {ERROR: "E", WARNING: "W", INFO: "I"}
+
+
+def plain_style(text: str, role: str) -> str:
+    del role
+    return text
+
+
+def safe(text: str) -> str:
+    """Control characters and escape sequences shown escaped, never emitted raw to a terminal."""
+    if text.isprintable():
+        return text
+    return "".join(ch if ch.isprintable() else ch.encode("unicode_escape").decode("ascii") for ch in text)
+
+
+def mark_checks(result: FrameResult, checked: frozenset[str]) -> None:
+    """Each field's check result: the finding that names it, or 'ok' for a checked field."""
+    by_field: dict[str, list[Finding]] = {}
+    for f in result.findings:
+        by_field.setdefault(f.field, []).append(f)
+    for layer in result.layers:
+        for fld in layer.fields:  # some 60 a frame: two set lookups each, a call only where a finding is
+            name = fld.name
+            if name in by_field:
+                mark_field(fld, by_field, checked)
+            elif name in checked and not fld.check:
+                fld.check = "ok"
+
+
+def mark_field(fld: Field, by_field: dict[str, list[Finding]], checked: frozenset[str]) -> None:
+    found = by_field.get(fld.name)
+    if found:
+        broken = "; ".join(f"{f.rule} {f.severity}: {f.message}" for f in found)
+        fld.check = broken
+    elif not fld.check and fld.name in checked:
+        fld.check = "ok"
+
+
+def frame_json(result: FrameResult) -> str:
+    """One JSON Lines object, written directly rather than by json.dumps of a dict per field (several
+    times dearer). The text equals json.dumps(..., ensure_ascii=True, separators=(",", ":")): names
+    are registry names, strings go through the json module's own escaping, numbers as json writes them."""
+    esc = _esc
+    fields = []
+    for layer in result.layers:
+        for f in layer.fields:
+            shared, check = f.shared, f.check
+            if shared is None:
+                text = _json_field(f)
+            elif (f.offset == shared.json_at and f.value is shared.value and f.show is shared.show
+                  and f.raw is shared.raw and f.name is shared.name and f.length == shared.length):
+                text = shared.json  # made for an earlier field with these bytes at this offset (holds, inline)
+            else:
+                text = _json_field(f)
+                if shared.holds(f):
+                    shared.json, shared.json_at = text, f.offset
+            fields.append(f'{text}{_CHECKS.get(check) or esc(check)}}}')
+    head = (f'{{"frame":{_json_value(result.frame)},"time":{_json_value(result.ts)},"src":{_json_value(result.src)},'
+            f'"dst":{_json_value(result.dst)},"summary":{_json_value(result.summary)}')
+    findings = json.dumps([f.as_dict() for f in result.findings], ensure_ascii=True, separators=(",", ":")) \
+        if result.findings else "[]"
+    return f'{head},"fields":[{",".join(fields)}],"findings":{findings}}}'
+
+
+def _json_field(f: Field) -> str:
+    """A field's JSON object up to its check."""
+    value = f.value
+    return (f'{{"name":"{f.name}","offset":{f.offset},"length":{f.length},"raw":"{f.raw.hex()}",'
+            f'"value":{value if type(value) is int else _json_value(value)},"show":{_esc(f.show)},"check":')
+
+
+_esc = json.encoder.encode_basestring_ascii
+_CHECKS = {"": '""', "ok": '"ok"'}  # nearly every field's check
+
+
+def _json_value(value: object) -> str:
+    kind = type(value)  # the exact types first: bool is an int, and int/float subclasses may print otherwise
+    if kind is str:
+        return _esc(value)
+    if kind is int:
+        return int.__repr__(value)
+    if kind is bytes:
+        return f'"{value.hex()}"'
+    if kind is float and math.isfinite(value):
+        return float.__repr__(value)
+    if isinstance(value, bool) or value is None:
+        return "true" if value is True else "false" if value is False else "null"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, str):
+        return _esc(value)
+    return json.dumps(json_value(value), ensure_ascii=True, separators=(",", ":"))
+
+
+def frame_text(result: FrameResult, style: Style = plain_style, findings_only: bool = False) -> str:
+    head = style(f"Frame {result.frame}", "frame") + \
+        f"  {result.ts:.6f}  {result.src} -> {result.dst}  {safe(result.summary)}"
+    lines = [head]
+    if not findings_only:
+        for layer in result.layers:
+            indent = "  " * (layer.depth + 1)
+            lines.append(f"{indent}{safe(layer.title)}")
+            lines += [_field_line(f, indent + "  ", style) for f in layer.fields]
+    lines += [finding_line(f, "  ", style) for f in result.findings]
+    return "\n".join(lines)
+
+
+def decoded_text(sections: list[tuple[str, list[Field]]], findings: list[Finding], style: Style = plain_style) -> str:
+    """`pd-analyze decode` as text: the same tree as the dump, offsets within the pasted bytes."""
+    lines = []
+    for title, fields in sections:
+        lines.append(f"  {safe(title)}")
+        lines += [_field_line(f, "    ", style) for f in fields]
+    lines += [finding_line(f, "  ", style) for f in findings]
+    if not findings:
+        lines.append("  no findings")
+    return "\n".join(lines)
+
+
+def decoded_json(sections: list[tuple[str, list[Field]]], findings: list[Finding]) -> str:
+    return json.dumps({"fields": [f.as_dict() for _, fields in sections for f in fields],
+                       "findings": [f.as_dict() for f in findings]}, ensure_ascii=True, separators=(",", ":"))
+
+
+def _field_line(f: Field, indent: str, style: Style) -> str:
+    styled = style is not plain_style  # without colour, the style calls are skipped (same text)
+    shared = f.shared
+    if styled or shared is None:
+        text = _text_field(f, style)
+    elif (f.offset == shared.text_at and f.value is shared.value and f.show is shared.show
+          and f.raw is shared.raw and f.name is shared.name and f.length == shared.length):
+        text = shared.text  # made for an earlier field with these bytes at this offset (holds, inline)
+    else:
+        text = _text_field(f, style)
+        if shared.holds(f):
+            shared.text, shared.text_at = text, f.offset
+    check = f.check
+    if not check:
+        return f"{indent}{text}"
+    mark = _MARKS.get(check)
+    if mark is None:
+        mark = (f"[{safe(check)}]", _check_role(check))
+        if len(_MARKS) < 4096:  # check texts repeat ("ok", the profile limits); a few hold values
+            _MARKS[check] = mark
+    return f"{indent}{text}  {style(*mark) if styled else mark[0]}"
+
+
+_MARKS: dict[str, tuple[str, str]] = {}  # check text -> (its bracketed text, its style role)
+
+
+def _text_field(f: Field, style: Style) -> str:
+    """A field's text line without indent and check: offset, bytes, name and shown value."""
+    if f.offset < 0:
+        where = " " * 32
+    else:
+        raw = f.raw[:8].hex(" ") + (" .." if len(f.raw) > 8 else "")
+        where = f"{f.offset:04x}  {raw:<26}"
+    return f"{style(where, 'dim')}  {f.name} = {safe(f.show)}"
+
+
+def _check_role(check: str) -> str:
+    for sev in (ERROR, WARNING, INFO):
+        if f" {sev}:" in check:
+            return sev
+    return "warning" if "BREAKS" in check else "dim"
+
+
+def finding_line(f: Finding, indent: str = "", style: Style = plain_style) -> str:
+    letter = _SEV_LETTER.get(f.severity, "?")
+    detail = []
+    if f.value:
+        detail.append(f"value {f.value}")
+    if f.expected:
+        detail.append(f"expected {f.expected}")
+    extra = f" ({'; '.join(detail)})" if detail else ""
+    text = f"{indent}! {letter} {f.rule} {f.name} [{f.field}]: {f.message}{extra}"
+    return style(safe(text), f.severity)
+
+
+def parse_frames(spec: str) -> Callable[[int], bool]:
+    """'1,5-9,20-' to a frame-number predicate; ValueError with a helpful message if malformed."""
+    ranges: list[tuple[int, int]] = []
+    for part in spec.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        lo, sep, hi = part.partition("-")
+        try:
+            start = int(lo) if lo else 1
+            end = int(hi) if hi else (10**12 if sep else start)
+        except ValueError:
+            raise ValueError(f"bad frame range {part!r}: use numbers like 1,5-9,20-") from None
+        if start < 1 or end < start:
+            raise ValueError(f"bad frame range {part!r}: frames are numbered from 1, low before high")
+        ranges.append((start, end))
+    if not ranges:
+        raise ValueError("empty frame selection: use numbers like 1,5-9,20-")
+    return lambda n: any(lo <= n <= hi for lo, hi in ranges)
+
+
+def render(results: Iterable[FrameResult], fmt: str, write: Callable[[str], None], style: Style,
+           findings_only: bool, checked: frozenset[str]) -> int:
+    """Write each result; returns the number of frames written."""
+    count = 0
+    for result in results:
+        if findings_only and not result.findings:
+            continue
+        mark_checks(result, checked)
+        write(frame_json(result) if fmt == "json" else frame_text(result, style, findings_only) + "\n")
+        count += 1
+    return count

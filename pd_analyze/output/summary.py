@@ -1,0 +1,226 @@
+"""The report's text summary, accumulated row by row: counts, groupings and latency quantiles.
+
+Fed the rows of the tables in the order they are added (not sorted: the report feeds them as they
+close), it needs no DataFrame: counters per group, and per device the latency values as compact float
+arrays (16 bytes a completed transaction), since exact quantiles need every value. Quantiles
+interpolate linearly between the two nearest ranks, as pandas' (numpy's) default does. Ranked lists put
+the largest count first; equal counts keep the order of their keys (device, DO, parameter, error; rule
+and name), or, for the value counts, the order of first appearance in the table (by transaction, then
+as added), which is remembered per value.
+"""
+
+from __future__ import annotations
+
+import math
+from array import array
+from collections import Counter
+from collections.abc import Iterable, Sequence
+from typing import TYPE_CHECKING
+
+from pd_analyze.analysis.rows import COLUMNS, SEVERITIES, VERDICTS, sort_key
+
+if TYPE_CHECKING:
+    from pd_analyze.analysis.api import CaptureResult
+
+TOP = 10
+_LAST = float("inf")
+
+
+def _index(table: str, *names: str) -> tuple[int, ...]:
+    cols = [c.name for c in COLUMNS[table]]
+    return tuple(cols.index(n) for n in names)
+
+
+_T = _index("transactions", "txn", "device", "verdict", "b5_retries", "t_write_rtt", "t_total")
+_P = _index("parameters", "device", "do", "param", "error", "error_text")
+_TXN_ORDER = sort_key("transactions")
+_PARAM_ORDER = sort_key("parameters")
+_F = _index("findings", "severity", "rule", "name")
+
+
+def _missing(value: object) -> bool:
+    return value is None or (isinstance(value, float) and value != value)
+
+
+def _order(key: tuple) -> tuple:
+    """Sort key of a group key with missing parts last (as pandas sorts group keys)."""
+    return tuple((_missing(v), 0 if _missing(v) else v) for v in key)
+
+
+def _ranked(counts: dict, top: int) -> list[tuple[object, int]]:
+    """Largest count first; ties in key order."""
+    items = sorted(counts.items(), key=lambda kv: _order(kv[0] if isinstance(kv[0], tuple) else (kv[0],)))
+    return sorted(items, key=lambda kv: -kv[1])[:top]
+
+
+def _ranked_by_first(counts: dict, first: dict) -> list[tuple[object, int]]:
+    """Largest count first; ties in the order of first appearance in the table."""
+    return sorted(counts.items(), key=lambda kv: (-kv[1], first[kv[0]]))
+
+
+def quantile(values: Sequence[float], q: float) -> float:
+    """The q-quantile of sorted values, interpolated linearly (numpy's "linear" method, bit for bit)."""
+    n = len(values)
+    if n == 0:
+        return math.nan
+    at = (n - 1) * q
+    if at >= n - 1:
+        return values[-1]
+    below = math.floor(at)
+    a, b, t = values[below], values[below + 1], at - below
+    diff = b - a
+    return b - diff * (1 - t) if t >= 0.5 else a + diff * t
+
+
+def _ms(seconds: float) -> str:
+    return "-" if seconds != seconds else f"{seconds * 1000:.1f}"
+
+
+def _text(value: object) -> str:
+    return "<NA>" if _missing(value) else str(value)
+
+
+class Summary:
+    """Accumulates the summary from table rows; `text()` renders it."""
+
+    def __init__(self) -> None:
+        self.transactions = 0
+        self.verdicts: Counter[str] = Counter()
+        self.any_failed = False
+        self.failed: dict[str, Counter[str]] = {}
+        self.naks: Counter[tuple] = Counter()
+        self.by_error: Counter[str] = Counter()
+        self.by_do: Counter[int] = Counter()
+        self.first: dict[tuple[str, object], tuple] = {}  # ("error" / "do", value): first place in the table
+        self.b5_total = self.b5_transactions = 0
+        self.b5_max: tuple[int, tuple, object] | None = None  # retries, place in the table, txn
+        self.added = Counter()  # rows added per table: a row's place among equal keys
+        self.latency: dict[str, tuple[array, array]] = {}  # device: t_total, t_write_rtt (seconds)
+        self.findings = 0
+        self.severities: Counter[str] = Counter()
+        self.rules: Counter[tuple[str, str]] = Counter()
+
+    def add(self, table: str, rows: Iterable[tuple]) -> None:
+        """Rows of one table, in the order they were added to it (the order of `Rows`' lists)."""
+        if table == "transactions":
+            self._transactions(rows)
+        elif table == "parameters":
+            self._parameters(rows)
+        elif table == "findings":
+            self._findings(rows)
+
+    def _transactions(self, rows: Iterable[tuple]) -> None:
+        txn_i, dev_i, verdict_i, b5_i, rtt_i, total_i = _T
+        for r in rows:
+            self.transactions += 1
+            self.added["transactions"] += 1
+            verdict, device = r[verdict_i], r[dev_i]
+            if verdict in VERDICTS:
+                self.verdicts[verdict] += 1
+            if verdict != "ok":
+                self.any_failed = True
+                if verdict in VERDICTS and not _missing(device):
+                    self.failed.setdefault(device, Counter())[verdict] += 1
+            b5 = r[b5_i]
+            if not _missing(b5):
+                self.b5_total += b5
+                if b5 > 0:
+                    self.b5_transactions += 1
+                place = (_TXN_ORDER(r), self.added["transactions"])
+                if self.b5_max is None or b5 > self.b5_max[0] or (b5 == self.b5_max[0] and place < self.b5_max[1]):
+                    self.b5_max = (b5, place, r[txn_i])
+            total = r[total_i]
+            if not _missing(total) and not _missing(device):
+                totals, rtts = self.latency.setdefault(device, (array("d"), array("d")))
+                totals.append(total)
+                if not _missing(r[rtt_i]):
+                    rtts.append(r[rtt_i])
+
+    def _parameters(self, rows: Iterable[tuple]) -> None:
+        dev_i, do_i, param_i, err_i, text_i = _P
+        first = self.first
+        for r in rows:
+            self.added["parameters"] += 1
+            err = r[err_i]
+            if _missing(err) or err == "":
+                continue
+            self.naks[(r[dev_i], r[do_i], r[param_i], err, r[text_i])] += 1
+            place = (_PARAM_ORDER(r), self.added["parameters"])
+            self.by_error[err] += 1
+            if place < first.get(("error", err), (_LAST,)):
+                first[("error", err)] = place
+            do = r[do_i]
+            if not _missing(do):
+                self.by_do[do] += 1
+                if place < first.get(("do", do), (_LAST,)):
+                    first[("do", do)] = place
+
+    def _findings(self, rows: Iterable[tuple]) -> None:
+        sev_i, rule_i, name_i = _F
+        for r in rows:
+            self.findings += 1
+            if r[sev_i] in SEVERITIES:
+                self.severities[r[sev_i]] += 1
+            if not _missing(r[rule_i]) and not _missing(r[name_i]):
+                self.rules[(r[rule_i], r[name_i])] += 1
+
+    def text(self, captures: Sequence[CaptureResult], top: int = TOP) -> str:
+        """Accounting per capture; verdicts; failures by device; NAKs; B5 retries; latency; findings."""
+        lines = []
+        for c in captures:
+            acc = c.accounting
+            line = (f"{c.path}: {acc.read} frames read = {acc.decoded} decoded + {sum(acc.skipped.values())} "
+                    f"skipped + {sum(acc.malformed.values())} malformed; {c.transactions} transactions")
+            lines.append(line + (f"; ERROR {c.error}" if c.error else ""))
+            for kind, reasons in (("skipped", acc.skipped), ("malformed", acc.malformed)):
+                if reasons:  # the invariant by reason: every frame is accounted for
+                    lines.append(f"  {kind}: " + "; ".join(f"{n} {why}" for why, n in
+                                                           sorted(reasons.items(), key=lambda item: -item[1])))
+        lines.append("")
+        if not self.transactions:
+            lines.append("No PROFIdrive transactions found.")
+            return "\n".join(lines)
+        lines.append(f"Transactions: {self.transactions}  "
+                     + "  ".join(f"{v}={self.verdicts[v]}" for v in VERDICTS))
+        if self.any_failed:
+            lines.append("")
+            lines.append("Failures by device (worst first):")
+            totals = {dev: sum(c.values()) for dev, c in self.failed.items()}
+            for dev, total in _ranked(totals, top):
+                counts = self.failed[dev]  # type: ignore[index]
+                detail = ", ".join(f"{v}={counts[v]}" for v in VERDICTS if counts[v])
+                lines.append(f"  {dev!s:<16} {total:>6}  ({detail})")
+        if self.naks:
+            lines.append("")
+            lines.append("NAKs by PNU and error number (worst first):")
+            for (dev, do, param, err, text), n in _ranked(self.naks, top):  # type: ignore[misc]
+                lines.append(f"  {n:>6}  {_text(dev)} DO {_text(do)} {_text(param)} error {_text(err)} "
+                             f"({_text(text)})")
+            first = {k[1]: v for k, v in self.first.items() if k[0] == "error"}
+            lines.append("  by error number: " + ", ".join(
+                f"{e}={n}" for e, n in _ranked_by_first(self.by_error, first)))
+            first = {k[1]: v for k, v in self.first.items() if k[0] == "do"}
+            lines.append("  by DO: " + ", ".join(f"{d}={n}" for d, n in _ranked_by_first(self.by_do, first)))
+        lines.append("")
+        lines.append(f"B5 retries: {self.b5_total} in {self.b5_transactions} transactions"
+                     + (f" (max {self.b5_max[0]} in transaction {self.b5_max[2]})"
+                        if self.b5_transactions and self.b5_max is not None else ""))
+        if self.latency:
+            lines.append("")
+            lines.append("Latency per device, ms (write to final response; slowest first):")
+            lines.append(f"  {'device':<16} {'n':>6} {'p50':>8} {'p90':>8} {'p99':>8} {'max':>8}  write rtt p50")
+            stats = []
+            for dev in sorted(self.latency):
+                totals, rtts = (sorted(a) for a in self.latency[dev])
+                stats.append((dev, len(totals), quantile(totals, 0.5), quantile(totals, 0.9),
+                              quantile(totals, 0.99), totals[-1], quantile(rtts, 0.5)))
+            for dev, n, p50, p90, p99, most, w50 in sorted(stats, key=lambda s: -s[3])[:top]:
+                lines.append(f"  {dev:<16} {n:>6} {_ms(p50):>8} {_ms(p90):>8} {_ms(p99):>8} "
+                             f"{_ms(most):>8}  {_ms(w50)}")
+        if self.findings:
+            lines.append("")
+            lines.append(f"Findings: {self.findings}  "
+                         + "  ".join(f"{s}={self.severities[s]}" for s in ("error", "warning", "info")))
+            for (rule, name), n in _ranked(self.rules, top):  # type: ignore[misc]
+                lines.append(f"  {n:>6}  {rule} {name}")
+        return "\n".join(lines)

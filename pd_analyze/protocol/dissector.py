@@ -1,0 +1,672 @@
+"""One pass over a capture: frames -> UDP -> PNIO CL-RPC PDUs -> NDR/IOD blocks -> records.
+
+`Dissector.feed` takes one frame and returns the PNIO RPC frames that are ready (possibly none,
+possibly earlier ones). With `annotate=True` (the dump) every field is annotated and a frame that
+waits for a forward link (its response, or the frame that reassembles its fragment) is held back
+until the link is known or can no longer come, so the output stays in frame order; the hold is
+bounded in time (rpc_timeout of capture time) and count. Without annotation (report, audit) no
+field objects are built and nothing is held.
+"""
+
+from __future__ import annotations
+
+from collections import Counter, deque
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+
+from pd_analyze import capture
+from pd_analyze.model.layout import Field, derived, plain
+from pd_analyze.model.rules import Finding, finding
+from pd_analyze.model.values import (
+    FLAG1_FRAG,
+    INDEX_PD_DPV1,
+    INDEX_WRITE_MULTIPLE,
+    LINKTYPE_ETHERNET,
+    NCA_STATUS,
+    OP_READ,
+    OP_READ_IMPLICIT,
+    OP_WRITE,
+    PNIO_OPNUM,
+    PNIORW_STATE_CONFLICT,
+    PROFIDRIVE_INDICES,
+    PTYPE_CANCEL,
+    PTYPE_FAULT,
+    PTYPE_NOCALL,
+    PTYPE_PING,
+    PTYPE_REJECT,
+    PTYPE_REQUEST,
+    PTYPE_RESPONSE,
+    PTYPE_WORKING,
+    RPC_PTYPE,
+)
+from pd_analyze.protocol import link, profidrive, profiles, rpc
+from pd_analyze.protocol import pnio as rec
+from pd_analyze.protocol import pnio_checks as checks
+from pd_analyze.protocol.profidrive_checks import Checker
+
+DEFAULT_RPC_TIMEOUT = 5.0
+MAX_HELD_FRAMES = 10_000
+MAX_HELD_FIELDS = 50_000  # annotated fields of the held frames (a field costs some 300 bytes)
+MAX_KNOWN_ACTIVITIES = 65_536
+MAX_LOOSE_FINDINGS = 100_000  # kept when nobody drains them (the dump lists them at the end)
+MAX_CHANNELS = 16_384  # channels whose last parameter request is kept for labelling responses
+MAX_CHANNEL_BYTES = 16 * 1024 * 1024  # those requests, by profidrive.footprint
+RECORD_SERVICES = (OP_READ, OP_WRITE, OP_READ_IMPLICIT)
+
+# Frame outcomes beyond the link-layer skip reasons.
+MALFORMED_RPC = "PNIO RPC PDU truncated or undecodable"
+
+
+@dataclass(slots=True)
+class Layer:
+    title: str
+    depth: int
+    fields: list[Field]
+
+
+@dataclass(slots=True)
+class Pdu:
+    """A complete PNIO RPC PDU (request, response, fault or reject) with its decoded stub."""
+
+    frame: int
+    ts: float
+    src: bytes
+    dst: bytes
+    sport: int
+    dport: int
+    ptype: int
+    opnum: int
+    activity: bytes
+    seq: int
+    stub: rec.Stub | None = None
+    request: rpc.Call | None = None  # for responses/faults: the call they answer
+    retransmission: bool = False
+    fault_status: int | None = None
+    malformed: bool = False
+    fragments: tuple[int, ...] = ()  # frames of the IP/CL fragments it was reassembled from
+    first_ts: float | None = None  # a request is timed at its first frame (protocol.md 7.6)
+
+
+@dataclass(slots=True)
+class FrameResult:
+    frame: int
+    ts: float
+    src_ip: bytes
+    dst_ip: bytes
+    summary: str
+    ptype: int
+    layers: list[Layer] = field(default_factory=list)
+    findings: list[Finding] = field(default_factory=list)
+    pdu: Pdu | None = None
+
+    @property
+    def src(self) -> str:
+        return link.ip_text(self.src_ip)
+
+    @property
+    def dst(self) -> str:
+        return link.ip_text(self.dst_ip)
+
+    def fields(self) -> Iterator[Field]:
+        for layer in self.layers:
+            yield from layer.fields
+
+
+@dataclass(slots=True)
+class Accounting:
+    """Every frame read is decoded, skipped (by reason) or malformed (by reason)."""
+
+    read: int = 0
+    decoded: int = 0
+    skipped: Counter = field(default_factory=Counter)
+    malformed: Counter = field(default_factory=Counter)
+
+    def balanced(self) -> bool:
+        return self.read == self.decoded + sum(self.skipped.values()) + sum(self.malformed.values())
+
+    def line(self) -> str:
+        skipped = sum(self.skipped.values())
+        parts = [f"{self.read} frames read", f"{self.decoded} PNIO RPC decoded", f"{skipped} skipped"]
+        if self.skipped:
+            parts[-1] += " (" + ", ".join(f"{n} {why}" for why, n in self.skipped.most_common()) + ")"
+        if self.malformed:
+            parts.append(f"{sum(self.malformed.values())} malformed (" + ", ".join(
+                f"{n} {why}" for why, n in self.malformed.most_common()) + ")")
+        return ", ".join(parts)
+
+
+class Dissector:
+    """State for one capture: IP and CL reassembly, open calls, the ordered output."""
+
+    def __init__(self, annotate: bool = False, rpc_timeout: float = DEFAULT_RPC_TIMEOUT,
+                 checker: Checker | None = None) -> None:
+        self.annotate = annotate
+        self.rpc_timeout = rpc_timeout
+        self.checker = checker or Checker(profiles.generic())
+        self.records_not_profidrive = 0
+        # the last parameter request per channel and its frame, to label the blocks of responses
+        self._pd_requests: dict[tuple, tuple[profidrive.Parsed, int]] = {}
+        self._pd_bytes = 0
+        self.link = link.LinkDecoder()
+        self.frags = rpc.FragmentTable()
+        self.calls = rpc.CallTable()
+        self.accounting = Accounting()
+        self.loose_findings: list[Finding] = []  # findings on frames that are not PNIO RPC
+        self.loose_dropped = 0  # beyond MAX_LOOSE_FINDINGS
+        self._activities: dict[bytes, None] = {}
+        self._held: deque[FrameResult] = deque()
+        self._held_index: dict[int, FrameResult] = {}  # the held results by frame
+        self._held_fields = 0
+        self._waiting: dict[int, FrameResult] = {}
+        self._frag_frames: dict[tuple, list[int]] = {}
+        self._now = float("-inf")
+        self._fragment_times: dict[int, float] = {}  # IP fragments awaiting their datagram, by frame
+
+    # --- the frame loop -------------------------------------------------------------------
+    def feed(self, frame: capture.RawFrame) -> list[FrameResult]:
+        self.accounting.read += 1
+        number, ts, linktype, data = frame.number, frame.ts, frame.linktype, frame.data
+        out: list[FrameResult] = []
+        if ts > self._now:
+            self._now = ts
+            self._expire(out)  # deadlines passed before this frame arrived, whatever frame it is
+        dgram = self.link.datagram(number, linktype, data)
+        if self.link.findings:
+            self.loose_findings += self.link.findings
+            self.link.findings = []
+        if dgram is link.SKIP_FRAGMENT:
+            self._fragment_times[number] = ts  # for timing the reassembled PDU from its first piece
+            if len(self._fragment_times) > MAX_KNOWN_ACTIVITIES:
+                del self._fragment_times[next(iter(self._fragment_times))]
+        if isinstance(dgram, str):
+            (self.accounting.malformed if dgram in link.MALFORMED else self.accounting.skipped)[dgram] += 1
+        else:
+            result = self._udp(number, ts, linktype, data, dgram)
+            if result is not None:
+                out.append(result)
+        if len(self.loose_findings) > MAX_LOOSE_FINDINGS:
+            self.loose_dropped += len(self.loose_findings) - MAX_LOOSE_FINDINGS
+            del self.loose_findings[MAX_LOOSE_FINDINGS:]
+        return self._release(out) if self.annotate else out
+
+    def open_frames(self) -> Iterator[int]:
+        """Frames whose outcome is still open: unanswered calls, unfinished IP or CL reassemblies."""
+        yield from self.calls.open_frames()
+        yield from self.frags.open_frames()
+        yield from self.link.open_frames()
+
+    def finish(self) -> list[FrameResult]:
+        """End of capture: unfinished fragments, unanswered calls, everything still held."""
+        last = self.accounting.read
+        ends = self.link.finish()
+        self.loose_findings += ends
+        out: list[FrameResult] = []
+        for f in self.frags.finish(last):
+            self._attach(f, out)
+        for key, call in list(self.calls.open.items()):
+            del self.calls.open[key]
+            self._unanswered(call, key, out, "end of capture")
+        self.loose_findings += self.calls.finish()
+        for number in list(self._waiting):
+            self._waiting.pop(number, None)
+        released = self._release(out)
+        released += list(self._held)
+        self._held.clear()
+        return released
+
+    # --- UDP payload to PNIO RPC ------------------------------------------------------------
+    def _udp(self, number: int, ts: float, linktype: int, data: bytes,
+             dgram: link.Datagram) -> FrameResult | None:
+        payload = dgram.payload
+        if not rpc.plausible(payload):
+            self._skip_udp(number, dgram, rpc.SKIP_NOT_RPC)
+            return None
+        hdr = rpc.header(payload)
+        if not self._is_pnio(hdr):
+            self._skip_udp(number, dgram, rpc.SKIP_NOT_PNIO)
+            return None
+        if hdr.activity not in self._activities:
+            self._remember(hdr.activity)
+        res = FrameResult(number, ts, dgram.src, dgram.dst, "", hdr.ptype)
+        base = dgram.payload_offset if dgram.payload_offset >= 0 else 0
+        if self.annotate:
+            res.layers += [Layer(title, 0, fields) for title, fields in link.annotate(linktype, data, dgram)]
+            layout = rpc.HEADER_LE if hdr.little else rpc.HEADER_BE
+            res.layers.append(Layer(layout.title, 0, layout.annotate(payload, 0, hdr.values, base)))
+        present = len(payload) - rpc.HEADER_SIZE
+        body = payload[rpc.HEADER_SIZE:rpc.HEADER_SIZE + hdr.frag_len]
+        record_service = hdr.opnum in RECORD_SERVICES
+        res.findings += checks.rpc_header(hdr, number, present, record_service)
+        if present < hdr.frag_len:
+            res.findings.append(finding("rpc_truncated", number, "rpc.frag_len", hdr.frag_len,
+                                        f"<= {present}", f"fragment body cut: {present} of "
+                                                         f"{hdr.frag_len} bytes present"))
+            if dgram.truncated:
+                res.findings.append(finding("truncated_capture_pnio", number, "frame.caplen", len(data),
+                                            "the whole IP datagram", "capture cut inside a PNIO RPC PDU "
+                                                                     "(snaplen)"))
+            self.accounting.malformed[MALFORMED_RPC] += 1
+            if hdr.ptype in (PTYPE_REQUEST, PTYPE_RESPONSE) and not hdr.flags1 & FLAG1_FRAG:
+                # decode what is present, so the transaction it belongs to is known (and malformed)
+                self._data_pdu(res, hdr, dgram, body, base + rpc.HEADER_SIZE)
+                res.summary += " [truncated]"
+            else:
+                res.summary = f"{_pdu_name(hdr)} [truncated]"
+            if res.pdu is None:
+                res.pdu = self._bare_pdu(number, ts, dgram, hdr)
+            res.pdu.malformed = True
+            return res
+        self.accounting.decoded += 1
+        if hdr.ptype in (PTYPE_REQUEST, PTYPE_RESPONSE):
+            self._data_pdu(res, hdr, dgram, body, base + rpc.HEADER_SIZE)
+        elif hdr.ptype in (PTYPE_FAULT, PTYPE_REJECT):
+            self._fault(res, hdr, dgram, body, base + rpc.HEADER_SIZE)
+        else:
+            self._control(res, hdr, dgram)
+        return res
+
+    def _skip_udp(self, number: int, dgram: link.Datagram, reason: str) -> None:
+        self.accounting.skipped[reason] += 1
+        if dgram.truncated:
+            self.loose_findings.append(finding("truncated_capture", number, "frame.caplen", "", "",
+                                               "frame captured shorter than its IP total length"))
+
+    def _is_pnio(self, hdr: rpc.Header) -> bool:
+        if rpc.is_pnio_uuid(hdr.interface):
+            return True
+        if hdr.ptype in (PTYPE_RESPONSE, PTYPE_FAULT, PTYPE_REJECT, PTYPE_WORKING, PTYPE_NOCALL):
+            key = (hdr.activity, hdr.seq)
+            return key in self.calls.open or key in self.calls.closed
+        return hdr.ptype != PTYPE_REQUEST and hdr.activity in self._activities
+
+    def _remember(self, activity: bytes) -> None:
+        if activity not in self._activities:
+            self._activities[activity] = None
+            if len(self._activities) > MAX_KNOWN_ACTIVITIES:
+                del self._activities[next(iter(self._activities))]
+
+    def _bare_pdu(self, number: int, ts: float, dgram: link.Datagram, hdr: rpc.Header,
+                  malformed: bool = False) -> Pdu:
+        return Pdu(number, ts, dgram.src, dgram.dst, dgram.sport, dgram.dport, hdr.ptype, hdr.opnum,
+                   hdr.activity, hdr.seq, malformed=malformed)
+
+    # --- requests and responses -------------------------------------------------------------
+    def _data_pdu(self, res: FrameResult, hdr: rpc.Header, dgram: link.Datagram, body: bytes,
+                  body_base: int) -> None:
+        number = res.frame
+        key = (hdr.activity, hdr.seq)
+        response = hdr.ptype == PTYPE_RESPONSE
+        stub_base = body_base
+        frames: tuple[int, ...] = ()
+        whole_ts = None
+        if hdr.flags1 & FLAG1_FRAG:
+            fkey = (hdr.activity, hdr.seq, hdr.ptype, dgram.src, dgram.dst)
+            if self.frags.seen(fkey, hdr.frag_num, body):
+                call = self.calls.open.get(key)
+                if call is not None and not response:
+                    call.copies += 1
+                res.findings.append(finding("rpc_retransmission", number, "rpc.frag_num", hdr.frag_num,
+                                            "a new fragment", "fragment retransmitted (identical copy)"))
+                res.summary = f"{_pdu_name(hdr)}, fragment {hdr.frag_num} [retransmission]"
+                done = self.frags.reassembled_in(fkey)
+                if self.annotate and done:
+                    res.layers.append(Layer("Fragment", 0, [derived("rpc.reassembled_in", done)]))
+                return
+            whole = self.frags.add(fkey, number, res.ts, hdr, body, res.findings)
+            if self.annotate:
+                self._link_later(fkey, number)
+            if whole is None:
+                res.summary = f"{_pdu_name(hdr)}, fragment {hdr.frag_num} ({len(body)} bytes)"
+                if self.annotate:
+                    self._wait(res)
+                return
+            body, frames, stub_base, whole_ts = whole.body, whole.frames, 0, whole.first_ts
+            if self.annotate:
+                for other in self._frag_frames.pop(fkey, []):
+                    self._link_reassembled(other, number)
+                res.layers.append(Layer(f"Reassembled body: {len(body)} bytes from {len(frames)} fragments",
+                                        0, [derived("rpc.fragments", frames)]))
+        pdu = self._bare_pdu(number, res.ts, dgram, hdr)
+        res.pdu = pdu
+        if frames or dgram.fragments:
+            self._first_frame(pdu, dgram, frames, whole_ts if frames else None)
+        if response:
+            self._response(res, hdr, dgram, key, body, pdu)
+        else:
+            self._request(res, hdr, dgram, key, body, pdu)
+        if hdr.values[rpc.I_AUTH]:
+            res.summary = f"{_pdu_name(hdr)} [authenticated, body not decoded]"
+            return
+        # a response is decoded as an answer to its request's operation (R4 reports a differing opnum)
+        opnum = pdu.request.opnum if response and pdu.request is not None else hdr.opnum
+        pdu.opnum = opnum
+        stub = rec.parse_stub(body, hdr.little, response, opnum, number, res.findings)
+        pdu.stub = stub
+        pdu.malformed = stub.truncated
+        request_stub = pdu.request.info if pdu.request is not None and isinstance(pdu.request.info, rec.Stub) else None
+        if not response and not pdu.retransmission and pdu.request is not None:
+            pdu.request.info = stub
+        declared = len(body) if frames else hdr.frag_len  # a cut PDU keeps its declared length
+        res.findings += checks.ndr(stub, declared, opnum, number, request_stub)
+        res.findings += checks.blocks(stub, opnum, number, request_stub, self.checker.tolerate)
+        self._records(res, stub, hdr, dgram)
+        if not response and not pdu.retransmission and pdu.request is not None:
+            self.calls.charge(key, pdu.request, _decoded_cost(stub), res.findings)  # info keeps the stub
+        if self.annotate:
+            res.summary = self._summary(hdr, stub, len(frames), opnum)
+            self._annotate_stub(res, stub, body, stub_base, opnum)
+
+    def _first_frame(self, pdu: Pdu, dgram: link.Datagram, cl_frames: tuple[int, ...],
+                     cl_first_ts: float | None) -> None:
+        """The frames a reassembled PDU came in, and the time of its first (IP or CL fragments)."""
+        pieces = set(cl_frames) | set(dgram.fragments)
+        pdu.fragments = tuple(sorted(pieces))
+        times = [self._fragment_times.pop(n) for n in dgram.fragments if n in self._fragment_times]
+        if cl_first_ts is not None:
+            times.append(cl_first_ts)
+        pdu.first_ts = min(times, default=pdu.ts)
+
+    def _request(self, res: FrameResult, hdr: rpc.Header, dgram: link.Datagram, key: tuple,
+                 body: bytes, pdu: Pdu) -> None:
+        call = rpc.Call(res.frame, res.ts, dgram.src, dgram.dst, hdr.interface, hdr.opnum, body)
+        known = self.calls.request(key, call, res.findings)
+        if known is not call:
+            pdu.retransmission = True
+        pdu.request = known
+        if hdr.opnum in RECORD_SERVICES and hdr.interface[3] != 1:
+            res.findings.append(finding("pnio_interface", res.frame, "rpc.interface", hdr.interface.hex(),
+                                        "PNIO Device interface", "Read/Write on a PNIO interface other "
+                                                                 "than Device"))
+        if self.annotate and known is call:
+            self._wait(res)
+
+    def _response(self, res: FrameResult, hdr: rpc.Header, dgram: link.Datagram, key: tuple,
+                  body: bytes, pdu: Pdu) -> None:
+        self.frags.drop_call(key, res.frame, res.findings)
+        call = self.calls.close(key)
+        if call is None:
+            dup = self.calls.closed.get(key)
+            if dup is not None:
+                res.findings.append(finding("rpc_retransmission", res.frame, "rpc.seq", hdr.seq,
+                                            "one response per call", f"duplicate response (call of "
+                                                                     f"frame {dup.frame} already answered)"))
+                pdu.retransmission = True
+                pdu.request = dup
+            else:
+                res.findings.append(finding("orphan_response", res.frame, "rpc.seq", hdr.seq,
+                                            "an open request", "response without an open request "
+                                                               "(decoded with its own opnum)"))
+            return
+        pdu.request = call
+        call.response_frame = res.frame
+        res.findings += checks.response_pairing(call, hdr, dgram.src, dgram.dst, res.frame)
+        if self.annotate:
+            res.layers.append(Layer("Call", 0, [derived("rpc.request_frame", call.frame),
+                                                derived("rpc.rtt", round(res.ts - call.ts, 9))]))
+            self._link_response(call.frame, res.frame)
+
+    def _fault(self, res: FrameResult, hdr: rpc.Header, dgram: link.Datagram, body: bytes,
+               body_base: int) -> None:
+        layout = rpc.FAULT_LE if hdr.little else rpc.FAULT_BE
+        key = (hdr.activity, hdr.seq)
+        pdu = self._bare_pdu(res.frame, res.ts, dgram, hdr)
+        res.pdu = pdu
+        status = layout.unpack(body)[0] if len(body) >= 4 else None
+        pdu.fault_status = status
+        call = self.calls.close(key)
+        pdu.request = call
+        name = RPC_PTYPE[hdr.ptype]
+        text = f"{status:#010x} {NCA_STATUS.get(status, '')}".strip() if status is not None else "no status"
+        res.summary = f"{name.capitalize()}: seq {hdr.seq}, {text}"
+        res.findings.append(finding("rpc_fault", res.frame, "rpc.fault_status", text, "a response",
+                                    f"call answered with {name} {text}"))
+        if call is not None:
+            self.frags.drop_call(key, res.frame, res.findings)
+            if self.annotate:
+                self._link_response(call.frame, res.frame)
+        if self.annotate:
+            fields = layout.annotate(body, 0, (status,), body_base) if status is not None else []
+            if call is not None:
+                fields += [derived("rpc.request_frame", call.frame), derived("rpc.rtt", round(res.ts - call.ts, 9))]
+            res.layers.append(Layer(f"{name.capitalize()} body", 0, fields))
+
+    def _control(self, res: FrameResult, hdr: rpc.Header, dgram: link.Datagram) -> None:
+        key = (hdr.activity, hdr.seq)
+        call = self.calls.open.get(key)
+        name = RPC_PTYPE[hdr.ptype]
+        res.summary = f"{name.capitalize()}: seq {hdr.seq}"
+        if hdr.ptype == PTYPE_WORKING and call is not None:
+            call.working += 1
+        elif hdr.ptype == PTYPE_PING and call is not None:
+            call.pings += 1
+        elif hdr.ptype == PTYPE_NOCALL:
+            res.findings.append(finding("rpc_nocall", res.frame, "rpc.seq", hdr.seq, "a known call",
+                                        "server answered nocall: it has no record of the call"))
+        elif hdr.ptype == PTYPE_CANCEL:
+            res.findings.append(finding("rpc_cancel", res.frame, "rpc.seq", hdr.seq, "", "client cancelled the call"))
+        if call is not None:
+            res.summary += f" (call of frame {call.frame})"
+        del dgram
+
+    # --- records ----------------------------------------------------------------------------
+    def _records(self, res: FrameResult, stub: rec.Stub, hdr: rpc.Header, dgram: link.Datagram) -> None:
+        """PROFIdrive records at 0xB02E/0xB02F/0x002F are decoded and checked; others only counted."""
+        response = hdr.ptype == PTYPE_RESPONSE
+        number = res.frame
+        for block in stub.blocks:
+            if block.index not in PROFIDRIVE_INDICES:
+                if block.layout in (rec.WRITE_REQ, rec.READ_RES) and block.index != INDEX_WRITE_MULTIPLE:
+                    self.records_not_profidrive += 1
+                continue
+            v = block.values
+            if not response:
+                res.findings += self.checker.iod(v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], block.index, number)
+            if block.layout not in (rec.WRITE_REQ, rec.READ_RES) or len(block.record) < block.record_len:
+                continue
+            if response and stub.status is not None and not stub.status.ok:
+                continue
+            if block.index == INDEX_PD_DPV1 and not profidrive.plausible(block.record, response):
+                res.findings.append(finding("not_profidrive", number, "iod.index", "0x002f",
+                                            "a plausible PROFIdrive header", "record at index 0x002F is not a "
+                                                                             "PROFIdrive parameter block"))
+                self.records_not_profidrive += 1
+                continue
+            key = _channel(dgram, v, block.target_ar, response)
+            if response:
+                request, request_frame = self._pd_requests.get(key, (None, 0))
+                parsed = profidrive.parse_response(block.record, number, res.findings)
+                res.findings += self.checker.response(parsed, number, request)
+                block.pd = (parsed, request)
+                if self.annotate and request_frame:
+                    res.layers.append(Layer("Parameter access", 0, [derived("pd.request_frame", request_frame)]))
+            else:
+                parsed = profidrive.parse_request(block.record, number, res.findings)
+                res.findings += self.checker.request(parsed, number)
+                block.pd = (parsed, None)
+                self._remember_request(key, parsed, number)
+
+    def _remember_request(self, key: tuple, parsed: profidrive.Parsed, number: int) -> None:
+        """The channel's last parameter request, within MAX_CHANNELS and MAX_CHANNEL_BYTES (oldest go)."""
+        old = self._pd_requests.pop(key, None)
+        self._pd_bytes += profidrive.footprint(parsed) - (profidrive.footprint(old[0]) if old else 0)
+        self._pd_requests[key] = (parsed, number)
+        while len(self._pd_requests) > 1 and (len(self._pd_requests) > MAX_CHANNELS
+                                              or self._pd_bytes > MAX_CHANNEL_BYTES):
+            self._pd_bytes -= profidrive.footprint(self._pd_requests.pop(next(iter(self._pd_requests)))[0])
+
+    def _summary(self, hdr: rpc.Header, stub: rec.Stub, fragments: int, opnum: int) -> str:
+        op = PNIO_OPNUM.get(opnum, f"opnum {opnum}")
+        kind = "response" if hdr.ptype == PTYPE_RESPONSE else "request"
+        parts = [f"{op} {kind}", f"seq {hdr.seq}"]
+        if stub.status is not None and not stub.status.ok:
+            status = stub.status.text()
+            parts.append(f"PNIOStatus {status}" + (" (state conflict: not ready)"
+                                                   if stub.status.code1 == PNIORW_STATE_CONFLICT else ""))
+        for block in stub.blocks[:4]:
+            text = f"{block.layout.title.split(' ')[0]} api {block.values[rec.B_API]:#x} slot " \
+                   f"{block.values[rec.B_SLOT]}/{block.values[rec.B_SUBSLOT]:#x} index {block.index:#06x}"
+            if block.layout in (rec.WRITE_REQ, rec.READ_RES):
+                text += f" {block.record_len} bytes"
+            parts.append(text)
+        if len(stub.blocks) > 4:
+            parts.append(f"... {len(stub.blocks) - 4} more blocks")
+        if fragments:
+            parts.append(f"reassembled from {fragments} fragments")
+        return ", ".join(parts)
+
+    def _annotate_stub(self, res: FrameResult, stub: rec.Stub, body: bytes, base: int, opnum: int) -> None:
+        if not stub.ndr:
+            title = "NDR stub (truncated)" if opnum in PNIO_OPNUM else \
+                f"Stub of opnum {opnum} (not a PNIO operation: not decoded)"
+            res.layers.append(Layer(title, 0, [plain("rpc.body", 0, body, len(body), body, base)]))
+            return
+        layout = stub.ndr_layout
+        res.layers.append(Layer(layout.title, 0, layout.annotate(body, 0, stub.ndr, base)))
+        if opnum not in RECORD_SERVICES:
+            rest = body[rec.NDR_SIZE:]
+            if rest:
+                res.layers.append(Layer(f"{PNIO_OPNUM.get(opnum, 'PNIO')} blocks (not decoded)", 0,
+                                        [plain("ndr.blocks", rec.NDR_SIZE, body, len(rest), rest, base)]))
+            return
+        response = res.ptype == PTYPE_RESPONSE
+        pads = dict(rec.multi_pads(stub))
+        for block in stub.blocks:
+            depth = 1 + block.depth
+            res.layers.append(Layer(f"{block.layout.title}, index {block.index:#06x}", depth,
+                                    block.layout.annotate(body, block.offset, block.values, base)))
+            if block.layout in (rec.WRITE_REQ, rec.READ_RES) and block.index != INDEX_WRITE_MULTIPLE:
+                res.layers += self._record_layers(block, response, base, depth + 1)
+            end = block.record_offset + len(block.record)
+            if end in pads:
+                pad = body[end:end + pads[end]]
+                res.layers.append(Layer("Write-Multiple padding", depth,
+                                        [plain("iod.multi_pad", end, body, pads[end], pad, base)]))
+        if stub.trailing:
+            start = len(body) - stub.trailing
+            res.layers.append(Layer("Trailing bytes", 1, [plain("record.trailing", start, body, stub.trailing,
+                                                                body[start:], base)]))
+
+    def _record_layers(self, block: rec.Block, response: bool, base: int, depth: int) -> list[Layer]:
+        data = block.record
+        if isinstance(block.pd, tuple):
+            parsed, request = block.pd
+            at = base + block.record_offset
+            return [Layer(title, depth, fields) for title, fields in
+                    profidrive.annotate(parsed, data, at, self.checker.describe, request)]
+        what = "PROFIdrive, not decoded" if block.index in PROFIDRIVE_INDICES else "not PROFIdrive"
+        return [Layer(f"Record data, index {block.index:#06x} ({len(data)} bytes, {what})", depth,
+                      [_raw_record(block, base)])]
+
+    # --- held output (annotate mode) --------------------------------------------------------
+    def _wait(self, res: FrameResult) -> None:
+        self._waiting[res.frame] = res
+
+    def _link_response(self, request_frame: int, response_frame: int) -> None:
+        held = self._waiting.pop(request_frame, None)
+        if held is not None:
+            held.layers.append(Layer("Call", 0, [derived("rpc.response_frame", response_frame)]))
+
+    def _link_reassembled(self, fragment_frame: int, completing: int) -> None:
+        held = self._waiting.pop(fragment_frame, None)
+        if held is not None and fragment_frame != completing:
+            held.layers.append(Layer("Fragment", 0, [derived("rpc.reassembled_in", completing)]))
+
+    def _attach(self, f: Finding, out: list[FrameResult]) -> None:
+        """A finding discovered later for an earlier frame: on its held result, else loose."""
+        held = self._waiting.pop(f.frame, None) or self._held_index.get(f.frame)
+        (held.findings if held is not None else self.loose_findings).append(f)
+
+    def _unanswered(self, call: rpc.Call, key: tuple, out: list[FrameResult], why: str) -> None:
+        self._attach(finding("rpc_unanswered", call.frame, "rpc.seq", key[1],
+                             f"a response within {self.rpc_timeout:g} s",
+                             f"request not answered ({why})"), out)
+
+    def _expire(self, out: list[FrameResult]) -> None:
+        for key, call in self.calls.expire(self._now, self.rpc_timeout):
+            self._unanswered(call, key, out, f"no response within {self.rpc_timeout:g} s")
+
+    def _release(self, new: list[FrameResult]) -> list[FrameResult]:
+        if not self.annotate:
+            return new
+        for res in new:
+            self._held.append(res)
+            self._held_index[res.frame] = res
+            self._held_fields += sum(len(layer.fields) for layer in res.layers)
+        ready = []
+        while self._held:
+            head = self._held[0]
+            blocked = head.frame in self._waiting
+            if blocked and (len(self._held) > MAX_HELD_FRAMES or self._held_fields > MAX_HELD_FIELDS
+                            or head.ts + self.rpc_timeout < self._now):
+                self._waiting.pop(head.frame, None)
+                blocked = False
+            if blocked:
+                break
+            ready.append(self._held.popleft())
+            self._held_index.pop(head.frame, None)
+            self._held_fields -= sum(len(layer.fields) for layer in head.layers)
+        return ready
+
+    def _link_later(self, fkey: tuple, number: int) -> None:
+        """Remember a held fragment's frame, to link it to the frame that reassembles its PDU."""
+        frames = self._frag_frames.setdefault(fkey, [])
+        if len(frames) < MAX_HELD_FRAMES:  # beyond that, the frames have left the hold anyway
+            frames.append(number)
+        if len(self._frag_frames) > rpc.MAX_FRAG_SETS:  # sets evicted or never completed
+            del self._frag_frames[next(iter(self._frag_frames))]
+
+
+def _decoded_cost(stub: rec.Stub) -> int:
+    """Bytes a request's decoded stub keeps alive in its open call: blocks, records, parsed PROFIdrive."""
+    cost = 256
+    for block in stub.blocks:
+        cost += 512 + len(block.record)
+        if isinstance(block.pd, tuple):
+            cost += profidrive.footprint(block.pd[0])
+    return cost
+
+
+def _channel(dgram: link.Datagram, v: tuple, target_ar: bytes, response: bool) -> tuple:
+    """Device, controller, AR (TargetAR for implicit reads), API, slot, subslot, index (protocol.md 7.2)."""
+    device, controller = (dgram.src, dgram.dst) if response else (dgram.dst, dgram.src)
+    ar = target_ar if v[rec.B_AR] == rec.NIL_UUID and target_ar else v[rec.B_AR]
+    return device, controller, ar, v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], v[rec.B_INDEX]
+
+
+def _raw_record(block: rec.Block, base: int) -> Field:
+    return Field("record.data", base + block.record_offset, len(block.record), bytes(block.record),
+                 bytes(block.record), f"{len(block.record)} bytes")
+
+
+def _pdu_name(hdr: rpc.Header) -> str:
+    op = PNIO_OPNUM.get(hdr.opnum, f"opnum {hdr.opnum}")
+    return f"{op} {RPC_PTYPE.get(hdr.ptype, str(hdr.ptype))}, seq {hdr.seq}"
+
+
+def dissect(path: str, annotate: bool = False, rpc_timeout: float = DEFAULT_RPC_TIMEOUT,
+            dissector: Dissector | None = None) -> Iterator[FrameResult]:
+    """Every PNIO RPC frame of a capture, in frame order. CaptureError after the good frames."""
+    return dissect_frames(capture.frames(path, ip_only=True), dissector or Dissector(annotate, rpc_timeout))
+
+
+def dissect_frames(frames: Iterable[capture.RawFrame], d: Dissector) -> Iterator[FrameResult]:
+    """The frame loop over any frame source (one file, or a chain of files numbered as one)."""
+    accounting, not_ip = d.accounting, d.accounting.skipped
+    try:
+        for frame in frames:
+            # Most of a PROFINET capture is cyclic PN-RT, LLDP, ARP...: an Ethernet frame that carries
+            # no IPv4 (tagged or not) is counted here without a call (or by the reader, as a run of
+            # them); the result is the same as feed's.
+            if frame.run:
+                accounting.read += frame.run
+                not_ip[link.SKIP_NOT_IPV4] += frame.run
+                continue
+            if frame.linktype == LINKTYPE_ETHERNET and frame.data[12:14] not in capture.IP_ETHERTYPES:
+                accounting.read += 1
+                not_ip[link.SKIP_NOT_IPV4] += 1
+                continue
+            yield from d.feed(frame)
+    except capture.CaptureError:
+        yield from d.finish()  # the frames before the damage are complete results
+        raise
+    yield from d.finish()

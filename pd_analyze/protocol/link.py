@@ -1,0 +1,314 @@
+"""Link layer to UDP payload: Ethernet II / 802.1Q tags / Linux SLL, SLL2 / raw IP -> IPv4 -> UDP.
+
+The fast path rejects everything that is not an IPv4/UDP datagram with a few byte comparisons
+before any object is built (cyclic PN-RT, ARP, LLDP, ... are most of a PROFINET capture). IPv4
+fragments are reassembled here, with caps on the table so a flood of unfinished fragments keeps
+memory bounded.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from socket import inet_ntoa
+from typing import NamedTuple
+
+from pd_analyze.model import rules
+from pd_analyze.model.layout import Field, Layout, plain
+from pd_analyze.model.rules import Finding
+from pd_analyze.model.values import (
+    LINKTYPE_ETHERNET,
+    LINKTYPE_IPV4,
+    LINKTYPE_RAW,
+    LINKTYPE_SLL,
+    LINKTYPE_SLL2,
+    VLAN_TPIDS,
+)
+
+ETH = Layout("Ethernet II", ">", (("eth.dst", "6s"), ("eth.src", "6s"), ("eth.type", "H")))
+VLAN = Layout("802.1Q tag", ">", (("vlan.id", "H"), ("vlan.etype", "H")))
+SLL = Layout("Linux cooked capture", ">", (("sll.pkttype", "H"), ("sll.hatype", "H"), ("sll.halen", "H"),
+                                           ("sll.addr", "8s"), ("sll.protocol", "H")))
+SLL2 = Layout("Linux cooked capture v2", ">", (("sll.protocol", "H"), ("sll.reserved", "H"),
+                                               ("sll.ifindex", "I"), ("sll.hatype", "H"),
+                                               ("sll.pkttype", "B"), ("sll.halen", "B"),
+                                               ("sll.addr", "8s")))
+IPV4 = Layout("Internet Protocol Version 4", ">", (
+    ("ip.version", "B"), ("ip.tos", "B"), ("ip.len", "H"), ("ip.id", "H"), ("ip.flags", "H"),
+    ("ip.ttl", "B"), ("ip.proto", "B"), ("ip.checksum", "H"), ("ip.src", "4s"), ("ip.dst", "4s")))
+UDP = Layout("User Datagram Protocol", ">", (("udp.sport", "H"), ("udp.dport", "H"), ("udp.len", "H"),
+                                             ("udp.checksum", "H")))
+_ip_unpack = IPV4.struct.unpack_from
+_udp_unpack = UDP.struct.unpack_from
+
+# Skip reasons, counted per capture.
+SKIP_LINKTYPE = "link type not Ethernet/SLL/raw IP"
+SKIP_NOT_IPV4 = "not IPv4"
+SKIP_NOT_UDP = "not UDP"
+SKIP_SHORT = "frame too short for its headers"
+SKIP_FRAGMENT = "IP fragment (reassembly pending)"
+SKIP_MALFORMED = "malformed IPv4/UDP header"
+MALFORMED = frozenset({SKIP_MALFORMED})  # reasons counted as malformed frames, not skipped ones
+MAX_IP_DATAGRAMS = 1024  # open reassemblies
+MAX_IP_BYTES = 16 * 1024 * 1024  # bytes held by open reassemblies, each piece with PIECE_OVERHEAD
+MAX_IP_PIECES = 256  # pieces of one datagram (45 carry the largest datagram at MTU 1500)
+PIECE_OVERHEAD = 128  # bytes a held piece costs beyond its payload (objects), so tiny pieces count too
+MAX_EVICTION_FINDINGS = 100  # evictions listed one by one; the rest are counted in one finding at the end
+
+
+class Datagram(NamedTuple):
+    src: bytes
+    dst: bytes
+    sport: int
+    dport: int
+    payload: bytes
+    payload_offset: int  # offset of the UDP payload in the frame; -1 when reassembled from fragments
+    ip_offset: int
+    truncated: bool  # captured shorter than the IP total length
+    fragments: tuple[int, ...]  # frames of the IP fragments, when reassembled
+
+
+def ip_text(addr: bytes) -> str:
+    return inet_ntoa(addr)
+
+
+def l3_offset(linktype: int, data: bytes) -> int:
+    """Offset of an IPv4 header in the frame, or -1 when the frame carries none."""
+    if linktype == LINKTYPE_ETHERNET:
+        etype = data[12:14]
+        off = 14
+        while etype in (b"\x81\x00", b"\x88\xa8", b"\x91\x00"):
+            etype = data[off + 2:off + 4]
+            off += 4
+        return off if etype == b"\x08\x00" else -1
+    if linktype == LINKTYPE_SLL:
+        return 16 if data[14:16] == b"\x08\x00" else -1
+    if linktype == LINKTYPE_SLL2:
+        return 20 if data[0:2] == b"\x08\x00" else -1
+    if linktype in (LINKTYPE_RAW, LINKTYPE_IPV4):
+        return 0 if data[:1] and data[0] >> 4 == 4 else -1
+    return -1
+
+
+@dataclass(slots=True)
+class _Reassembly:
+    first_frame: int
+    pieces: list[tuple[int, bytes]] = field(default_factory=list)
+    frames: list[int] = field(default_factory=list)
+    total: int = -1  # length known once the MF-clear piece is in
+    size: int = 0
+    header: bytes = b""  # IP header of the offset-0 piece
+
+
+class LinkDecoder:
+    """Frame bytes to UDP datagrams, with IPv4 reassembly state for one capture."""
+
+    def __init__(self) -> None:
+        self._open: dict[tuple[bytes, bytes, int, int], _Reassembly] = {}
+        self._bytes = 0
+        self.evicted = 0  # datagrams dropped by the caps
+        self._last_eviction = 0  # frame of the last one
+        self.findings: list[Finding] = []  # drained by the caller after every frame
+
+    def datagram(self, number: int, linktype: int, data: bytes) -> Datagram | str:
+        """The frame's UDP datagram, or the reason it has none (a skip reason)."""
+        if linktype == LINKTYPE_ETHERNET and data[12:14] not in (b"\x08\x00", b"\x81\x00",
+                                                                 b"\x88\xa8", b"\x91\x00"):
+            return SKIP_NOT_IPV4
+        off = l3_offset(linktype, data)
+        if off < 0:
+            if linktype not in (LINKTYPE_ETHERNET, LINKTYPE_SLL, LINKTYPE_SLL2, LINKTYPE_RAW,
+                                LINKTYPE_IPV4):
+                return SKIP_LINKTYPE
+            return SKIP_NOT_IPV4
+        if len(data) < off + 20:
+            return SKIP_SHORT
+        ver_ihl, _tos, total, ident, flags_frag, _ttl, proto, _ck, src, dst = _ip_unpack(data, off)
+        if proto != 17:
+            return SKIP_NOT_UDP
+        ihl = (ver_ihl & 0x0F) * 4
+        if ver_ihl >> 4 != 4 or ihl < 20 or total < ihl:
+            self.findings.append(rules.finding(
+                "link_malformed", number, "ip.len", total, f">= {ihl}",
+                f"IPv4 header invalid (version {ver_ihl >> 4}, IHL {ihl}, total length {total})"))
+            return SKIP_MALFORMED
+        end = off + total
+        truncated = len(data) < end
+        ip_payload = data[off + ihl:end]
+        if flags_frag & 0x3FFF:  # MF set or offset != 0
+            whole = self._add_fragment(number, src, dst, ident, flags_frag, data[off:off + ihl],
+                                       ip_payload, truncated)
+            if whole is None:
+                return SKIP_FRAGMENT
+            ip_payload, frames = whole
+            return self._udp(number, src, dst, ip_payload, -1, off, False, frames)
+        return self._udp(number, src, dst, ip_payload, off + ihl, off, truncated, ())
+
+    def _udp(self, number: int, src: bytes, dst: bytes, payload: bytes, udp_off: int, ip_off: int,
+             truncated: bool, frames: tuple[int, ...]) -> Datagram | str:
+        if len(payload) < 8:
+            if truncated:
+                self.findings.append(_truncated(number, len(payload), 8))
+            return SKIP_SHORT
+        sport, dport, ulen, _ck = _udp_unpack(payload, 0)
+        if ulen < 8 or (ulen > len(payload) and not truncated):
+            self.findings.append(rules.finding(
+                "link_malformed", number, "udp.len", ulen, f"8 ... {len(payload)}",
+                f"UDP length {ulen} does not fit the IP payload of {len(payload)} bytes"))
+            return SKIP_MALFORMED
+        body = payload[8:ulen]
+        return Datagram(src, dst, sport, dport, body, udp_off + 8 if udp_off >= 0 else -1, ip_off,
+                        truncated, frames)
+
+    def _add_fragment(self, number: int, src: bytes, dst: bytes, ident: int, flags_frag: int,
+                      header: bytes, piece: bytes, truncated: bool) -> tuple[bytes, tuple[int, ...]] | None:
+        key = (src, dst, 17, ident)
+        cost = len(piece) + PIECE_OVERHEAD
+        entry = self._open.get(key)
+        if entry is not None and len(entry.pieces) >= MAX_IP_PIECES:
+            self._evict(key, number, f"more than {MAX_IP_PIECES} fragments")
+            entry = None
+        self._evict_for(cost, number, key)
+        if entry is None:
+            entry = self._open[key] = _Reassembly(number)
+        offset = (flags_frag & 0x1FFF) * 8
+        for other_off, other in entry.pieces:
+            if other_off == offset and other == piece:
+                return None  # an identical copy: a retransmitted fragment, nothing new to hold
+            lo, hi = max(offset, other_off), min(offset + len(piece), other_off + len(other))
+            if lo < hi and piece[lo - offset:hi - offset] != other[lo - other_off:hi - other_off]:
+                self.findings.append(rules.finding(
+                    "ip_frag_overlap", number, "ip.frag_offset", offset // 8, "no overlap",
+                    f"IP fragment at byte offset {offset} overlaps earlier bytes with different content "
+                    f"(first kept; datagram id {ident:#06x})"))
+                break
+        entry.pieces.append((offset, piece))
+        entry.frames.append(number)
+        entry.size += cost
+        self._bytes += cost
+        if offset == 0:
+            entry.header = header
+        if not flags_frag & 0x2000 and not truncated:
+            entry.total = offset + len(piece)
+        if entry.total < 0 or not _covered(entry.pieces, entry.total):
+            return None
+        del self._open[key]
+        self._bytes -= entry.size
+        whole = bytearray(entry.total)
+        for off, data in reversed(entry.pieces):  # earlier pieces written last: first one wins
+            whole[off:off + len(data)] = data[:max(0, entry.total - off)]
+        return bytes(whole), tuple(entry.frames)
+
+    def _evict_for(self, incoming: int, number: int, keep: tuple) -> None:
+        """Drop the oldest datagrams (never `keep`, the one growing) until a piece of `incoming` bytes fits."""
+        limit = MAX_IP_DATAGRAMS if keep in self._open else MAX_IP_DATAGRAMS - 1
+        while self._bytes + incoming > MAX_IP_BYTES or len(self._open) > limit:
+            victim = next((k for k in self._open if k != keep), None)
+            if victim is None:
+                return
+            self._evict(victim, number, "IP reassembly table full")
+
+    def _evict(self, key: tuple, number: int, why: str) -> None:
+        entry = self._open.pop(key)
+        self._bytes -= entry.size
+        self.evicted += 1
+        self._last_eviction = number
+        if self.evicted <= MAX_EVICTION_FINDINGS:
+            self.findings.append(rules.finding(
+                "ip_frag_evicted", number, "ip.id", f"{key[3]:#06x}",
+                f"<= {MAX_IP_DATAGRAMS} open datagrams, {MAX_IP_BYTES} bytes, {MAX_IP_PIECES} pieces each",
+                f"{why}: datagram from frame {entry.first_frame} dropped ({len(entry.frames)} fragments)"))
+
+    def open_frames(self) -> Iterator[int]:
+        """First frame of every incomplete datagram."""
+        return (entry.first_frame for entry in self._open.values())
+
+    def finish(self) -> list[Finding]:
+        """Findings for datagrams still incomplete at the end of the capture."""
+        if self.evicted > MAX_EVICTION_FINDINGS:
+            more = self.evicted - MAX_EVICTION_FINDINGS
+            self.findings.append(rules.finding(
+                "ip_frag_evicted", self._last_eviction, "ip.id", self.evicted, f"<= {MAX_IP_DATAGRAMS} open datagrams",
+                f"{more} more datagrams dropped by the reassembly caps ({self.evicted} in all; only the "
+                f"first {MAX_EVICTION_FINDINGS} are listed one by one)"))
+        out = self.findings + [rules.finding("ip_frag_incomplete", e.first_frame, "ip.id", f"{key[3]:#06x}",
+                             "all fragments", f"IP datagram {ip_text(key[0])} -> {ip_text(key[1])} "
+                             f"id {key[3]:#06x} incomplete at end of capture (frames "
+                             f"{', '.join(map(str, e.frames))})")
+               for key, e in self._open.items()]
+        self.findings = []
+        self._open.clear()
+        self._bytes = 0
+        return out
+
+
+def _covered(pieces: list[tuple[int, bytes]], total: int) -> bool:
+    reach = 0
+    for off, data in sorted(pieces):
+        if off > reach:
+            return False
+        reach = max(reach, off + len(data))
+    return reach >= total
+
+
+def _truncated(number: int, present: int, needed: int) -> Finding:
+    return rules.finding("truncated_capture", number, "frame.caplen", present, f">= {needed}",
+                         "frame captured shorter than its headers (snaplen)")
+
+
+def annotate(linktype: int, data: bytes, dgram: Datagram) -> list[tuple[str, list[Field]]]:
+    """The link, IPv4 and UDP layers of a frame as (title, fields) for the dump."""
+    layers: list[tuple[str, list[Field]]] = []
+    off = 0
+    if linktype == LINKTYPE_ETHERNET:
+        layers.append((ETH.title, ETH.annotate(data, 0, ETH.unpack(data))))
+        etype = int.from_bytes(data[12:14], "big")
+        off = 14
+        while etype in VLAN_TPIDS:
+            tci, etype = VLAN.unpack(data, off)
+            fields = [plain("vlan.pcp", off, data, 2, tci >> 13), plain("vlan.dei", off, data, 2, (tci >> 12) & 1),
+                      plain("vlan.id", off, data, 2, tci & 0x0FFF), plain("vlan.etype", off + 2, data, 2, etype)]
+            layers.append((VLAN.title, fields))
+            off += 4
+    elif linktype == LINKTYPE_SLL:
+        layers.append((SLL.title, SLL.annotate(data, 0, SLL.unpack(data))))
+        off = 16
+    elif linktype == LINKTYPE_SLL2:
+        layers.append((SLL2.title, SLL2.annotate(data, 0, SLL2.unpack(data))))
+        off = 20
+    values = IPV4.unpack(data, off)
+    ip = IPV4.annotate(data, off, values)
+    ver_ihl, flags_frag = values[0], values[4]
+    ip[0:1] = [plain("ip.version", off, data, 1, ver_ihl >> 4), plain("ip.ihl", off, data, 1, ver_ihl & 0x0F)]
+    ip.insert(6, plain("ip.mf", off + 6, data, 2, (flags_frag >> 13) & 1))
+    # The wire value, in 8-byte units as tshark's ip.frag_offset (protocol.md 1.3, 8.2); bytes in the text.
+    frag = plain("ip.frag_offset", off + 6, data, 2, flags_frag & 0x1FFF)
+    frag.show = f"{frag.value} ({(flags_frag & 0x1FFF) * 8} bytes)"
+    ip.insert(7, frag)
+    if (ver_ihl & 0x0F) > 5:
+        ip.append(plain("ip.options", off + 20, data, (ver_ihl & 0x0F) * 4 - 20,
+                        bytes(data[off + 20:off + (ver_ihl & 0x0F) * 4])))
+    if dgram.fragments:
+        ip.append(Field("ip.reassembled_from", -1, 0, b"", dgram.fragments,
+                        ", ".join(map(str, dgram.fragments))))
+    layers.append((IPV4.title, ip))
+    if dgram.payload_offset >= 0:
+        udp_off = dgram.payload_offset - 8
+        layers.append((UDP.title, UDP.annotate(data, udp_off, UDP.unpack(data, udp_off))))
+    else:
+        head = dgram.sport.to_bytes(2, "big") + dgram.dport.to_bytes(2, "big")
+        layers.append((UDP.title + " (reassembled)", [plain("udp.sport", 0, head, 2, dgram.sport),
+                                                      plain("udp.dport", 2, head, 2, dgram.dport)]))
+    return layers
+
+
+def vlan_ids(linktype: int, data: bytes) -> tuple[int, ...]:
+    """VLAN IDs of all tags of an Ethernet frame, outer first."""
+    if linktype != LINKTYPE_ETHERNET:
+        return ()
+    ids = []
+    off = 12
+    while data[off:off + 2] in (b"\x81\x00", b"\x88\xa8", b"\x91\x00") and len(data) >= off + 4:
+        ids.append(int.from_bytes(data[off + 2:off + 4], "big") & 0x0FFF)
+        off += 4
+    return tuple(ids)

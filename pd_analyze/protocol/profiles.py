@@ -1,0 +1,208 @@
+"""Vendor profiles: limits per field as data (TOML), each with the source it comes from.
+
+The packaged profiles live in pd_analyze/profiles/*.toml; a user adds one for another drive by
+writing a TOML file in the same form and passing its path (or putting it in a directory named by
+PD_ANALYZE_PROFILES). Profiles are data only: a file is parsed with tomllib, never executed.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+from pd_analyze.model.rules import RULES
+
+# Limit keys: the field each one constrains and where it applies.
+LIMIT_KEYS: Mapping[str, tuple[str, str]] = MappingProxyType({
+    "request.ref": ("pd.ref", "parameter request: Request Reference"),
+    "request.req_id": ("pd.req_id", "parameter request: Request ID"),
+    "request.do": ("pd.do", "parameter request: DO-ID"),
+    "request.n_params": ("pd.n_params", "parameter request: No. of parameters"),
+    "request.attribute": ("pd.addr[i].attr", "parameter address: Attribute"),
+    "request.n_elems": ("pd.addr[i].n_elems", "parameter address: No. of elements"),
+    "request.pnu": ("pd.addr[i].pnu", "parameter address: PNU"),
+    "request.subindex": ("pd.addr[i].subindex", "parameter address: Subindex"),
+    "request.format": ("pd.val[i].format", "change request: Format"),
+    "request.n_values": ("pd.val[i].n_values", "change request: No. of values"),
+    "response.ref": ("pd.ref", "parameter response: Request Reference"),
+    "response.resp_id": ("pd.resp_id", "parameter response: Response ID"),
+    "response.do": ("pd.do", "parameter response: DO-ID"),
+    "response.n_params": ("pd.n_params", "parameter response: No. of parameters"),
+    "response.format": ("pd.val[i].format", "parameter response: Format of each block"),
+    "response.n_values": ("pd.val[i].n_values", "parameter response: No. of values of value blocks"),
+    "response.length": ("iod.record_len", "parameter response: record length"),
+    "iod.api": ("iod.api", "PROFIdrive record request: API"),
+    "iod.slot": ("iod.slot", "PROFIdrive record request: SlotNumber"),
+    "iod.subslot": ("iod.subslot", "PROFIdrive record request: SubslotNumber"),
+    "iod.index": ("iod.index", "PROFIdrive record request: Index"),
+})
+TOLERATIONS = MappingProxyType({
+    "format_00_zero": "Format 0x00 accepted as Zero 'no data' (003_8e0163ef8c5e11f4.txt)",
+    "trailing_00_00": "positive change response followed by 00 00 is only noted (003_8e0163ef8c5e11f4.txt)",
+    "api_dap": "API 0x0000 on 0xB02E is only noted (000_8871e7857f299724.txt)",
+})
+DEFAULT = "generic"
+ENV_DIR = "PD_ANALYZE_PROFILES"
+
+
+class ProfileError(Exception):
+    """A profile cannot be found or is not a valid profile file."""
+
+
+@dataclass(frozen=True, slots=True)
+class Limit:
+    key: str
+    field: str
+    ranges: tuple[tuple[int, int], ...]
+    source: str
+    rule: str  # finding name when broken
+
+    def allows(self, value: int) -> bool:
+        for lo, hi in self.ranges:  # noqa: SIM110 - a plain loop: this runs for every field checked
+            if lo <= value <= hi:
+                return True
+        return False
+
+    def text(self) -> str:
+        hexa = self.key.endswith(("_id", "attribute", "format", "api", ".index"))
+        return ", ".join(_num(lo, hexa) if lo == hi else f"{_num(lo, hexa)} ... {_num(hi, hexa)}"
+                         for lo, hi in self.ranges)
+
+
+def _num(value: int, hexa: bool = False) -> str:
+    return f"0x{value:02x}" if hexa else str(value)
+
+
+@dataclass(frozen=True, slots=True)
+class Profile:
+    name: str
+    title: str
+    description: str
+    limits: tuple[Limit, ...]
+    error_texts: Mapping[int, str] = field(default_factory=dict)
+    tolerate: frozenset[str] = frozenset()
+    vendor_ids: tuple[int, ...] = ()
+    path: str = ""
+
+    def limits_for(self, key: str) -> tuple[Limit, ...]:
+        return tuple(lim for lim in self.limits if lim.key == key)
+
+
+def load_file(path: str | Path, default_rule: str = "vendor_limit") -> Profile:
+    """A profile from a TOML file; ProfileError names the file and what is wrong."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ProfileError(f"{path}: cannot read profile ({exc.strerror})") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ProfileError(f"{path}: not valid TOML ({exc})") from None
+    return _profile(data, str(path), default_rule)
+
+
+def _profile(data: dict, where: str, default_rule: str) -> Profile:
+    def fail(message: str) -> ProfileError:
+        return ProfileError(f"{where}: {message}")
+
+    name = data.get("name")
+    if not isinstance(name, str) or not name:
+        raise fail("missing 'name' (a short profile name)")
+    unknown = set(data) - {"name", "title", "description", "limit", "error_texts", "tolerate", "vendor_ids"}
+    if unknown:
+        raise fail(f"unknown top-level keys {sorted(unknown)}")
+
+    def typed(table: dict, key: str, kind: type, what: str, default: object) -> Any:
+        """A value of the file, of the type the profile format wants (TOML can hold any type anywhere)."""
+        value = table.get(key, default)
+        if not isinstance(value, kind) or (isinstance(value, bool) and kind is not bool):
+            raise fail(f"'{key}' must be {what}, not {type(value).__name__} {value!r}"[:300])
+        return value
+
+    for key in ("title", "description"):
+        typed(data, key, str, "a string", "")
+    limits = []
+    for n, item in enumerate(typed(data, "limit", list, "an array of tables ([[limit]])", []), 1):
+        if not isinstance(item, dict):
+            raise fail(f"limit #{n} is not a table")
+        key = typed(item, "key", str, "a string (see LIMIT_KEYS)", "")
+        if key not in LIMIT_KEYS:
+            raise fail(f"limit #{n}: unknown key {key!r} (known: {', '.join(LIMIT_KEYS)})")
+        source = item.get("source")
+        if not isinstance(source, str) or not source:
+            raise fail(f"limit #{n} ({key}): every limit needs its 'source' (manual and table)")
+        rule = typed(item, "rule", str, "a rule name", default_rule)
+        if rule not in RULES:
+            raise fail(f"limit #{n} ({key}): unknown rule {rule!r}")
+        allowed = typed(item, "allowed", list, 'a list of numbers or "lo-hi" ranges, e.g. ["1-16"]', [])
+        ranges = tuple(_range(v, fail, n, key) for v in allowed)
+        if not ranges:
+            raise fail(f"limit #{n} ({key}): 'allowed' must list values or 'lo-hi' ranges")
+        limits.append(Limit(key, LIMIT_KEYS[key][0], ranges, source, rule))
+    texts = {}
+    for k, v in typed(data, "error_texts", dict, 'a table ([error_texts], "0x70" = "text")', {}).items():
+        try:
+            texts[int(k, 0)] = str(v)
+        except ValueError:
+            raise fail(f"error_texts: key {k!r} is not a number like \"0x65\"") from None
+    tolerate_list = typed(data, "tolerate", list, "a list of names", [])
+    if not all(isinstance(t, str) for t in tolerate_list):
+        raise fail(f"tolerate entries must be names (known: {', '.join(TOLERATIONS)})")
+    tolerate = frozenset(tolerate_list)
+    if tolerate - set(TOLERATIONS):
+        raise fail(f"unknown tolerate entries {sorted(tolerate - set(TOLERATIONS))} "
+                   f"(known: {', '.join(TOLERATIONS)})")
+    vendor_ids = tuple(typed(data, "vendor_ids", list, "a list of integers", []))
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in vendor_ids):
+        raise fail("vendor_ids must be integers")
+    return Profile(name, str(data.get("title", name)), str(data.get("description", "")), tuple(limits),
+                   MappingProxyType(texts), tolerate, vendor_ids, where)
+
+
+def _range(value: object, fail, n: int, key: str) -> tuple[int, int]:  # noqa: ANN001
+    if isinstance(value, bool):
+        raise fail(f"limit #{n} ({key}): {value!r} is not a number")
+    if isinstance(value, int):
+        return value, value
+    if isinstance(value, str):
+        lo, sep, hi = value.partition("-")
+        try:
+            low = int(lo.strip(), 0)
+            return (low, int(hi.strip(), 0)) if sep else (low, low)
+        except ValueError:
+            pass
+    raise fail(f"limit #{n} ({key}): {value!r} is not a number or a 'lo-hi' range")
+
+
+def packaged() -> dict[str, Path]:
+    """The profiles shipped with pd-analyze, by name, plus those in $PD_ANALYZE_PROFILES."""
+    found = {}
+    for entry in resources.files("pd_analyze.protocol").joinpath("profile_data").iterdir():
+        if entry.name.endswith(".toml"):
+            found[entry.name[:-5]] = Path(str(entry))
+    extra = os.environ.get(ENV_DIR)
+    if extra and Path(extra).is_dir():
+        for path in sorted(Path(extra).glob("*.toml")):
+            found[path.stem] = path
+    return found
+
+
+def load(name_or_path: str) -> Profile:
+    """A profile by name (packaged or in $PD_ANALYZE_PROFILES) or by path to a .toml file."""
+    if name_or_path.endswith(".toml") or os.sep in name_or_path:
+        return load_file(name_or_path, "pd_request_range" if Path(name_or_path).stem == DEFAULT
+                         else "vendor_limit")
+    known = packaged()
+    if name_or_path not in known:
+        raise ProfileError(f"unknown profile {name_or_path!r} (known: {', '.join(sorted(known))}; "
+                           "or give the path of a .toml profile file)")
+    return load_file(known[name_or_path], "pd_request_range" if name_or_path == DEFAULT else "vendor_limit")
+
+
+def generic() -> Profile:
+    return load(DEFAULT)

@@ -1,0 +1,431 @@
+"""Connectionless DCE/RPC v4: header, PNIO recognition, CL fragment reassembly, call pairing.
+
+Calls are keyed by activity UUID + sequence number only, never by UDP ports (devices answer from
+other ports). Activity UUIDs are kept in canonical big-endian form, because a request and its
+response may use different DREP byte orders.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import OrderedDict
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+from pd_analyze.model import rules
+from pd_analyze.model.layout import Layout
+from pd_analyze.model.rules import Finding
+from pd_analyze.model.values import (
+    FLAG1_LASTFRAG,
+    PNIO_UUID_SUFFIX,
+    PTYPE_ACK,
+    PTYPE_CANCEL,
+    PTYPE_CANCEL_ACK,
+    PTYPE_FACK,
+    PTYPE_PING,
+    PTYPE_REQUEST,
+)
+
+HEADER_SIZE = 80
+_FIELDS = (
+    ("rpc.ver", "B"), ("rpc.ptype", "B"), ("rpc.flags1", "B"), ("rpc.flags2", "B"), ("rpc.drep", "3s"),
+    ("rpc.serial_hi", "B"), ("rpc.object", "16s"), ("rpc.interface", "16s"), ("rpc.activity", "16s"),
+    ("rpc.boot_time", "I"), ("rpc.if_version", "I"), ("rpc.seq", "I"), ("rpc.opnum", "H"),
+    ("rpc.ihint", "H"), ("rpc.ahint", "H"), ("rpc.frag_len", "H"), ("rpc.frag_num", "H"),
+    ("rpc.auth_proto", "B"), ("rpc.serial_lo", "B"))
+HEADER_LE = Layout("DCE/RPC connectionless header", "<", _FIELDS)
+HEADER_BE = Layout("DCE/RPC connectionless header", ">", _FIELDS)
+(I_VER, I_PTYPE, I_FLAGS1, I_FLAGS2, I_DREP, I_SERIAL_HI, I_OBJECT, I_INTERFACE, I_ACTIVITY, I_BOOT,
+ I_IFVER, I_SEQ, I_OPNUM, I_IHINT, I_AHINT, I_FRAG_LEN, I_FRAG_NUM, I_AUTH, I_SERIAL_LO) = range(19)
+FAULT_LE = Layout("Fault status", "<", (("rpc.fault_status", "I"),))
+FAULT_BE = Layout("Fault status", ">", (("rpc.fault_status", "I"),))
+_CONTROL_PTYPES = frozenset({PTYPE_PING, PTYPE_ACK, PTYPE_CANCEL, PTYPE_FACK, PTYPE_CANCEL_ACK})
+
+SKIP_NOT_RPC = "UDP, not DCE/RPC v4"
+SKIP_NOT_PNIO = "DCE/RPC, not PNIO (e.g. endpoint mapper)"
+
+MAX_OPEN_CALLS = 65_536
+MAX_OPEN_BYTES = 32 * 1024 * 1024  # open calls: request bodies and what was decoded from them (Call.cost)
+MAX_CLOSED_CALLS = 16_384  # remembered to tell duplicate responses from orphans
+MAX_CLOSED_BYTES = 16 * 1024 * 1024
+CALL_OVERHEAD = 512  # bytes a call costs beyond its body (objects), counted against the byte caps
+MAX_FRAG_SETS = 4_096
+MAX_FRAG_BYTES = 16 * 1024 * 1024  # held fragment bodies, each with FRAGMENT_OVERHEAD
+MAX_SET_BYTES = 1024 * 1024  # one fragment set (a PNIO record service needs a small fraction of it)
+FRAGMENT_OVERHEAD = 128  # bytes a held fragment costs beyond its body, so tiny fragments count too
+MAX_DONE_SETS = 4_096  # reassembled sets remembered to recognise late retransmitted fragments
+MAX_DONE_FRAGMENTS = 65_536  # fragment digests kept for those sets
+MAX_EVICTION_FINDINGS = 100  # evictions listed one by one; the rest are counted in one finding at the end
+
+
+def canonical_uuid(raw: bytes, little: bool) -> bytes:
+    """A DREP-ordered UUID as big-endian bytes, so both byte orders give one key."""
+    if not little:
+        return raw
+    return raw[3::-1] + raw[5:3:-1] + raw[7:5:-1] + raw[8:]
+
+
+def is_pnio_uuid(canonical: bytes) -> bool:
+    return canonical[:3] == b"\xde\xa0\x00" and canonical[4:] == PNIO_UUID_SUFFIX
+
+
+def plausible(payload: bytes) -> bool:
+    """protocol.md 1.4 items 1-3: a CL-RPC v4 header, by a few byte comparisons."""
+    return (len(payload) >= HEADER_SIZE and payload[0] == 4 and payload[1] <= 10
+            and not payload[3] & 0xFC and not payload[4] & 0xEE and payload[5] <= 3)
+
+
+class Header(NamedTuple):
+    """The header fields the analysis needs, decoded from one unpack of the 80 bytes."""
+
+    values: tuple
+    little: bool
+    ptype: int
+    flags1: int
+    activity: bytes  # canonical
+    interface: bytes  # canonical
+    seq: int
+    opnum: int
+    frag_len: int
+    frag_num: int
+
+
+def header(payload: bytes) -> Header:
+    little = bool(payload[4] & 0x10)
+    v = (HEADER_LE if little else HEADER_BE).unpack(payload)
+    return Header(v, little, v[I_PTYPE], v[I_FLAGS1], canonical_uuid(v[I_ACTIVITY], little),
+                  canonical_uuid(v[I_INTERFACE], little), v[I_SEQ], v[I_OPNUM], v[I_FRAG_LEN],
+                  v[I_FRAG_NUM])
+
+
+def is_control(ptype: int) -> bool:
+    """Ping, ack, cancel, fack, cancel_ack: no body to decode as data."""
+    return ptype in _CONTROL_PTYPES
+
+
+@dataclass(slots=True)
+class _FragSet:
+    first_frame: int
+    first_ts: float
+    bodies: dict[int, bytes] = field(default_factory=dict)
+    frames: dict[int, int] = field(default_factory=dict)
+    last: int = -1
+    size: int = 0
+
+
+class Reassembled(NamedTuple):
+    body: bytes
+    frames: tuple[int, ...]  # frames of fragments 0..last, in fragment order
+    first_ts: float
+
+
+class _Done(NamedTuple):
+    """A reassembled set: the frame that completed it and a digest of each fragment body."""
+
+    frame: int
+    digests: dict[int, bytes]
+
+
+def _digest(body: bytes) -> bytes:
+    return hashlib.blake2b(body, digest_size=16).digest()
+
+
+class FragmentTable:
+    """CL fragment reassembly keyed by activity + seq + direction + address pair (protocol.md 2.3)."""
+
+    def __init__(self) -> None:
+        self._sets: dict[tuple, _FragSet] = {}
+        self._bytes = 0
+        self._done: dict[tuple, _Done] = {}
+        self._done_count = 0  # digests held by _done
+        self._by_call: dict[tuple, list[tuple]] = {}  # (activity, seq) -> keys of its request sets
+        self.evicted = 0
+        self._last_eviction = 0
+
+    def add(self, key: tuple, number: int, ts: float, hdr: Header, body: bytes,
+            findings: list[Finding]) -> Reassembled | None:
+        """Add one fragment; the whole body once the set is complete, else None."""
+        entry = self._sets.get(key)
+        if entry is None and self._late_copy(key, hdr.frag_num, body):
+            done = self._done[key]
+            findings.append(rules.finding(
+                "rpc_retransmission", number, "rpc.frag_num", hdr.frag_num, "a new fragment",
+                f"fragment {hdr.frag_num} retransmitted after its PDU was reassembled in frame "
+                f"{done.frame} (identical copy)"))
+            return None
+        cost = len(body) + FRAGMENT_OVERHEAD
+        if entry is not None and entry.size + cost > MAX_SET_BYTES:
+            self._drop(key, number, findings, f"fragment set above {MAX_SET_BYTES} bytes")
+            entry = None
+        self._evict(number, findings, cost, key)
+        if entry is None:
+            entry = self._sets[key] = _FragSet(number, ts)
+            if key[2] == PTYPE_REQUEST:
+                self._by_call.setdefault(key[:2], []).append(key)
+        num = hdr.frag_num
+        is_last = bool(hdr.flags1 & FLAG1_LASTFRAG)
+        if num in entry.bodies:
+            if entry.bodies[num] != body:
+                findings.append(rules.finding(
+                    "rpc_frag_conflict", number, "rpc.frag_num", num, "identical copy",
+                    f"fragment {num} repeated with different bytes (first copy from frame "
+                    f"{entry.frames[num]} kept)"))
+            return None
+        if (is_last and entry.last >= 0 and num != entry.last) or (entry.last >= 0 and num > entry.last):
+            findings.append(rules.finding(
+                "rpc_frag_inconsistent", number, "rpc.frag_num", num, f"<= {entry.last}",
+                f"fragment {num} conflicts with last fragment {entry.last}"))
+            return None
+        if is_last and any(n > num for n in entry.bodies):
+            findings.append(rules.finding(
+                "rpc_frag_inconsistent", number, "rpc.frag_num", num, f"> {max(entry.bodies)}",
+                f"last fragment {num} below fragment {max(entry.bodies)} already seen"))
+            return None
+        entry.bodies[num] = body
+        entry.frames[num] = number
+        entry.size += cost
+        self._bytes += cost
+        if is_last:
+            entry.last = num
+        if entry.last < 0 or len(entry.bodies) != entry.last + 1:
+            return None
+        self._pop(key)
+        self._remember(key, number, entry)
+        order = range(entry.last + 1)
+        return Reassembled(b"".join(entry.bodies[n] for n in order),
+                           tuple(entry.frames[n] for n in order), entry.first_ts)
+
+    def open_frames(self) -> Iterator[int]:
+        """First frame of every unfinished set."""
+        return (entry.first_frame for entry in self._sets.values())
+
+    def seen(self, key: tuple, num: int, body: bytes) -> bool:
+        """True when this exact fragment is already held, or was part of the set reassembled last
+        under this key (a retransmitted copy, protocol.md 2.3)."""
+        entry = self._sets.get(key)
+        if entry is not None:
+            return entry.bodies.get(num) == body
+        return self._late_copy(key, num, body)
+
+    def reassembled_in(self, key: tuple) -> int | None:
+        """The frame that completed the last set reassembled under this key, if remembered."""
+        done = self._done.get(key)
+        return done.frame if done is not None else None
+
+    def _late_copy(self, key: tuple, num: int, body: bytes) -> bool:
+        done = self._done.get(key)
+        return done is not None and done.digests.get(num) == _digest(body)
+
+    def _remember(self, key: tuple, number: int, entry: _FragSet) -> None:
+        old = self._done.pop(key, None)
+        self._done_count -= len(old.digests) if old is not None else 0
+        self._done[key] = _Done(number, {n: _digest(b) for n, b in entry.bodies.items()})
+        self._done_count += len(entry.bodies)
+        while self._done and (len(self._done) > MAX_DONE_SETS or self._done_count > MAX_DONE_FRAGMENTS):
+            self._done_count -= len(self._done.pop(next(iter(self._done))).digests)
+
+    def _pop(self, key: tuple) -> _FragSet:
+        """Take a set out of the table (complete, missing pieces or dropped)."""
+        entry = self._sets.pop(key)
+        self._bytes -= entry.size
+        if key[2] == PTYPE_REQUEST:
+            keys = self._by_call.get(key[:2], [])
+            if key in keys:
+                keys.remove(key)
+            if not keys:
+                self._by_call.pop(key[:2], None)
+        return entry
+
+    def drop_call(self, call_key: tuple, number: int, findings: list[Finding]) -> None:
+        """The call was answered: any unfinished fragment set of its request is missing pieces."""
+        for key in list(self._by_call.get(call_key[:2], ())):
+            findings.append(self._missing(key, self._pop(key), number))
+
+    def _missing(self, key: tuple, entry: _FragSet, number: int) -> Finding:
+        have = sorted(entry.bodies)
+        top = entry.last if entry.last >= 0 else (have[-1] if have else 0)
+        absent = _gaps(have, top)  # ranges, not numbers: a set may name up to 65,536 fragments
+        missing = f"[{_spans(absent)}]" if absent else "the last fragment"
+        expect = f"fragments 0..{entry.last}" if entry.last >= 0 else "a last fragment"
+        return rules.finding(
+            "rpc_frag_missing", entry.first_frame, "rpc.frag_num", _spans(_runs(have), ","), expect,
+            f"fragment set of seq {key[1]} incomplete (missing {missing}; noticed at frame {number})")
+
+    def _evict(self, number: int, findings: list[Finding], incoming: int, keep: tuple) -> None:
+        """Drop the oldest sets (never `keep`, the one growing) until a fragment of `incoming` bytes fits."""
+        limit = MAX_FRAG_SETS if keep in self._sets else MAX_FRAG_SETS - 1
+        while self._bytes + incoming > MAX_FRAG_BYTES or len(self._sets) > limit:
+            victim = next((k for k in self._sets if k != keep), None)
+            if victim is None:
+                return
+            self._drop(victim, number, findings, "fragment table full")
+
+    def _drop(self, key: tuple, number: int, findings: list[Finding], why: str) -> None:
+        entry = self._pop(key)
+        self.evicted += 1
+        self._last_eviction = number
+        if self.evicted <= MAX_EVICTION_FINDINGS:
+            findings.append(rules.finding(
+                "rpc_frag_evicted", number, "rpc.frag_num", len(entry.bodies),
+                f"<= {MAX_FRAG_SETS} open sets, {MAX_FRAG_BYTES} bytes, {MAX_SET_BYTES} bytes per set",
+                f"{why}: set of seq {key[1]} from frame {entry.first_frame} dropped"))
+
+    def finish(self, number: int) -> list[Finding]:
+        out = [self._missing(key, entry, number) for key, entry in self._sets.items()]
+        if self.evicted > MAX_EVICTION_FINDINGS:
+            out.append(rules.finding(
+                "rpc_frag_evicted", self._last_eviction, "rpc.frag_num", self.evicted, f"<= {MAX_FRAG_SETS} open sets",
+                f"{self.evicted - MAX_EVICTION_FINDINGS} more fragment sets dropped by the table caps "
+                f"({self.evicted} in all; only the first {MAX_EVICTION_FINDINGS} are listed one by one)"))
+        self._sets.clear()
+        self._by_call.clear()
+        self._bytes = 0
+        return out
+
+
+def _runs(numbers: list[int]) -> list[tuple[int, int]]:
+    """Sorted numbers as (first, last) runs of consecutive numbers."""
+    runs: list[tuple[int, int]] = []
+    for n in numbers:
+        if runs and n == runs[-1][1] + 1:
+            runs[-1] = (runs[-1][0], n)
+        else:
+            runs.append((n, n))
+    return runs
+
+
+def _gaps(have: list[int], top: int) -> list[tuple[int, int]]:
+    """The runs of 0..top missing from the sorted numbers `have`."""
+    gaps, expect = [], 0
+    for n in have:
+        if n > top:
+            break
+        if n > expect:
+            gaps.append((expect, n - 1))
+        expect = n + 1
+    if expect <= top:
+        gaps.append((expect, top))
+    return gaps
+
+
+def _spans(runs: list[tuple[int, int]], sep: str = ", ", limit: int = 8) -> str:
+    """'0, 2-5, 9' for runs; past `limit` runs the rest is counted, so the text stays short."""
+    parts = [str(lo) if lo == hi else f"{lo}-{hi}" for lo, hi in runs[:limit]]
+    if len(runs) > limit:
+        parts.append(f"... ({sum(hi - lo + 1 for lo, hi in runs[limit:])} more)")
+    return sep.join(parts)
+
+
+@dataclass(slots=True)
+class Call:
+    """An RPC call: the request as first seen, and what the analysis learnt from it."""
+
+    frame: int
+    ts: float
+    src: bytes
+    dst: bytes
+    interface: bytes
+    opnum: int
+    body: bytes
+    info: object = None  # what the record layer keeps for checking the response
+    copies: int = 0
+    working: int = 0
+    pings: int = 0
+    response_frame: int = 0
+    cost: int = 0  # bytes it keeps alive (body, what was decoded from it), counted against the caps
+
+
+class CallTable:
+    """Open calls by (activity, seq); closed ones remembered a while to spot duplicates."""
+
+    def __init__(self) -> None:
+        self.open: dict[tuple[bytes, int], Call] = {}
+        # oldest first, evicted from the front for ever: an OrderedDict pops it in O(1), where a dict's
+        # iterator would walk over every slot freed before (quadratic once the table is full)
+        self.closed: OrderedDict[tuple[bytes, int], Call] = OrderedDict()
+        self.open_bytes = 0
+        self.closed_bytes = 0
+        self.evicted = 0  # open calls dropped by the caps
+        self._last_eviction = 0
+
+    def request(self, key: tuple[bytes, int], call: Call, findings: list[Finding]) -> Call:
+        """Register a request; returns the call it belongs to (the first copy on retransmission)."""
+        known = self.open.get(key) or self.closed.get(key)
+        if known is not None:
+            if known.body == call.body:
+                known.copies += 1
+                findings.append(rules.finding(
+                    "rpc_retransmission", call.frame, "rpc.seq", key[1], "a new sequence number",
+                    f"request retransmitted (copy {known.copies} of frame {known.frame})"))
+            else:
+                findings.append(rules.finding(
+                    "rpc_key_reused", call.frame, "rpc.seq", key[1], "a new sequence number",
+                    f"activity/sequence number of frame {known.frame} reused with a different body"))
+            return known
+        call.cost = CALL_OVERHEAD + len(call.body)
+        self.open[key] = call
+        self.open_bytes += call.cost
+        self._evict(key, call.frame, findings)
+        return call
+
+    def charge(self, key: tuple[bytes, int], call: Call, extra: int, findings: list[Finding]) -> None:
+        """What was decoded from an open call's request (kept in `info`) adds `extra` bytes to its cost."""
+        if self.open.get(key) is call:
+            call.cost += extra
+            self.open_bytes += extra
+            self._evict(key, call.frame, findings)
+
+    def _evict(self, keep: tuple[bytes, int], number: int, findings: list[Finding]) -> None:
+        """Drop the oldest open calls (never `keep`) while the table is above its caps."""
+        while len(self.open) > MAX_OPEN_CALLS or self.open_bytes > MAX_OPEN_BYTES:
+            old_key = next((k for k in self.open if k != keep), None)
+            if old_key is None:
+                return
+            old = self.open.pop(old_key)
+            self.open_bytes -= old.cost
+            self.evicted += 1
+            self._last_eviction = number
+            if self.evicted <= MAX_EVICTION_FINDINGS:
+                findings.append(rules.finding(
+                    "rpc_call_evicted", number, "rpc.seq", old_key[1],
+                    f"<= {MAX_OPEN_CALLS} open calls, {MAX_OPEN_BYTES} bytes",
+                    f"open-call table full: call of frame {old.frame} dropped unanswered"))
+
+    def open_frames(self) -> Iterator[int]:
+        """Request frame of every unanswered call."""
+        return (call.frame for call in self.open.values())
+
+    def close(self, key: tuple[bytes, int]) -> Call | None:
+        call = self.open.pop(key, None)
+        if call is not None:
+            self.open_bytes -= call.cost
+            old = self.closed.pop(key, None)
+            self.closed_bytes += call.cost - (old.cost if old is not None else 0)
+            self.closed[key] = call
+            while self.closed and (len(self.closed) > MAX_CLOSED_CALLS or self.closed_bytes > MAX_CLOSED_BYTES):
+                self.closed_bytes -= self.closed.popitem(last=False)[1].cost
+        return call
+
+    def finish(self) -> list[Finding]:
+        """At the end of the capture: how many open calls the caps dropped beyond those listed."""
+        if self.evicted <= MAX_EVICTION_FINDINGS:
+            return []
+        return [rules.finding(
+            "rpc_call_evicted", self._last_eviction, "rpc.seq", self.evicted, f"<= {MAX_OPEN_CALLS} open calls",
+            f"{self.evicted - MAX_EVICTION_FINDINGS} more open calls dropped unanswered by the table caps "
+            f"({self.evicted} in all; only the first {MAX_EVICTION_FINDINGS} are listed one by one)")]
+
+    def expire(self, now: float, timeout: float) -> list[tuple[tuple[bytes, int], Call]]:
+        """Calls opened more than `timeout` seconds of capture time before `now`."""
+        if not self.open or next(iter(self.open.values())).ts + timeout >= now:
+            return []  # the common case, checked for every frame: nothing is due
+        out = []
+        for key, call in self.open.items():
+            if call.ts + timeout >= now:
+                break
+            out.append((key, call))
+        for key, call in out:
+            del self.open[key]
+            self.open_bytes -= call.cost
+        return out
