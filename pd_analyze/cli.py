@@ -390,8 +390,7 @@ def audit_command(captures: tuple[str, ...], read: str | None, fail_on: str, pro
     """Findings like a linter (file:frame: severity rule message); exit 1 at the --fail-on threshold.
 
     Findings are sorted by capture and frame through a bounded on-disk sort: memory stays flat."""
-    from pd_analyze.analysis.rows import SEVERITIES
-    from pd_analyze.model.rules import SEVERITY_RANK
+    from pd_analyze.model.rules import SEVERITIES, SEVERITY_RANK
     from pd_analyze.output import report
 
     paths = _files(captures, read, profile)

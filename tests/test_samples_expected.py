@@ -19,8 +19,9 @@ from pathlib import Path
 
 import pytest
 
-from pd_analyze.analysis.transactions import VERDICTS, TransactionEngine, iter_closed
+from pd_analyze.analysis.transactions import TransactionEngine, iter_closed
 from pd_analyze.model.rules import RULES
+from pd_analyze.model.verdicts import VERDICTS
 from pd_analyze.protocol import profiles
 from pd_analyze.protocol.dissector import Dissector, dissect
 from pd_analyze.protocol.profidrive_checks import Checker

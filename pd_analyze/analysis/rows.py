@@ -15,15 +15,14 @@ from typing import TYPE_CHECKING, Any
 
 from pd_analyze.analysis.transactions import PART_MARK, LastDone, Transaction, param_label, reuse_finding
 from pd_analyze.model import pd_values as pt
-from pd_analyze.model.rules import Finding
+from pd_analyze.model.rules import SEVERITIES, Finding
+from pd_analyze.model.verdicts import ANSWERED, VERDICTS
 from pd_analyze.protocol.link import ip_text
 from pd_analyze.protocol.profidrive import Block, values_of
 
 if TYPE_CHECKING:
     import pandas as pd
 
-VERDICTS = ("ok", "nak", "reference_mismatch", "timeout", "pnio_error", "malformed")
-SEVERITIES = ("info", "warning", "error")
 VERDICT = "category:verdict"  # categoricals with fixed categories (the same in every chunk and file)
 SEVERITY = "category:severity"
 FIXED_CATEGORIES = {VERDICT: (VERDICTS, False), SEVERITY: (SEVERITIES, True)}
@@ -235,7 +234,7 @@ class Rows:
                written: Block | None, res_block: Block | None, device: str, read_values: list | None) -> None:
         """The change trail, and the last values read per element to show what a change replaced."""
         change = txn.req_id == pt.REQ_CHANGE and written is not None
-        read = txn.req_id == pt.REQ_READ and txn.verdict in ("ok", "nak") and res_block is not None \
+        read = txn.req_id == pt.REQ_READ and txn.verdict in ANSWERED and res_block is not None \
             and addr.attr == pt.ATTR_VALUE and not res_block.is_error
         if not (change or read):  # neither remembers nor looks up a value: no keys needed
             return
@@ -256,7 +255,7 @@ class Rows:
         if res_block is not None and res_block.is_error:
             result = f"error {_hex(res_block.error)}: {pt.error_text(res_block.error)}"
         else:
-            result = "ok" if txn.verdict in ("ok", "nak") else txn.verdict
+            result = "ok" if txn.verdict in ANSWERED else txn.verdict
         self.changes.append((capture, device, txn.do, number, txn.write_req_frame, txn.t_start, label,
                              addr.pnu, addr.subindex, block_values(written), result,
                              " ".join(b for b in before if b is not None) if all(before) else ""))

@@ -26,6 +26,7 @@ from pd_analyze.model.values import (
     PTYPE_REQUEST,
     PTYPE_RESPONSE,
 )
+from pd_analyze.model.verdicts import ANSWERED, FAILED_UNANSWERED, PRECEDENCE
 from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol.dissector import FrameResult, Pdu
 from pd_analyze.protocol.pnio import Status
@@ -38,7 +39,9 @@ MAX_PENDING = 16_384  # open transactions (the oldest ends as a timeout, closed_
 MAX_PENDING_BYTES = 32 * 1024 * 1024  # what they keep alive, by _cost
 MAX_TXN_FRAMES = 10_000  # frames of one transaction (10 s of B5 polling every millisecond)
 FRAME_COST = 1024  # bytes a transaction keeps per frame (frame lists, its RPC calls)
-VERDICTS = ("malformed", "pnio_error", "timeout", "reference_mismatch", "nak", "ok")
+
+# How a transaction that got no final answer ended (its verdict is then timeout, protocol.md 7.4).
+UNANSWERED_ENDS = frozenset({"deadline", "superseded", "capture_end", "evicted"})
 
 Channel = tuple  # device, controller, AR, API, slot, subslot, index (protocol.md 7.2)
 
@@ -114,10 +117,10 @@ def reuse_finding(last: LastDone, ref: int, frame: int) -> Finding | None:
     """T1: a write with the Request Reference of the channel's last transaction (a retry after a failure)."""
     if last.ref != ref:
         return None
-    if last.verdict in ("ok", "nak"):
+    if last.verdict in ANSWERED:
         return finding("reference_reused", frame, "pd.ref", ref, f"a reference other than {last.ref}",
                        f"Request Reference {ref} reused from transaction {last.txn}")
-    if last.verdict in ("pnio_error", "timeout"):
+    if last.verdict in FAILED_UNANSWERED:
         return finding("retry", frame, "pd.ref", ref, "",
                        f"retry of transaction {last.txn} ({last.verdict}) with the same reference")
     return None
@@ -413,7 +416,7 @@ class TransactionEngine:
         txn.verdict = _verdict(txn)
         # copies seen so far, of answered and unanswered calls alike (protocol.md 7.6)
         txn.rpc_retransmissions = sum(c.copies for c in txn.rpc_calls if c is not None)
-        if why in ("deadline", "superseded", "capture_end", "evicted") and not txn.pnio_status and txn.b5_retries:
+        if why in UNANSWERED_ENDS and not txn.pnio_status and txn.b5_retries:
             txn.pnio_status = f"DE80{PNIORW_STATE_CONFLICT:02X}00"  # last answer was B5 (txn.last_status)
         self._last_done.pop(txn.channel, None)
         # not the transaction itself: it is handed on
@@ -436,18 +439,16 @@ class TransactionEngine:
 
 
 def _verdict(txn: Transaction) -> str:
-    """protocol.md 7.4: the first matching rule wins."""
-    if txn.malformed:
-        return "malformed"
-    if txn.closed_by == "pnio_error":
-        return "pnio_error"
-    if txn.closed_by in ("deadline", "superseded", "capture_end", "evicted"):
-        return "timeout"
-    if txn.mismatch:
-        return "reference_mismatch"
-    if txn.response is not None and txn.response.ident & 0x80:
-        return "nak"
-    return "ok"
+    """protocol.md 7.4: the first verdict, in PRECEDENCE order, whose condition holds."""
+    holds = {
+        "malformed": txn.malformed,
+        "pnio_error": txn.closed_by == "pnio_error",
+        "timeout": txn.closed_by in UNANSWERED_ENDS,
+        "reference_mismatch": txn.mismatch,
+        "nak": txn.response is not None and bool(txn.response.ident & 0x80),
+        "ok": True,
+    }
+    return next(verdict for verdict in PRECEDENCE if holds[verdict])
 
 
 def _write_statuses(pdu: Pdu, count: int) -> list[Status | None]:

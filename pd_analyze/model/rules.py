@@ -13,6 +13,7 @@ from types import MappingProxyType
 
 ERROR, WARNING, INFO = "error", "warning", "info"
 SEVERITY_RANK = MappingProxyType({INFO: 1, WARNING: 2, ERROR: 3})
+SEVERITIES = tuple(SEVERITY_RANK)  # least severe first: the categories of the `severity` column
 
 # Expert-info groups, as Wireshark uses them.
 MALFORMED, PROTOCOL, SEQUENCE, COMMENT = "malformed", "protocol", "sequence", "comment"

@@ -30,6 +30,7 @@ import pandas as pd
 
 from pd_analyze import __version__
 from pd_analyze.analysis.api import Analysis
+from pd_analyze.model.verdicts import VERDICTS
 from pd_analyze.output import plots
 from pd_analyze.protocol.dissector import FrameResult
 
@@ -290,7 +291,7 @@ def _summary(analysis: Analysis) -> str:
     counts = t.verdict.astype(str).value_counts() if not t.empty else pd.Series(dtype="int64")
     sev = f.severity.astype(str).value_counts() if not f.empty else pd.Series(dtype="int64")
     cards = [("transactions", f"{len(t):,}", "total")]
-    cards += [(v, f"{int(counts.get(v, 0)):,}", v) for v in plots.VERDICTS]
+    cards += [(v, f"{int(counts.get(v, 0)):,}", v) for v in VERDICTS]
     cards += [("B5 retries", f"{int(t.b5_retries.sum()) if not t.empty else 0:,}", "b5"),
               ("findings", f"{len(f):,}", "findings"),
               ("errors / warnings", f"{int(sev.get('error', 0)):,} / {int(sev.get('warning', 0)):,}", "findings")]

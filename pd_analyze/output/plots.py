@@ -20,7 +20,8 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
 
-VERDICTS = ("ok", "nak", "reference_mismatch", "timeout", "pnio_error", "malformed")
+from pd_analyze.model.verdicts import VERDICTS
+
 VERDICT_COLOURS = {"ok": "#7cb36a", "nak": "#e68a00", "reference_mismatch": "#8d6e63", "timeout": "#d32f2f",
                    "pnio_error": "#7b1fa2", "malformed": "#263238"}
 VERDICT_MARKERS = {"ok": "|", "nak": "o", "reference_mismatch": "s", "timeout": "X", "pnio_error": "D",

@@ -17,7 +17,9 @@ from collections import Counter
 from collections.abc import Iterable, Sequence
 from typing import TYPE_CHECKING
 
-from pd_analyze.analysis.rows import COLUMNS, SEVERITIES, VERDICTS, sort_key
+from pd_analyze.analysis.rows import COLUMNS, sort_key
+from pd_analyze.model.rules import SEVERITIES
+from pd_analyze.model.verdicts import VERDICTS
 
 if TYPE_CHECKING:
     from pd_analyze.analysis.api import CaptureResult
