@@ -1,7 +1,6 @@
 """The capture layer: frames read from pcap, pcapng and gzip files, one at a time."""
 
 from pd_analyze.capture.reader import (
-    IP_ETHERTYPES,
     MAX_CAPLEN,
     CaptureError,
     CaptureInfo,
@@ -12,5 +11,5 @@ from pd_analyze.capture.reader import (
     pcap_split_points,
 )
 
-__all__ = ["IP_ETHERTYPES", "MAX_CAPLEN", "CaptureError", "CaptureInfo", "RawFrame", "cut_runs", "frames",
+__all__ = ["MAX_CAPLEN", "CaptureError", "CaptureInfo", "RawFrame", "cut_runs", "frames",
            "pcap_frames_from", "pcap_split_points"]

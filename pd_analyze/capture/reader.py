@@ -25,7 +25,7 @@ import dpkt
 import dpkt.pcap
 import dpkt.pcapng
 
-from pd_analyze.model.values import LINKTYPE_ETHERNET
+from pd_analyze.model.values import IP_ETHERTYPES, LINKTYPE_ETHERNET
 
 MAX_CAPLEN = 262_144  # the largest snaplen tools write (tcpdump, Wireshark)
 _PCAPNG_MAX_BLOCK = MAX_CAPLEN + 65_536  # a packet block plus generous room for options
@@ -60,7 +60,6 @@ class RawFrame(NamedTuple):
     run: int = 0  # > 0: this record stands for that many Ethernet frames without IPv4 (data is empty)
 
 
-IP_ETHERTYPES = (b"\x08\x00", b"\x81\x00", b"\x88\xa8", b"\x91\x00")  # IPv4, or a VLAN tag first
 
 
 class CaptureInfo:

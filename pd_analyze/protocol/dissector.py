@@ -21,6 +21,7 @@ from pd_analyze.model.values import (
     FLAG1_FRAG,
     INDEX_PD_DPV1,
     INDEX_WRITE_MULTIPLE,
+    IP_ETHERTYPES,
     LINKTYPE_ETHERNET,
     NCA_STATUS,
     OP_READ,
@@ -661,7 +662,7 @@ def dissect_frames(frames: Iterable[capture.RawFrame], d: Dissector) -> Iterator
                 accounting.read += frame.run
                 not_ip[link.SKIP_NOT_IPV4] += frame.run
                 continue
-            if frame.linktype == LINKTYPE_ETHERNET and frame.data[12:14] not in capture.IP_ETHERTYPES:
+            if frame.linktype == LINKTYPE_ETHERNET and frame.data[12:14] not in IP_ETHERTYPES:
                 accounting.read += 1
                 not_ip[link.SKIP_NOT_IPV4] += 1
                 continue

@@ -17,12 +17,14 @@ from pd_analyze.model import rules
 from pd_analyze.model.layout import Field, Layout, plain
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.values import (
+    IP_ETHERTYPES,
+    IPV4_ETHERTYPE_BYTES,
     LINKTYPE_ETHERNET,
     LINKTYPE_IPV4,
     LINKTYPE_RAW,
     LINKTYPE_SLL,
     LINKTYPE_SLL2,
-    VLAN_TPIDS,
+    VLAN_TPID_BYTES,
 )
 
 ETH = Layout("Ethernet II", ">", (("eth.dst", "6s"), ("eth.src", "6s"), ("eth.type", "H")))
@@ -72,22 +74,36 @@ def ip_text(addr: bytes) -> str:
     return inet_ntoa(addr)
 
 
-def l3_offset(linktype: int, data: bytes) -> int:
-    """Offset of an IPv4 header in the frame, or -1 when the frame carries none."""
+class LinkHeaders(NamedTuple):
+    """Where the link headers of a frame lead: the one walk of the header chain."""
+
+    l3: int  # offset of the IPv4 header, -1 when the frame carries none
+    tags: tuple[int, ...] = ()  # offsets of the 802.1Q/802.1ad tag bodies (TCI, EtherType), outer first
+
+
+def headers(linktype: int, data: bytes) -> LinkHeaders:
+    """The link header chain of a frame: Ethernet and its VLAN tags, SLL, SLL2 or raw IP."""
     if linktype == LINKTYPE_ETHERNET:
         etype = data[12:14]
         off = 14
-        while etype in (b"\x81\x00", b"\x88\xa8", b"\x91\x00"):
+        tags = []
+        while etype in VLAN_TPID_BYTES and len(data) >= off + 2:
+            tags.append(off)
             etype = data[off + 2:off + 4]
             off += 4
-        return off if etype == b"\x08\x00" else -1
+        return LinkHeaders(off if etype == IPV4_ETHERTYPE_BYTES else -1, tuple(tags))
     if linktype == LINKTYPE_SLL:
-        return 16 if data[14:16] == b"\x08\x00" else -1
+        return LinkHeaders(16 if data[14:16] == IPV4_ETHERTYPE_BYTES else -1)
     if linktype == LINKTYPE_SLL2:
-        return 20 if data[0:2] == b"\x08\x00" else -1
+        return LinkHeaders(20 if data[0:2] == IPV4_ETHERTYPE_BYTES else -1)
     if linktype in (LINKTYPE_RAW, LINKTYPE_IPV4):
-        return 0 if data[:1] and data[0] >> 4 == 4 else -1
-    return -1
+        return LinkHeaders(0 if data[:1] and data[0] >> 4 == 4 else -1)
+    return LinkHeaders(-1)
+
+
+def l3_offset(linktype: int, data: bytes) -> int:
+    """Offset of an IPv4 header in the frame, or -1 when the frame carries none."""
+    return headers(linktype, data).l3
 
 
 @dataclass(slots=True)
@@ -112,10 +128,9 @@ class LinkDecoder:
 
     def datagram(self, number: int, linktype: int, data: bytes) -> Datagram | str:
         """The frame's UDP datagram, or the reason it has none (a skip reason)."""
-        if linktype == LINKTYPE_ETHERNET and data[12:14] not in (b"\x08\x00", b"\x81\x00",
-                                                                 b"\x88\xa8", b"\x91\x00"):
+        if linktype == LINKTYPE_ETHERNET and data[12:14] not in IP_ETHERTYPES:
             return SKIP_NOT_IPV4
-        off = l3_offset(linktype, data)
+        off = headers(linktype, data).l3
         if off < 0:
             if linktype not in (LINKTYPE_ETHERNET, LINKTYPE_SLL, LINKTYPE_SLL2, LINKTYPE_RAW,
                                 LINKTYPE_IPV4):
@@ -262,14 +277,13 @@ def annotate(linktype: int, data: bytes, dgram: Datagram) -> list[tuple[str, lis
     off = 0
     if linktype == LINKTYPE_ETHERNET:
         layers.append((ETH.title, ETH.annotate(data, 0, ETH.unpack(data))))
-        etype = int.from_bytes(data[12:14], "big")
-        off = 14
-        while etype in VLAN_TPIDS:
-            tci, etype = VLAN.unpack(data, off)
-            fields = [plain("vlan.pcp", off, data, 2, tci >> 13), plain("vlan.dei", off, data, 2, (tci >> 12) & 1),
-                      plain("vlan.id", off, data, 2, tci & 0x0FFF), plain("vlan.etype", off + 2, data, 2, etype)]
+        chain = headers(linktype, data)
+        for tag in chain.tags:
+            tci, etype = VLAN.unpack(data, tag)
+            fields = [plain("vlan.pcp", tag, data, 2, tci >> 13), plain("vlan.dei", tag, data, 2, (tci >> 12) & 1),
+                      plain("vlan.id", tag, data, 2, tci & 0x0FFF), plain("vlan.etype", tag + 2, data, 2, etype)]
             layers.append((VLAN.title, fields))
-            off += 4
+        off = chain.l3
     elif linktype == LINKTYPE_SLL:
         layers.append((SLL.title, SLL.annotate(data, 0, SLL.unpack(data))))
         off = 16
@@ -304,11 +318,4 @@ def annotate(linktype: int, data: bytes, dgram: Datagram) -> list[tuple[str, lis
 
 def vlan_ids(linktype: int, data: bytes) -> tuple[int, ...]:
     """VLAN IDs of all tags of an Ethernet frame, outer first."""
-    if linktype != LINKTYPE_ETHERNET:
-        return ()
-    ids = []
-    off = 12
-    while data[off:off + 2] in (b"\x81\x00", b"\x88\xa8", b"\x91\x00") and len(data) >= off + 4:
-        ids.append(int.from_bytes(data[off + 2:off + 4], "big") & 0x0FFF)
-        off += 4
-    return tuple(ids)
+    return tuple(int.from_bytes(data[tag:tag + 2], "big") & 0x0FFF for tag in headers(linktype, data).tags)
