@@ -48,9 +48,9 @@ from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.transactions import TransactionEngine
 from pd_analyze.capture import CaptureError, RawFrame
 from pd_analyze.output import dump
-from pd_analyze.protocol import link, profiles, rpc
-from pd_analyze.protocol import pnio_checks as checks
-from pd_analyze.protocol.dissector import Dissector, FrameResult
+from pd_analyze.protocol import link, rpc
+from pd_analyze.protocol.dissector import Dissector
+from pd_analyze.protocol.frames import FrameResult
 from pd_analyze.protocol.profidrive_checks import Checker
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -498,7 +498,7 @@ class Runner:
         self.base_seed = base_seed
         self.frame_limit = frame_limit
         self.workdir = workdir or tempfile.mkdtemp(prefix="pd-fuzz-", dir=_tmp_root())
-        self.checker = Checker(profiles.generic(), profiles.load("sinamics"))
+        self.checker = Checker.for_profile("sinamics")
         self.rows = Rows()
         signal.signal(signal.SIGALRM, _on_alarm)
 
@@ -624,7 +624,7 @@ class Runner:
         """The report path beyond rows: typed tables, CSV cells, the summary."""
         from pd_analyze.analysis.api import Analysis, CaptureResult
         from pd_analyze.output import report
-        from pd_analyze.protocol.dissector import Accounting
+        from pd_analyze.protocol.frames import Accounting
 
         analysis = Analysis(self.rows, [CaptureResult("fuzz", Accounting())], "sinamics", 10.0, 5.0)
         report.summary(analysis)
@@ -646,7 +646,6 @@ def check_result(res: FrameResult, data: bytes) -> None:
                             f"{len(data)} bytes")
         if f.raw != data[f.offset:f.offset + f.length]:
             raise InvariantError(f"frame {res.frame}: field {f.name} raw bytes differ from the frame at {f.offset}")
-    dump.mark_checks(res, checks.CHECKED_FIELDS)
     text = dump.frame_text(res)
     for line in text.split("\n"):
         if not line.isprintable():

@@ -137,7 +137,6 @@ def run(kind: str, count: int, dump: bool = False, seed: int = 1, tables: bool =
     """
     from pd_analyze.analysis.transactions import TransactionEngine
     from pd_analyze.output import dump as dump_mod
-    from pd_analyze.protocol import pnio_checks as checks
     from pd_analyze.protocol.dissector import Dissector
 
     started = time.perf_counter()
@@ -170,7 +169,6 @@ def run(kind: str, count: int, dump: bool = False, seed: int = 1, tables: bool =
     def results(res_list: list) -> None:
         for res in res_list:
             if dump:
-                dump_mod.mark_checks(res, checks.CHECKED_FIELDS)
                 dump_mod.frame_text(res)
             closed(engine.feed(res))
         if rows is not None:

@@ -18,7 +18,6 @@ from pd_analyze.capture import CaptureError
 from pd_analyze.model.fields import FIELDS
 from pd_analyze.output import dump
 from pd_analyze.output.decode import decode, parse_hex
-from pd_analyze.protocol import pnio_checks as checks
 from pd_analyze.protocol import profiles
 from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT, Dissector, dissect
 from pd_analyze.protocol.profidrive_checks import Checker
@@ -121,7 +120,7 @@ def _lines(coloured: bool) -> Callable[[str], None]:
 
 def _checker(profile: str) -> Checker:
     try:
-        return Checker(profiles.generic(), profiles.load(profile))
+        return Checker.for_profile(profile)
     except profiles.ProfileError as exc:
         raise click.BadParameter(str(exc), param_hint="--profile") from None
 
@@ -160,7 +159,7 @@ def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None
         d = Dissector(annotate=True, rpc_timeout=rpc_timeout, checker=checker)
         results = (r for r in dissect(path, dissector=d) if wanted(r.frame))
         try:
-            dump.render(results, fmt, _lines(colour and fmt == "text"), style, findings_only, checks.CHECKED_FIELDS)
+            dump.render(results, fmt, _lines(colour and fmt == "text"), style, findings_only)
         except CaptureError as exc:
             click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
             status = EXIT_USAGE

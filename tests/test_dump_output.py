@@ -17,7 +17,8 @@ from pd_analyze.model import layout as structs
 from pd_analyze.model.layout import Field, Layout
 from pd_analyze.output import dump
 from pd_analyze.protocol import pnio_checks as checks
-from pd_analyze.protocol.dissector import Dissector, FrameResult, dissect
+from pd_analyze.protocol.dissector import Dissector, dissect
+from pd_analyze.protocol.frames import FrameResult, mark_checks
 
 REPO = Path(__file__).resolve().parent.parent
 SAMPLES = sorted(p for p in (REPO / "sample_pcaps").iterdir() if p.is_file() and p.name != "README.md")
@@ -26,7 +27,7 @@ SAMPLES = sorted(p for p in (REPO / "sample_pcaps").iterdir() if p.is_file() and
 def _results(path: Path) -> list[FrameResult]:
     out = []
     for res in dissect(str(path), dissector=Dissector(annotate=True)):
-        dump.mark_checks(res, checks.CHECKED_FIELDS)
+        mark_checks(res, checks.CHECKED_FIELDS)
         out.append(res)
     return out
 
@@ -152,7 +153,7 @@ def test_worked_example_read_response_text_exactly() -> None:
 
 
 def test_equal_bytes_at_another_offset_are_written_at_theirs() -> None:
-    from pd_analyze.protocol.dissector import Layer
+    from pd_analyze.protocol.frames import Layer
 
     layout = Layout("test", ">", (("udp.sport", "H"), ("udp.dport", "H"), ("rpc.activity", "16s")))
     buf = bytes(range(20))

@@ -15,7 +15,7 @@ from devtools import fuzz
 from pd_analyze import capture
 from pd_analyze.output import dump
 from pd_analyze.protocol import profidrive, rpc
-from pd_analyze.protocol.dissector import Accounting
+from pd_analyze.protocol.frames import Accounting
 
 QUICK_FRAMES = 100_000
 QUICK_SEED = 20_260_101

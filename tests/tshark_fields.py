@@ -43,7 +43,8 @@ from typing import NamedTuple
 
 from pd_analyze.capture import CaptureError
 from pd_analyze.model import fields as registry
-from pd_analyze.protocol.dissector import Dissector, FrameResult, dissect
+from pd_analyze.protocol.dissector import Dissector, dissect
+from pd_analyze.protocol.frames import FrameResult
 
 TSHARK = shutil.which("tshark")
 INSTALL_HINT = "tshark not installed: apt-get install tshark"

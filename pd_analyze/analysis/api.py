@@ -21,11 +21,13 @@ from itertools import chain
 from typing import TYPE_CHECKING
 
 from pd_analyze import capture
+from pd_analyze.analysis.drilldown import annotated_frames
 from pd_analyze.analysis.rows import COLUMNS, Rows, frame_of, stitch_part, stitch_values_before
 from pd_analyze.analysis.transactions import DEFAULT_TXN_TIMEOUT, LastDone, Transaction, TransactionEngine, iter_closed
 from pd_analyze.capture import CaptureError
 from pd_analyze.protocol import profiles
-from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT, Accounting, Dissector, dissect, dissect_frames
+from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT, Dissector, dissect_frames
+from pd_analyze.protocol.frames import Accounting
 from pd_analyze.protocol.profidrive_checks import Checker
 
 if TYPE_CHECKING:
@@ -72,14 +74,7 @@ class Analysis:
     @cached_property
     def accounting(self) -> pd.DataFrame:
         """Per capture: frames read = decoded + skipped + malformed, and why frames were skipped."""
-        import pandas as pd
-
-        return pd.DataFrame([{
-            "capture": c.path, "read": c.accounting.read, "decoded": c.accounting.decoded,
-            "skipped": sum(c.accounting.skipped.values()), "malformed": sum(c.accounting.malformed.values()),
-            "balanced": c.accounting.balanced(), "transactions": c.transactions, "error": c.error,
-            "skipped_by_reason": dict(c.accounting.skipped), "malformed_by_reason": dict(c.accounting.malformed),
-        } for c in self.captures])
+        return accounting_frame(self.captures)
 
     @property
     def errors(self) -> list[str]:
@@ -94,16 +89,30 @@ class Analysis:
             raise KeyError(f"no transaction {txn}")
         capture = str(row.capture.iloc[0])
         frames = {int(n) for n in str(row.frames.iloc[0]).split()}
-        checker = Checker(profiles.generic(), profiles.load(self.profile))
         out = []
-        d = Dissector(annotate=True, rpc_timeout=self.rpc_timeout, checker=checker)
-        for res in dissect(capture, dissector=d):
-            if res.frame in frames:
-                for layer in res.layers:
-                    out += [{"frame": res.frame, "layer": layer.title, "name": f.name, "offset": f.offset,
-                             "length": f.length, "raw": f.raw.hex(" "), "value": f.value, "show": f.show,
-                             "check": f.check} for f in layer.fields]
+        for res in annotated_frames(capture, frames, self.profile, self.rpc_timeout):
+            for layer in res.layers:
+                out += [{"frame": res.frame, "layer": layer.title, "name": f.name, "offset": f.offset,
+                         "length": f.length, "raw": f.raw.hex(" "), "value": f.value, "show": f.show,
+                         "check": f.check} for f in layer.fields]
         return pd.DataFrame(out)
+
+
+ACCOUNTING_COLUMNS = {  # name: dtype
+    "capture": "str", "read": "int64", "decoded": "int64", "skipped": "int64", "malformed": "int64",
+    "balanced": "bool", "transactions": "int64", "error": "str", "skipped_by_reason": "object",
+    "malformed_by_reason": "object"}
+
+
+def accounting_frame(captures: Iterable[CaptureResult]) -> pd.DataFrame:
+    """Per capture: frames read = decoded + skipped + malformed, and why frames were skipped or malformed."""
+    import pandas as pd
+
+    return pd.DataFrame([(
+        c.path, c.accounting.read, c.accounting.decoded, sum(c.accounting.skipped.values()),
+        sum(c.accounting.malformed.values()), c.accounting.balanced(), c.transactions, c.error,
+        dict(c.accounting.skipped), dict(c.accounting.malformed)) for c in captures],
+        columns=list(ACCOUNTING_COLUMNS)).astype(ACCOUNTING_COLUMNS)
 
 
 def expand(paths: str | Iterable[str]) -> list[str]:
@@ -191,7 +200,7 @@ def _analyze_file(path: str, settings: tuple[str, float, float],
                   offset: int = 0) -> tuple[Rows, CaptureResult]:
     """One capture, numbered from transaction `offset` + 1 (a process-pool task: arguments and result pickle)."""
     profile, timeout, rpc_timeout = settings
-    checker = Checker(profiles.generic(), profiles.load(profile))
+    checker = Checker.for_profile(profile)
     rows = Rows() if rows is None else rows
     d = Dissector(annotate=False, rpc_timeout=rpc_timeout, checker=checker)
     result = CaptureResult(path, d.accounting)
@@ -293,7 +302,7 @@ def _add_part(total: CaptureResult, result: CaptureResult) -> None:
 def _analyze_range(task: tuple) -> tuple[Rows, CaptureResult]:
     """Frames [first, end) of a split capture (a process-pool task)."""
     path, offset, lead_frame, first, end, (profile, timeout, rpc_timeout) = task
-    checker = Checker(profiles.generic(), profiles.load(profile))
+    checker = Checker.for_profile(profile)
     d = Dissector(annotate=False, rpc_timeout=rpc_timeout, checker=checker)
     engine = TransactionEngine(timeout)
     engine.number_from = first
@@ -352,7 +361,7 @@ def _analyze_range(task: tuple) -> tuple[Rows, CaptureResult]:
 def _analyze_chain(files: list[str], settings: tuple[str, float, float],
                    progress: Callable[[str, int], None] | None, rows: Rows) -> list[CaptureResult]:
     profile, timeout, rpc_timeout = settings
-    checker = Checker(profiles.generic(), profiles.load(profile))
+    checker = Checker.for_profile(profile)
     d = Dissector(annotate=False, rpc_timeout=rpc_timeout, checker=checker)
     results: list[CaptureResult] = []
     starts: list[int] = []  # first global frame number of each file

@@ -19,7 +19,7 @@ import dask
 import dask.dataframe as dd
 import pandas as pd
 
-from pd_analyze.analysis.api import _analyze_file, expand
+from pd_analyze.analysis.api import CaptureResult, _analyze_file, accounting_frame, expand
 from pd_analyze.analysis.rows import COLUMNS, Rows, frame_of
 from pd_analyze.analysis.transactions import DEFAULT_TXN_TIMEOUT
 from pd_analyze.protocol import profiles
@@ -38,12 +38,8 @@ def _table(part: tuple[Rows, object], name: str) -> pd.DataFrame:
     return frame_of(name, getattr(part[0], name))
 
 
-def _accounting(part: tuple[Rows, object]) -> pd.DataFrame:
-    result = part[1]
-    acc = result.accounting
-    return pd.DataFrame([{"capture": result.path, "read": acc.read, "decoded": acc.decoded,
-                          "skipped": sum(acc.skipped.values()), "malformed": sum(acc.malformed.values()),
-                          "transactions": result.transactions, "error": result.error}])
+def _accounting(part: tuple[Rows, CaptureResult]) -> pd.DataFrame:
+    return accounting_frame([part[1]])
 
 
 def analyze(paths: str | Iterable[str], profile: str = profiles.DEFAULT, timeout: float = DEFAULT_TXN_TIMEOUT,
@@ -57,13 +53,6 @@ def analyze(paths: str | Iterable[str], profile: str = profiles.DEFAULT, timeout
     tables = {name: dd.from_delayed([dask.delayed(_table)(part, name) for part in parts],
                                     meta=frame_of(name, []), verify_meta=False)
               for name in COLUMNS}
-    meta = _accounting((Rows(), _empty_result()))
-    accounting = dd.from_delayed([dask.delayed(_accounting)(part) for part in parts], meta=meta.iloc[:0])
+    accounting = dd.from_delayed([dask.delayed(_accounting)(part) for part in parts], meta=accounting_frame([]))
     return Tables(accounting=accounting, **tables)
 
-
-def _empty_result() -> object:
-    from pd_analyze.analysis.api import CaptureResult
-    from pd_analyze.protocol.dissector import Accounting
-
-    return CaptureResult("", Accounting())

@@ -28,7 +28,7 @@ from pd_analyze.model.values import (
 )
 from pd_analyze.model.verdicts import ANSWERED, FAILED_UNANSWERED, PRECEDENCE
 from pd_analyze.protocol import pnio as rec
-from pd_analyze.protocol.dissector import FrameResult, Pdu
+from pd_analyze.protocol.frames import FrameResult, Pdu
 from pd_analyze.protocol.pnio import Status
 from pd_analyze.protocol.profidrive import Parsed, footprint
 

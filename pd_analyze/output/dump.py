@@ -8,7 +8,7 @@ from collections.abc import Callable, Iterable
 
 from pd_analyze.model.layout import Field, json_value
 from pd_analyze.model.rules import ERROR, INFO, WARNING, Finding
-from pd_analyze.protocol.dissector import FrameResult
+from pd_analyze.protocol.frames import FrameResult
 
 Style = Callable[[str, str], str]  # (text, role) -> text, roles: severity names, "frame", "dim"
 _SEV_LETTER = {ERROR: "E", WARNING: "W", INFO: "I"}
@@ -24,29 +24,6 @@ def safe(text: str) -> str:
     if text.isprintable():
         return text
     return "".join(ch if ch.isprintable() else ch.encode("unicode_escape").decode("ascii") for ch in text)
-
-
-def mark_checks(result: FrameResult, checked: frozenset[str]) -> None:
-    """Each field's check result: the finding that names it, or 'ok' for a checked field."""
-    by_field: dict[str, list[Finding]] = {}
-    for f in result.findings:
-        by_field.setdefault(f.field, []).append(f)
-    for layer in result.layers:
-        for fld in layer.fields:  # some 60 a frame: two set lookups each, a call only where a finding is
-            name = fld.name
-            if name in by_field:
-                mark_field(fld, by_field, checked)
-            elif name in checked and not fld.check:
-                fld.check = "ok"
-
-
-def mark_field(fld: Field, by_field: dict[str, list[Finding]], checked: frozenset[str]) -> None:
-    found = by_field.get(fld.name)
-    if found:
-        broken = "; ".join(f"{f.rule} {f.severity}: {f.message}" for f in found)
-        fld.check = broken
-    elif not fld.check and fld.name in checked:
-        fld.check = "ok"
 
 
 def frame_json(result: FrameResult) -> str:
@@ -212,13 +189,12 @@ def parse_frames(spec: str) -> Callable[[int], bool]:
 
 
 def render(results: Iterable[FrameResult], fmt: str, write: Callable[[str], None], style: Style,
-           findings_only: bool, checked: frozenset[str]) -> int:
+           findings_only: bool) -> int:
     """Write each result; returns the number of frames written."""
     count = 0
     for result in results:
         if findings_only and not result.findings:
             continue
-        mark_checks(result, checked)
         write(frame_json(result) if fmt == "json" else frame_text(result, style, findings_only) + "\n")
         count += 1
     return count

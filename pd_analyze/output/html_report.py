@@ -32,7 +32,7 @@ from pd_analyze import __version__
 from pd_analyze.analysis.api import Analysis
 from pd_analyze.model.verdicts import VERDICTS
 from pd_analyze.output import plots
-from pd_analyze.protocol.dissector import FrameResult
+from pd_analyze.protocol.frames import FrameResult
 
 MAX_ROWS = 5_000
 MAX_DRILLDOWN = 50
@@ -190,17 +190,11 @@ def drilldown(analysis: Analysis, txns: pd.DataFrame) -> dict[int, list[dict[str
 
     One annotated pass per capture, stopping after the last frame any of them needs.
     """
-    from pd_analyze.capture import CaptureError
-    from pd_analyze.output import dump
-    from pd_analyze.protocol import pnio_checks as checks
-    from pd_analyze.protocol import profiles
-    from pd_analyze.protocol.dissector import Dissector, dissect
-    from pd_analyze.protocol.profidrive_checks import Checker
+    from pd_analyze.analysis.drilldown import annotated_frames
 
     out: dict[int, list[dict[str, object]]] = {}
     if txns.empty:
         return out
-    checker = Checker(profiles.generic(), profiles.load(analysis.profile))
     for capture, group in txns.groupby("capture", observed=True, sort=False):
         wanted: dict[int, list[int]] = {}
         for row in group.itertuples():
@@ -209,19 +203,10 @@ def drilldown(analysis: Analysis, txns: pd.DataFrame) -> dict[int, list[dict[str
                 wanted.setdefault(number, []).append(int(row.txn))
         if not wanted:
             continue
-        last = max(wanted)
-        d = Dissector(annotate=True, rpc_timeout=analysis.rpc_timeout, checker=checker)
-        try:
-            for res in dissect(str(capture), dissector=d):
-                if res.frame in wanted:
-                    dump.mark_checks(res, checks.CHECKED_FIELDS)
-                    item = _frame_item(res)
-                    for txn in wanted[res.frame]:
-                        out[txn].append(item)
-                if res.frame >= last:
-                    break
-        except CaptureError:
-            pass  # the frames before the damage are there; the error is in the summary
+        for res in annotated_frames(str(capture), wanted, analysis.profile, analysis.rpc_timeout):
+            item = _frame_item(res)
+            for txn in wanted[res.frame]:
+                out[txn].append(item)
     for txn, items in out.items():
         total = len(str(txns.loc[txns.txn == txn, "frames"].iloc[0]).split())
         if total > len(items) and items:

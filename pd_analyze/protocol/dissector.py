@@ -10,9 +10,8 @@ field objects are built and nothing is held.
 
 from __future__ import annotations
 
-from collections import Counter, deque
+from collections import deque
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
 
 from pd_analyze import capture
 from pd_analyze.model.layout import Field, derived, plain
@@ -40,9 +39,11 @@ from pd_analyze.model.values import (
     PTYPE_WORKING,
     RPC_PTYPE,
 )
-from pd_analyze.protocol import link, profidrive, profiles, rpc
+from pd_analyze.protocol import link, profidrive, rpc
 from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol import pnio_checks as checks
+from pd_analyze.protocol.frames import Accounting, FrameResult, Layer, Pdu, mark_checks
+from pd_analyze.protocol.pnio_checks import CHECKED_FIELDS
 from pd_analyze.protocol.profidrive_checks import Checker
 
 DEFAULT_RPC_TIMEOUT = 5.0
@@ -58,84 +59,6 @@ RECORD_SERVICES = (OP_READ, OP_WRITE, OP_READ_IMPLICIT)
 MALFORMED_RPC = "PNIO RPC PDU truncated or undecodable"
 
 
-@dataclass(slots=True)
-class Layer:
-    title: str
-    depth: int
-    fields: list[Field]
-
-
-@dataclass(slots=True)
-class Pdu:
-    """A complete PNIO RPC PDU (request, response, fault or reject) with its decoded stub."""
-
-    frame: int
-    ts: float
-    src: bytes
-    dst: bytes
-    sport: int
-    dport: int
-    ptype: int
-    opnum: int
-    activity: bytes
-    seq: int
-    stub: rec.Stub | None = None
-    request: rpc.Call | None = None  # for responses/faults: the call they answer
-    retransmission: bool = False
-    fault_status: int | None = None
-    malformed: bool = False
-    fragments: tuple[int, ...] = ()  # frames of the IP/CL fragments it was reassembled from
-    first_ts: float | None = None  # a request is timed at its first frame (protocol.md 7.6)
-
-
-@dataclass(slots=True)
-class FrameResult:
-    frame: int
-    ts: float
-    src_ip: bytes
-    dst_ip: bytes
-    summary: str
-    ptype: int
-    layers: list[Layer] = field(default_factory=list)
-    findings: list[Finding] = field(default_factory=list)
-    pdu: Pdu | None = None
-
-    @property
-    def src(self) -> str:
-        return link.ip_text(self.src_ip)
-
-    @property
-    def dst(self) -> str:
-        return link.ip_text(self.dst_ip)
-
-    def fields(self) -> Iterator[Field]:
-        for layer in self.layers:
-            yield from layer.fields
-
-
-@dataclass(slots=True)
-class Accounting:
-    """Every frame read is decoded, skipped (by reason) or malformed (by reason)."""
-
-    read: int = 0
-    decoded: int = 0
-    skipped: Counter = field(default_factory=Counter)
-    malformed: Counter = field(default_factory=Counter)
-
-    def balanced(self) -> bool:
-        return self.read == self.decoded + sum(self.skipped.values()) + sum(self.malformed.values())
-
-    def line(self) -> str:
-        skipped = sum(self.skipped.values())
-        parts = [f"{self.read} frames read", f"{self.decoded} PNIO RPC decoded", f"{skipped} skipped"]
-        if self.skipped:
-            parts[-1] += " (" + ", ".join(f"{n} {why}" for why, n in self.skipped.most_common()) + ")"
-        if self.malformed:
-            parts.append(f"{sum(self.malformed.values())} malformed (" + ", ".join(
-                f"{n} {why}" for why, n in self.malformed.most_common()) + ")")
-        return ", ".join(parts)
-
-
 class Dissector:
     """State for one capture: IP and CL reassembly, open calls, the ordered output."""
 
@@ -143,7 +66,7 @@ class Dissector:
                  checker: Checker | None = None) -> None:
         self.annotate = annotate
         self.rpc_timeout = rpc_timeout
-        self.checker = checker or Checker(profiles.generic())
+        self.checker = checker or Checker.for_profile()
         self.records_not_profidrive = 0
         # the last parameter request per channel and its frame, to label the blocks of responses
         self._pd_requests: dict[tuple, tuple[profidrive.Parsed, int]] = {}
@@ -211,9 +134,9 @@ class Dissector:
         for number in list(self._waiting):
             self._waiting.pop(number, None)
         released = self._release(out)
-        released += list(self._held)
+        rest = list(self._held)
         self._held.clear()
-        return released
+        return released + self._marked(rest)
 
     # --- UDP payload to PNIO RPC ------------------------------------------------------------
     def _udp(self, number: int, ts: float, linktype: int, data: bytes,
@@ -606,7 +529,14 @@ class Dissector:
             ready.append(self._held.popleft())
             self._held_index.pop(head.frame, None)
             self._held_fields -= sum(len(layer.fields) for layer in head.layers)
-        return ready
+        return self._marked(ready)
+
+    @staticmethod
+    def _marked(results: list[FrameResult]) -> list[FrameResult]:
+        """Annotated results as they leave: every field's check says ok or names its finding."""
+        for res in results:
+            mark_checks(res, CHECKED_FIELDS)
+        return results
 
     def _link_later(self, fkey: tuple, number: int) -> None:
         """Remember a held fragment's frame, to link it to the frame that reassembles its PDU."""

@@ -11,7 +11,7 @@ from functools import cache
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.rules import Finding, finding
 from pd_analyze.protocol.profidrive import Block, Parsed
-from pd_analyze.protocol.profiles import Limit, Profile
+from pd_analyze.protocol.profiles import DEFAULT, Limit, Profile, generic, load
 
 MAX_VALUE_BYTES = 240 - 12  # one parameter's values in a change request (protocol.md 6.3 P8)
 
@@ -31,6 +31,11 @@ class Checker:
         # the common case is decided by two comparisons.
         self._within = {key: (max(lim.ranges[0][0] for _, lim in pairs), min(lim.ranges[0][1] for _, lim in pairs))
                         for key, pairs in self._by_key.items() if all(len(lim.ranges) == 1 for _, lim in pairs)}
+
+    @classmethod
+    def for_profile(cls, profile: str = DEFAULT) -> Checker:
+        """The checker every path uses: the generic profile plus the named (or file) vendor profile."""
+        return cls(generic(), load(profile))
 
     @property
     def tolerate(self) -> frozenset[str]:
