@@ -101,7 +101,8 @@ PNIORW_CODE1 = _frozen({
     0xA8: "application: version conflict", 0xA9: "application: feature not supported",
     **{c: "application: user-specific" for c in range(0xAA, 0xB0)},
     0xB0: "access: invalid index (no parameter access point at this slot/subslot/index)",
-    0xB1: "access: write length error (request > 240 or < 4 bytes, or read buffer too small)",
+    0xB1: ("access: write length error (parameter request above the record limit or shorter than its header, "
+           "or read buffer too small)"),
     0xB2: "access: invalid slot/subslot",
     0xB3: "access: type conflict", 0xB4: "access: invalid area",
     0xB5: "access: state conflict (PROFIdrive: response not ready yet / request still processed)",

@@ -272,7 +272,8 @@ class Dissector:
             pdu.request.info = stub
         declared = len(body) if frames else hdr.frag_len  # a cut PDU keeps its declared length
         res.findings += checks.ndr(stub, declared, opnum, number, request_stub)
-        res.findings += checks.blocks(stub, opnum, number, request_stub, self.checker.tolerate)
+        res.findings += checks.blocks(stub, opnum, number, request_stub, self.checker.record.max_length,
+                                      self.checker.tolerate)
         self._records(res, stub, hdr, dgram)
         if not response and not pdu.retransmission and pdu.request is not None:
             self.calls.charge(key, pdu.request, _decoded_cost(stub), res.findings)  # info keeps the stub
@@ -389,7 +390,8 @@ class Dissector:
                 continue
             if response and stub.status is not None and not stub.status.ok:
                 continue
-            if block.index == INDEX_PD_DPV1 and not profidrive.plausible(block.record, response):
+            max_params = self.checker.record.max_params
+            if block.index == INDEX_PD_DPV1 and not profidrive.plausible(block.record, response, max_params):
                 res.findings.append(finding("not_profidrive", number, "iod.index", "0x002f",
                                             "a plausible PROFIdrive header", "record at index 0x002F is not a "
                                                                              "PROFIdrive parameter block"))

@@ -28,8 +28,6 @@ from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol import rpc
 from pd_analyze.protocol.pnio import Block, Stub
 
-PD_MAX_RECORD = 240
-
 
 def rpc_header(hdr: rpc.Header, frame: int, body_present: int, record_service: bool) -> list[Finding]:
     """R2, R5, R6 and the serial-number note on one PDU header."""
@@ -140,9 +138,10 @@ def pnio_status(status: rec.Status, opnum: int, frame: int, prefix: str) -> list
     return out
 
 
-def blocks(stub: Stub, opnum: int, frame: int, request: Stub | None,
+def blocks(stub: Stub, opnum: int, frame: int, request: Stub | None, max_record: int,
            tolerate: frozenset[str] = frozenset()) -> list[Finding]:
-    """H1-H14 on the IOD blocks of one stub (`tolerate`: the vendor profile's tolerations)."""
+    """H1-H14 on the IOD blocks of one stub (`max_record`: the profile's record limit, `tolerate`: the
+    vendor profile's tolerations)."""
     out: list[Finding] = []
     expected = rec.EXPECTED_BLOCK.get((opnum, stub.response))
     if expected is None:
@@ -150,7 +149,7 @@ def blocks(stub: Stub, opnum: int, frame: int, request: Stub | None,
     for block in stub.blocks:
         out += _header_form(block, expected, frame, stub.response)
         if not stub.response:
-            out += _request_header(block, opnum, frame, tolerate)
+            out += _request_header(block, opnum, frame, max_record, tolerate)
         else:
             out += _response_header(block, frame)
     if stub.trailing:
@@ -193,7 +192,8 @@ def _header_form(block: Block, expected: int, frame: int, response: bool) -> lis
     return out
 
 
-def _request_header(block: Block, opnum: int, frame: int, tolerate: frozenset[str]) -> list[Finding]:
+def _request_header(block: Block, opnum: int, frame: int, max_record: int,
+                    tolerate: frozenset[str]) -> list[Finding]:
     out = []
     v = block.values
     nil = v[rec.B_AR] == rec.NIL_UUID
@@ -215,12 +215,12 @@ def _request_header(block: Block, opnum: int, frame: int, tolerate: frozenset[st
         elif v[rec.B_API] != API_PROFIDRIVE:
             out.append(finding("api_not_profidrive", frame, "iod.api", f"{v[rec.B_API]:#010x}",
                                "0x00003a00", "API is not the PROFIdrive API 0x3A00"))
-        if opnum == OP_WRITE and not 4 <= reclen <= PD_MAX_RECORD:
-            out.append(finding("pd_record_length", frame, "iod.record_len", reclen, f"4 ... {PD_MAX_RECORD}",
+        if opnum == OP_WRITE and not 4 <= reclen <= max_record:
+            out.append(finding("pd_record_length", frame, "iod.record_len", reclen, f"4 ... {max_record}",
                                "PROFIdrive parameter request length out of range (device answers B1)"))
-        if opnum != OP_WRITE and reclen < PD_MAX_RECORD:
-            out.append(finding("pd_read_buffer_small", frame, "iod.record_len", reclen, f">= {PD_MAX_RECORD}",
-                               "read buffer below 240 bytes: a long parameter response may not fit (B1)"))
+        if opnum != OP_WRITE and reclen < max_record:
+            out.append(finding("pd_read_buffer_small", frame, "iod.record_len", reclen, f">= {max_record}",
+                               f"read buffer below {max_record} bytes: a long parameter response may not fit (B1)"))
     return out
 
 

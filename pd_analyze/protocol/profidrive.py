@@ -18,6 +18,7 @@ from datetime import date, timedelta
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.layout import Field, Layout
 from pd_analyze.model.rules import Finding, finding
+from pd_analyze.protocol.profiles import generic_record
 
 HEADER = Layout("PROFIdrive header", ">", (("pd.ref", "B"), ("pd.req_id", "B"), ("pd.do", "B"),
                                            ("pd.n_params", "B")))
@@ -484,9 +485,10 @@ def _is_text(block: Block) -> bool:
     return spec is None or block.unknown_size or spec.kind in ("string", "octets", "unicode")
 
 
-def plausible(data: bytes, response: bool | None = None) -> bool:
+def plausible(data: bytes, response: bool | None = None, max_params: int | None = None) -> bool:
     """Index 0x002F carries PROFIdrive only if the header is plausible (protocol.md 1.4): Request or
-    Response ID valid, 1 <= n <= 39, reference != 0, lengths consistent.
+    Response ID valid, 1 <= n <= `max_params` (default: the generic profile's record limit), reference
+    != 0, lengths consistent.
 
     `response` names the direction (False: parameter request of a write, True: parameter response
     of a read); None accepts either reading, for callers that do not pass it. Request and Response
@@ -495,10 +497,12 @@ def plausible(data: bytes, response: bool | None = None) -> bool:
     if len(data) < 4:
         return False
     ref, ident, _do, n = data[0], data[1], data[2], data[3]
-    if ref == 0 or not 1 <= n <= 39:
+    if max_params is None:
+        max_params = generic_record().max_params
+    if ref == 0 or not 1 <= n <= max_params:
         return False
     if response is None:
-        return plausible(data, False) or plausible(data, True)
+        return plausible(data, False, max_params) or plausible(data, True, max_params)
     if not response:
         if ident == pt.REQ_READ:
             return len(data) == 4 + 6 * n

@@ -13,14 +13,15 @@ from pd_analyze.model.rules import Finding, finding
 from pd_analyze.protocol.profidrive import Block, Parsed
 from pd_analyze.protocol.profiles import DEFAULT, Limit, Profile, generic, load
 
-MAX_VALUE_BYTES = 240 - 12  # one parameter's values in a change request (protocol.md 6.3 P8)
-
 
 class Checker:
     """The generic profile plus an optional vendor profile, applied to parsed records."""
 
     def __init__(self, generic: Profile, vendor: Profile | None = None) -> None:
         self.generic = generic
+        if generic.record is None:
+            raise ValueError(f"profile {generic.name} has no [record] limit to check against")
+        self.record = generic.record  # the record limit every check and message uses (protocol.md 3.6)
         self.vendor = vendor if vendor is not None and vendor.name != generic.name else None
         by_key: dict[str, list[tuple[Profile, Limit]]] = {}
         for profile in (self.generic, self.vendor):
@@ -116,9 +117,9 @@ class Checker:
                 out.append(finding("n_values_mismatch", frame, f"{name}.n_values", block.n_values,
                                    max(addr.n_elems, 1), f"{addr.label()}: No. of values differs from "
                                    "No. of elements (device answers error 0x18)"))
-            if len(block.data) > MAX_VALUE_BYTES:
+            if len(block.data) > self.record.max_value_bytes:
                 out.append(finding("value_too_long", frame, f"{name}.n_values", len(block.data),
-                                   f"<= {MAX_VALUE_BYTES} bytes", "value list longer than fits a request"))
+                                   f"<= {self.record.max_value_bytes} bytes", "value list longer than fits a request"))
             if addr.attr in (pt.ATTR_DESCRIPTION, pt.ATTR_TEXT):
                 out.append(finding("change_description", frame, f"pd.addr[{i}].attr", f"{addr.attr:#04x}",
                                    "0x10", f"{addr.label()}: change of the "

@@ -11,6 +11,7 @@ import os
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cache
 from importlib import resources
 from pathlib import Path
 from types import MappingProxyType
@@ -80,6 +81,41 @@ def _num(value: int, hexa: bool = False) -> str:
 
 
 @dataclass(frozen=True, slots=True)
+class RecordLimit:
+    """The longest parameter request or response a profile allows, and the limits that follow from it."""
+
+    max_length: int
+    source: str
+
+    @property
+    def max_params(self) -> int:
+        """Parameter addresses that fit a request: 4-byte header, 6 bytes each."""
+        return (self.max_length - 4) // 6
+
+    @property
+    def max_elements(self) -> int:
+        """Elements of 1-byte values that fit a response: 4-byte header, Format and No. of values."""
+        return self.max_length - 6
+
+    @property
+    def max_value_bytes(self) -> int:
+        """One parameter's values in a change request: header, one address, Format and No. of values."""
+        return self.max_length - 12
+
+    def limits(self, rule: str) -> tuple[Limit, ...]:
+        """The limits the record length implies, as if the profile file listed them."""
+        src, top = self.source, self.max_length
+        return (
+            Limit("request.n_params", LIMIT_KEYS["request.n_params"][0], ((1, self.max_params),),
+                  f"{src}: 4 + {self.max_params} x 6 <= {top}", rule),
+            Limit("request.n_elems", LIMIT_KEYS["request.n_elems"][0], ((0, self.max_elements),),
+                  f"{src}: {top} - 6 bytes of 1-byte values", rule),
+            Limit("response.length", LIMIT_KEYS["response.length"][0], ((0, top),),
+                  f"{src}: longer responses are refused with error 0x15; < 4 is Q1", "response_too_long"),
+        )
+
+
+@dataclass(frozen=True, slots=True)
 class Profile:
     name: str
     title: str
@@ -89,6 +125,7 @@ class Profile:
     tolerate: frozenset[str] = frozenset()
     vendor_ids: tuple[int, ...] = ()
     path: str = ""
+    record: RecordLimit | None = None  # the generic profile always has one
 
     def limits_for(self, key: str) -> tuple[Limit, ...]:
         return tuple(lim for lim in self.limits if lim.key == key)
@@ -113,7 +150,7 @@ def _profile(data: dict, where: str, default_rule: str) -> Profile:
     name = data.get("name")
     if not isinstance(name, str) or not name:
         raise fail("missing 'name' (a short profile name)")
-    unknown = set(data) - {"name", "title", "description", "limit", "error_texts", "tolerate", "vendor_ids"}
+    unknown = set(data) - {"name", "title", "description", "limit", "error_texts", "tolerate", "vendor_ids", "record"}
     if unknown:
         raise fail(f"unknown top-level keys {sorted(unknown)}")
 
@@ -160,8 +197,18 @@ def _profile(data: dict, where: str, default_rule: str) -> Profile:
     vendor_ids = tuple(typed(data, "vendor_ids", list, "a list of integers", []))
     if not all(isinstance(v, int) and not isinstance(v, bool) for v in vendor_ids):
         raise fail("vendor_ids must be integers")
+    record = None
+    if "record" in data:
+        table = typed(data, "record", dict, "a table ([record] max_length, source)", {})
+        record = RecordLimit(typed(table, "max_length", int, "an integer", 0),
+                             typed(table, "source", str, "a string", ""))
+        if record.max_length < 10 or not record.source:
+            raise fail("[record] needs max_length (at least 10 bytes) and its source")
+        limits += [lim for lim in record.limits(default_rule) if not any(k.key == lim.key for k in limits)]
+    elif name == DEFAULT:
+        raise fail("the generic profile needs its [record] max_length and source (protocol.md 3.6)")
     return Profile(name, str(data.get("title", name)), str(data.get("description", "")), tuple(limits),
-                   MappingProxyType(texts), tolerate, vendor_ids, where)
+                   MappingProxyType(texts), tolerate, vendor_ids, where, record)
 
 
 def _range(value: object, fail, n: int, key: str) -> tuple[int, int]:  # noqa: ANN001
@@ -206,3 +253,11 @@ def load(name_or_path: str) -> Profile:
 
 def generic() -> Profile:
     return load(DEFAULT)
+
+
+@cache
+def generic_record() -> RecordLimit:
+    """The generic profile's record limit, read once (for callers not given a Checker's)."""
+    record = generic().record
+    assert record is not None  # _profile refuses a generic profile without one
+    return record
