@@ -2,6 +2,7 @@
 
 import struct
 
+from pd_analyze.model import capped
 from pd_analyze.protocol import link
 from pd_analyze.protocol.link import LinkDecoder
 
@@ -98,10 +99,10 @@ def test_incomplete_fragments_reported_at_end():
 
 def test_reassembly_table_is_capped():
     dec = LinkDecoder()
-    for n in range(link.MAX_IP_DATAGRAMS + 10):
+    for n in range(capped.IP_DATAGRAMS.count + 10):
         dec.datagram(n + 1, 1, eth(ipv4(b"q" * 16, ident=n, mf=True)))
     evicted = [f for f in dec.findings if f.name == "ip_frag_evicted"]
-    assert len(evicted) == 10 and len(dec._open) == link.MAX_IP_DATAGRAMS
+    assert len(evicted) == 10 and len(dec._open) == capped.IP_DATAGRAMS.count
 
 
 def test_inconsistent_udp_length_is_a_finding():

@@ -123,7 +123,7 @@ def test_link_layer_offsets_inside_the_frame(frames: list[tuple[int, bytes]]) ->
                 if f.offset >= 0:
                     assert f.offset + f.length <= len(data) and f.raw == data[f.offset:f.offset + f.length]
     decoder.finish()
-    assert decoder._bytes == 0
+    assert decoder._open.bytes == 0
 
 
 # --- layer 3: DCE/RPC --------------------------------------------------------------------------------
@@ -166,9 +166,9 @@ def test_rpc_fragments_and_calls_stay_consistent(pdus: list[bytes]) -> None:
         elif hdr.ptype == 2:
             calls.close(key)
             table.drop_call(key, number, findings)
-        assert table._bytes >= 0 and calls.open_bytes >= 0 and calls.closed_bytes >= 0
+        assert table._sets.bytes >= 0 and calls.open.bytes >= 0 and calls.closed.bytes >= 0
     table.finish(len(pdus))
-    assert table._bytes == 0 and not table._by_call
+    assert table._sets.bytes == 0 and not table._by_call
 
 
 # --- layer 4: NDR and IOD blocks ---------------------------------------------------------------------

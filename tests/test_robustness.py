@@ -24,6 +24,7 @@ from pd_analyze.analysis import transactions
 from pd_analyze.analysis.rows import Rows, frame_of
 from pd_analyze.analysis.transactions import TransactionEngine
 from pd_analyze.capture import reader as capture
+from pd_analyze.model import capped
 from pd_analyze.model.rules import finding
 from pd_analyze.protocol import link, profidrive, rpc
 from pd_analyze.protocol.dissector import MAX_HELD_FIELDS, MAX_LOOSE_FINDINGS, Dissector
@@ -166,7 +167,7 @@ def test_one_datagram_flooded_with_pieces_is_capped() -> None:
         decoder.datagram(n + 1, 1, _fragment(7, n % 8000, 8))
     assert time.perf_counter() - started < 10
     entry = next(iter(decoder._open.values()))
-    assert len(entry.pieces) <= link.MAX_IP_PIECES and decoder.evicted >= 20_000 // link.MAX_IP_PIECES - 1
+    assert len(entry.pieces) <= capped.IP_PIECES and decoder.evicted >= 20_000 // capped.IP_PIECES - 1
 
 
 def test_identical_fragment_copies_are_not_held_twice() -> None:
@@ -174,22 +175,22 @@ def test_identical_fragment_copies_are_not_held_twice() -> None:
     for n in range(100):
         decoder.datagram(n + 1, 1, _fragment(7, 0, 64))
     entry = next(iter(decoder._open.values()))
-    assert len(entry.pieces) == 1 and decoder._bytes == 64 + link.PIECE_OVERHEAD
+    assert len(entry.pieces) == 1 and decoder._open.bytes == 64 + link.PIECE_OVERHEAD
 
 
 def test_many_datagrams_evicted_with_bounded_findings() -> None:
     decoder = link.LinkDecoder()
     for n in range(5000):
         decoder.datagram(n + 1, 1, _fragment(n & 0xFFFF, 0, 1400, src=n >> 16))
-        assert len(decoder._open) <= link.MAX_IP_DATAGRAMS and decoder._bytes <= link.MAX_IP_BYTES
-    assert decoder.evicted == 5000 - link.MAX_IP_DATAGRAMS
+        assert len(decoder._open) <= capped.IP_DATAGRAMS.count and decoder._open.bytes <= capped.IP_DATAGRAMS.bytes
+    assert decoder.evicted == 5000 - capped.IP_DATAGRAMS.count
     listed = [f for f in decoder.findings if f.name == "ip_frag_evicted"]
-    assert len(listed) == link.MAX_EVICTION_FINDINGS
+    assert len(listed) == capped.MAX_LISTED
     decoder.findings = []  # the dissector drains them after every frame
     ends = decoder.finish()
     summary = [f for f in ends if f.name == "ip_frag_evicted"]
-    assert len(summary) == 1 and f"{5000 - link.MAX_IP_DATAGRAMS - 100} more datagrams" in summary[0].message
-    assert sum(f.name == "ip_frag_incomplete" for f in ends) == link.MAX_IP_DATAGRAMS
+    assert len(summary) == 1 and f"{5000 - capped.IP_DATAGRAMS.count - 100} more datagrams" in summary[0].message
+    assert sum(f.name == "ip_frag_incomplete" for f in ends) == capped.IP_DATAGRAMS.count
 
 
 # --- rpc.py: CL fragments and calls -------------------------------------------------------------------------
@@ -204,7 +205,7 @@ def test_fragment_set_flooded_with_numbers_is_capped() -> None:
     findings: list = []
     for n in range(0, 3000, 2):
         table.add((b"a", 1, 0, b"s", b"d"), n, 0.0, _hdr(n), bytes(1384), findings)
-        assert table._bytes <= rpc.MAX_SET_BYTES
+        assert table._sets.bytes <= capped.CL_SET_BYTES
     assert any(f.name == "rpc_frag_evicted" and "above" in f.message for f in findings)
     (missing,) = table.finish(9999)
     assert missing.name == "rpc_frag_missing" and len(missing.message) < 300 and "more)" in missing.message
@@ -215,12 +216,12 @@ def test_fragment_table_total_bytes_and_done_digests_are_capped() -> None:
     findings: list = []
     for s in range(20_000):
         table.add((b"a", s, 0, b"s", b"d"), s, 0.0, _hdr(0, seq=s), bytes(1384), findings)
-        assert table._bytes <= rpc.MAX_FRAG_BYTES and len(table._sets) <= rpc.MAX_FRAG_SETS
-    assert table.evicted > 0 and sum(f.name == "rpc_frag_evicted" for f in findings) == rpc.MAX_EVICTION_FINDINGS
+        assert table._sets.bytes <= capped.CL_FRAGMENT_SETS.bytes and len(table._sets) <= capped.CL_FRAGMENT_SETS.count
+    assert table.evicted > 0 and sum(f.name == "rpc_frag_evicted" for f in findings) == capped.MAX_LISTED
     for s in range(3000):  # complete sets of 40 fragments each: the digests kept for late copies are capped
         for n in range(40):
             table.add((b"b", s, 0, b"s", b"d"), n, 0.0, _hdr(n, last=n == 39, seq=s), bytes([n]), findings)
-    assert table._done_count <= rpc.MAX_DONE_FRAGMENTS and len(table._done) <= rpc.MAX_DONE_SETS
+    assert table._done.bytes <= capped.CL_DONE_SETS.bytes and len(table._done) <= capped.CL_DONE_SETS.count
 
 
 def test_answers_find_their_fragment_sets_without_a_scan() -> None:
@@ -243,12 +244,12 @@ def test_open_and_closed_calls_are_capped_by_bytes() -> None:
         key = (b"a", s)
         call = calls.request(key, rpc.Call(s, 0.0, b"s", b"d", b"i", 3, bytes(60_000)), findings)
         calls.charge(key, call, 100_000, findings)
-        assert calls.open_bytes <= rpc.MAX_OPEN_BYTES + 200_000
+        assert calls.open.bytes <= capped.OPEN_CALLS.bytes + 200_000
         if s % 2:
             calls.close(key)
-            assert calls.closed_bytes <= rpc.MAX_CLOSED_BYTES
+            assert calls.closed.bytes <= capped.ANSWERED_CALLS.bytes
     assert calls.evicted > 0 and calls.finish() != []
-    assert sum(f.name == "rpc_call_evicted" for f in findings) == rpc.MAX_EVICTION_FINDINGS
+    assert sum(f.name == "rpc_call_evicted" for f in findings) == capped.MAX_LISTED
 
 
 # --- profidrive.py -------------------------------------------------------------------------------------------
@@ -269,9 +270,9 @@ def test_channel_table_is_capped_by_bytes() -> None:
     d = Dissector()
     for raw in hostile.frames("calls", 20_000):
         d.feed(raw)
-        assert d._pd_bytes <= 16 * 1024 * 1024 + 100_000
+        assert d._pd_requests.bytes <= 16 * 1024 * 1024 + 100_000
     assert len(d._pd_requests) < 20_000
-    assert d._pd_bytes == sum(profidrive.footprint(p) for p, _ in d._pd_requests.values())
+    assert d._pd_requests.bytes == sum(profidrive.footprint(p) for p, _ in d._pd_requests.values())
 
 
 def test_transaction_engine_state_is_bounded() -> None:
@@ -283,9 +284,9 @@ def test_transaction_engine_state_is_bounded() -> None:
     for raw in hostile.frames("calls", 40_000):
         for res in d.feed(raw):
             evicted += sum(t.closed_by == "evicted" for t in engine.feed(res))
-        assert engine._pending_bytes <= transactions.MAX_PENDING_BYTES + 100_000
+        assert engine._pending.bytes <= capped.PENDING_TRANSACTIONS.bytes + 100_000
     assert time.perf_counter() - started < 60
-    assert evicted > 0 and len(engine._pending) <= transactions.MAX_PENDING
+    assert evicted > 0 and len(engine._pending) <= capped.PENDING_TRANSACTIONS.count
     pending = {t.txn for t in engine._pending.values()}
     referenced = {t.txn for c in engine._calls.values() for t in c.txns if t is not None}
     assert referenced <= pending  # no closed transaction is kept alive by its calls
@@ -307,7 +308,7 @@ def test_long_b5_polling_is_linear_and_bounded() -> None:
     closed += engine.finish(1e12)
     assert time.perf_counter() - started < 30
     first = closed[0]
-    assert first.closed_by == "evicted" and len(first.frames) == transactions.MAX_TXN_FRAMES + 1
+    assert first.closed_by == "evicted" and len(first.frames) == capped.TXN_FRAMES + 1
     assert any(f.name == "txn_evicted" for f in first.findings) and first.verdict == "timeout"
 
 
@@ -317,7 +318,7 @@ def test_dump_hold_is_bounded_by_fields() -> None:
     for raw in hostile.frames("calls", 3000):
         d.feed(raw)
         assert d._held_fields <= MAX_HELD_FIELDS + 1000
-        assert len(d._frag_frames) <= rpc.MAX_FRAG_SETS
+        assert len(d._frag_frames) <= capped.CL_FRAGMENT_SETS.count
     assert set(d._held_index) == {r.frame for r in d._held}
 
 

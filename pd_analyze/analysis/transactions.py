@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 from pd_analyze.model import pd_values as pt
+from pd_analyze.model.capped import CHANNEL_HISTORY, PENDING_TRANSACTIONS, TXN_CALLS, TXN_FRAMES, CappedTable
 from pd_analyze.model.rules import Finding, finding
 from pd_analyze.model.values import (
     INDEX_WRITE_MULTIPLE,
@@ -34,10 +35,6 @@ from pd_analyze.protocol.profidrive import Parsed, footprint
 
 DEFAULT_TXN_TIMEOUT = 10.0
 DEFAULT_B5_THRESHOLD = 50
-MAX_OPEN_CALLS = 65_536
-MAX_PENDING = 16_384  # open transactions (the oldest ends as a timeout, closed_by "evicted")
-MAX_PENDING_BYTES = 32 * 1024 * 1024  # what they keep alive, by _cost
-MAX_TXN_FRAMES = 10_000  # frames of one transaction (10 s of B5 polling every millisecond)
 FRAME_COST = 1024  # bytes a transaction keeps per frame (frame lists, its RPC calls)
 
 # How a transaction that got no final answer ended (its verdict is then timeout, protocol.md 7.4).
@@ -154,11 +151,11 @@ class TransactionEngine:
         self.loose: list[Finding] = []  # findings of frames that belong to no transaction, drained by callers
         self.number_from = 0  # frames before this only warm up the state (a split capture's lead-in): txn 0
         self._next = 1
-        self._pending: dict[Channel, Transaction] = {}  # open transactions by channel, in opening order
+        # open transactions by channel, in opening order; the oldest ends as a timeout when the table is full
+        self._pending: CappedTable[Channel, Transaction] = CappedTable(PENDING_TRANSACTIONS)
         self._by_ar: dict[tuple, dict[Channel, Transaction]] = {}  # the same by device, controller, AR
-        self._pending_bytes = 0
-        self._last_done: dict[Channel, LastDone] = {}  # last closed transaction per channel (T1, T4)
-        self._calls: dict[int, _Call] = {}  # by request frame number
+        self._last_done: CappedTable[Channel, LastDone] = CappedTable(CHANNEL_HISTORY)  # for T1, T4
+        self._calls: CappedTable[int, _Call] = CappedTable(TXN_CALLS)  # by request frame number
         self._now = float("-inf")
 
     def name(self, txn: Transaction) -> str:
@@ -177,9 +174,9 @@ class TransactionEngine:
             if not owner.frames or (owner.frames[-1] < res.frame or res.frame not in owner.frames):
                 owner.frames.append(res.frame)  # results come in frame order: one comparison, as a rule
                 if not owner.closed_by:
-                    self._pending_bytes += FRAME_COST
-                    if len(owner.frames) > MAX_TXN_FRAMES:
-                        closed.append(self._evict(owner, res.frame, f"more than {MAX_TXN_FRAMES} frames"))
+                    self._pending.charge(owner.channel, FRAME_COST)
+                    if len(owner.frames) > TXN_FRAMES:
+                        closed.append(self._evict(owner, res.frame, f"more than {TXN_FRAMES} frames"))
         else:
             self.loose += res.findings
         return closed
@@ -271,11 +268,10 @@ class TransactionEngine:
             reuse = reuse_finding(last, txn.ref, pdu.frame)
             if reuse is not None:
                 txn.findings.append(reuse)
-        self._pending[channel] = txn
+        self._pending.put(channel, txn, _cost(txn))
         self._by_ar.setdefault(channel[:3], {})[channel] = txn
-        self._pending_bytes += _cost(txn)
-        while len(self._pending) > 1 and (len(self._pending) > MAX_PENDING or self._pending_bytes > MAX_PENDING_BYTES):
-            oldest = next(iter(self._pending.values()))
+        while len(self._pending) > 1 and self._pending.full():
+            oldest = self._pending.oldest()
             closed.append(self._evict(oldest, pdu.frame, "transaction table full"))
         return txn
 
@@ -397,20 +393,22 @@ class TransactionEngine:
     # --- closing ----------------------------------------------------------------------------
     def _evict(self, txn: Transaction, frame: int, why: str) -> Transaction:
         """Close a pending transaction the caps cannot hold any longer: a timeout, closed_by "evicted"."""
-        txn.findings.append(finding("txn_evicted", frame, "pd.ref", txn.ref,
-                                    f"<= {MAX_PENDING} pending, {MAX_TXN_FRAMES} frames each",
+        self._pending.evict(txn.channel, frame)  # counted; each evicted transaction is a row with its finding
+        txn.findings.append(finding(PENDING_TRANSACTIONS.rule, frame, "pd.ref", txn.ref,
+                                    f"{PENDING_TRANSACTIONS.text()}, {TXN_FRAMES} frames each",
                                     f"{why}: transaction {self.name(txn)} (frame {txn.write_req_frame}) ends as a "
                                     "timeout"))
         return self._close(txn, "evicted")
 
     def _close(self, txn: Transaction, why: str) -> Transaction:
-        if self._pending.get(txn.channel) is txn:
-            del self._pending[txn.channel]
-            self._pending_bytes -= _cost(txn) + FRAME_COST * len(txn.frames)
-            same_ar = self._by_ar.get(txn.channel[:3], {})
-            same_ar.pop(txn.channel, None)
+        channel = txn.channel
+        if self._pending.get(channel) is txn:
+            self._pending.pop(channel)
+        same_ar = self._by_ar.get(channel[:3])
+        if same_ar is not None and same_ar.get(channel) is txn:  # it was pending (and maybe evicted just now)
+            del same_ar[channel]
             if not same_ar:
-                self._by_ar.pop(txn.channel[:3], None)
+                del self._by_ar[channel[:3]]
             self._forget_calls(txn)
         txn.closed_by = why
         txn.verdict = _verdict(txn)
@@ -418,11 +416,9 @@ class TransactionEngine:
         txn.rpc_retransmissions = sum(c.copies for c in txn.rpc_calls if c is not None)
         if why in UNANSWERED_ENDS and not txn.pnio_status and txn.b5_retries:
             txn.pnio_status = f"DE80{PNIORW_STATE_CONFLICT:02X}00"  # last answer was B5 (txn.last_status)
-        self._last_done.pop(txn.channel, None)
         # not the transaction itself: it is handed on
-        self._last_done[txn.channel] = LastDone(self.name(txn), txn.ref, txn.verdict)
-        if len(self._last_done) > MAX_OPEN_CALLS:
-            del self._last_done[next(iter(self._last_done))]
+        self._last_done.put(channel, LastDone(self.name(txn), txn.ref, txn.verdict))
+        self._last_done.make_room(txn.write_req_frame)  # the oldest channels are forgotten
         return txn
 
     def _forget_calls(self, txn: Transaction) -> None:
@@ -430,12 +426,11 @@ class TransactionEngine:
         for frame in txn.frames:  # its requests' frames among them (a reassembled one: the completing frame)
             call = self._calls.get(frame)
             if call is not None and all(t is None or t is txn or t.closed_by for t in call.txns):
-                del self._calls[frame]
+                self._calls.pop(frame)
 
     def _remember(self, frame: int, call: _Call) -> None:
-        self._calls[frame] = call
-        if len(self._calls) > MAX_OPEN_CALLS:
-            del self._calls[next(iter(self._calls))]
+        self._calls.put(frame, call)
+        self._calls.make_room(frame)  # the oldest are forgotten
 
 
 def _verdict(txn: Transaction) -> str:

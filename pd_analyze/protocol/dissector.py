@@ -14,6 +14,13 @@ from collections import deque
 from collections.abc import Iterable, Iterator
 
 from pd_analyze import capture
+from pd_analyze.model.capped import (
+    CHANNEL_REQUESTS,
+    CL_LINKED_SETS,
+    IP_FRAGMENT_TIMES,
+    KNOWN_ACTIVITIES,
+    CappedTable,
+)
 from pd_analyze.model.layout import Field, derived, plain
 from pd_analyze.model.rules import Finding, finding
 from pd_analyze.model.values import (
@@ -49,10 +56,7 @@ from pd_analyze.protocol.profidrive_checks import Checker
 DEFAULT_RPC_TIMEOUT = 5.0
 MAX_HELD_FRAMES = 10_000
 MAX_HELD_FIELDS = 50_000  # annotated fields of the held frames (a field costs some 300 bytes)
-MAX_KNOWN_ACTIVITIES = 65_536
 MAX_LOOSE_FINDINGS = 100_000  # kept when nobody drains them (the dump lists them at the end)
-MAX_CHANNELS = 16_384  # channels whose last parameter request is kept for labelling responses
-MAX_CHANNEL_BYTES = 16 * 1024 * 1024  # those requests, by profidrive.footprint
 RECORD_SERVICES = (OP_READ, OP_WRITE, OP_READ_IMPLICIT)
 
 # Frame outcomes beyond the link-layer skip reasons.
@@ -69,22 +73,21 @@ class Dissector:
         self.checker = checker or Checker.for_profile()
         self.records_not_profidrive = 0
         # the last parameter request per channel and its frame, to label the blocks of responses
-        self._pd_requests: dict[tuple, tuple[profidrive.Parsed, int]] = {}
-        self._pd_bytes = 0
+        self._pd_requests: CappedTable[tuple, tuple[profidrive.Parsed, int]] = CappedTable(CHANNEL_REQUESTS)
         self.link = link.LinkDecoder()
         self.frags = rpc.FragmentTable()
         self.calls = rpc.CallTable()
         self.accounting = Accounting()
         self.loose_findings: list[Finding] = []  # findings on frames that are not PNIO RPC
         self.loose_dropped = 0  # beyond MAX_LOOSE_FINDINGS
-        self._activities: dict[bytes, None] = {}
+        self._activities: CappedTable[bytes, None] = CappedTable(KNOWN_ACTIVITIES)
         self._held: deque[FrameResult] = deque()
         self._held_index: dict[int, FrameResult] = {}  # the held results by frame
         self._held_fields = 0
         self._waiting: dict[int, FrameResult] = {}
-        self._frag_frames: dict[tuple, list[int]] = {}
+        self._frag_frames: CappedTable[tuple, list[int]] = CappedTable(CL_LINKED_SETS)
         self._now = float("-inf")
-        self._fragment_times: dict[int, float] = {}  # IP fragments awaiting their datagram, by frame
+        self._fragment_times: CappedTable[int, float] = CappedTable(IP_FRAGMENT_TIMES)  # by frame
 
     # --- the frame loop -------------------------------------------------------------------
     def feed(self, frame: capture.RawFrame) -> list[FrameResult]:
@@ -99,9 +102,8 @@ class Dissector:
             self.loose_findings += self.link.findings
             self.link.findings = []
         if dgram is link.SKIP_FRAGMENT:
-            self._fragment_times[number] = ts  # for timing the reassembled PDU from its first piece
-            if len(self._fragment_times) > MAX_KNOWN_ACTIVITIES:
-                del self._fragment_times[next(iter(self._fragment_times))]
+            self._fragment_times.put(number, ts)  # for timing the reassembled PDU from its first piece
+            self._fragment_times.make_room(number)
         if isinstance(dgram, str):
             (self.accounting.malformed if dgram in link.MALFORMED else self.accounting.skipped)[dgram] += 1
         else:
@@ -128,7 +130,7 @@ class Dissector:
         for f in self.frags.finish(last):
             self._attach(f, out)
         for key, call in list(self.calls.open.items()):
-            del self.calls.open[key]
+            self.calls.open.pop(key)
             self._unanswered(call, key, out, "end of capture")
         self.loose_findings += self.calls.finish()
         for number in list(self._waiting):
@@ -205,9 +207,8 @@ class Dissector:
 
     def _remember(self, activity: bytes) -> None:
         if activity not in self._activities:
-            self._activities[activity] = None
-            if len(self._activities) > MAX_KNOWN_ACTIVITIES:
-                del self._activities[next(iter(self._activities))]
+            self._activities.put(activity, None)
+            self._activities.make_room(0)
 
     def _bare_pdu(self, number: int, ts: float, dgram: link.Datagram, hdr: rpc.Header,
                   malformed: bool = False) -> Pdu:
@@ -412,13 +413,9 @@ class Dissector:
                 self._remember_request(key, parsed, number)
 
     def _remember_request(self, key: tuple, parsed: profidrive.Parsed, number: int) -> None:
-        """The channel's last parameter request, within MAX_CHANNELS and MAX_CHANNEL_BYTES (oldest go)."""
-        old = self._pd_requests.pop(key, None)
-        self._pd_bytes += profidrive.footprint(parsed) - (profidrive.footprint(old[0]) if old else 0)
-        self._pd_requests[key] = (parsed, number)
-        while len(self._pd_requests) > 1 and (len(self._pd_requests) > MAX_CHANNELS
-                                              or self._pd_bytes > MAX_CHANNEL_BYTES):
-            self._pd_bytes -= profidrive.footprint(self._pd_requests.pop(next(iter(self._pd_requests)))[0])
+        """The channel's last parameter request, within the CHANNEL_REQUESTS caps (the oldest go)."""
+        self._pd_requests.put(key, (parsed, number), profidrive.footprint(parsed))
+        self._pd_requests.make_room(number, keep=key)
 
     def _summary(self, hdr: rpc.Header, stub: rec.Stub, fragments: int, opnum: int) -> str:
         op = PNIO_OPNUM.get(opnum, f"opnum {opnum}")
@@ -542,11 +539,13 @@ class Dissector:
 
     def _link_later(self, fkey: tuple, number: int) -> None:
         """Remember a held fragment's frame, to link it to the frame that reassembles its PDU."""
-        frames = self._frag_frames.setdefault(fkey, [])
+        frames = self._frag_frames.get(fkey)
+        if frames is None:
+            frames = []
+            self._frag_frames.put(fkey, frames)
+            self._frag_frames.make_room(number, keep=fkey)  # sets evicted or never completed
         if len(frames) < MAX_HELD_FRAMES:  # beyond that, the frames have left the hold anyway
             frames.append(number)
-        if len(self._frag_frames) > rpc.MAX_FRAG_SETS:  # sets evicted or never completed
-            del self._frag_frames[next(iter(self._frag_frames))]
 
 
 def _decoded_cost(stub: rec.Stub) -> int:

@@ -14,6 +14,7 @@ from socket import inet_ntoa
 from typing import NamedTuple
 
 from pd_analyze.model import rules
+from pd_analyze.model.capped import IP_DATAGRAMS, IP_PIECES, MAX_LISTED, CappedTable
 from pd_analyze.model.layout import Field, Layout, plain
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.values import (
@@ -51,11 +52,7 @@ SKIP_SHORT = "frame too short for its headers"
 SKIP_FRAGMENT = "IP fragment (reassembly pending)"
 SKIP_MALFORMED = "malformed IPv4/UDP header"
 MALFORMED = frozenset({SKIP_MALFORMED})  # reasons counted as malformed frames, not skipped ones
-MAX_IP_DATAGRAMS = 1024  # open reassemblies
-MAX_IP_BYTES = 16 * 1024 * 1024  # bytes held by open reassemblies, each piece with PIECE_OVERHEAD
-MAX_IP_PIECES = 256  # pieces of one datagram (45 carry the largest datagram at MTU 1500)
 PIECE_OVERHEAD = 128  # bytes a held piece costs beyond its payload (objects), so tiny pieces count too
-MAX_EVICTION_FINDINGS = 100  # evictions listed one by one; the rest are counted in one finding at the end
 
 
 class Datagram(NamedTuple):
@@ -112,7 +109,6 @@ class _Reassembly:
     pieces: list[tuple[int, bytes]] = field(default_factory=list)
     frames: list[int] = field(default_factory=list)
     total: int = -1  # length known once the MF-clear piece is in
-    size: int = 0
     header: bytes = b""  # IP header of the offset-0 piece
 
 
@@ -120,11 +116,13 @@ class LinkDecoder:
     """Frame bytes to UDP datagrams, with IPv4 reassembly state for one capture."""
 
     def __init__(self) -> None:
-        self._open: dict[tuple[bytes, bytes, int, int], _Reassembly] = {}
-        self._bytes = 0
-        self.evicted = 0  # datagrams dropped by the caps
-        self._last_eviction = 0  # frame of the last one
+        self._open: CappedTable[tuple[bytes, bytes, int, int], _Reassembly] = CappedTable(IP_DATAGRAMS)
         self.findings: list[Finding] = []  # drained by the caller after every frame
+
+    @property
+    def evicted(self) -> int:
+        """Datagrams dropped by the caps."""
+        return self._open.evicted
 
     def datagram(self, number: int, linktype: int, data: bytes) -> Datagram | str:
         """The frame's UDP datagram, or the reason it has none (a skip reason)."""
@@ -180,12 +178,14 @@ class LinkDecoder:
         key = (src, dst, 17, ident)
         cost = len(piece) + PIECE_OVERHEAD
         entry = self._open.get(key)
-        if entry is not None and len(entry.pieces) >= MAX_IP_PIECES:
-            self._evict(key, number, f"more than {MAX_IP_PIECES} fragments")
+        if entry is not None and len(entry.pieces) >= IP_PIECES:
+            self._evicted(key, *self._open.evict(key, number), number, f"more than {IP_PIECES} fragments")
             entry = None
-        self._evict_for(cost, number, key)
+        for victim, old, listed in self._open.make_room(number, cost, key not in self._open, keep=key):
+            self._evicted(victim, old, listed, number, "IP reassembly table full")
         if entry is None:
-            entry = self._open[key] = _Reassembly(number)
+            entry = _Reassembly(number)
+            self._open.put(key, entry)
         offset = (flags_frag & 0x1FFF) * 8
         for other_off, other in entry.pieces:
             if other_off == offset and other == piece:
@@ -199,39 +199,23 @@ class LinkDecoder:
                 break
         entry.pieces.append((offset, piece))
         entry.frames.append(number)
-        entry.size += cost
-        self._bytes += cost
+        self._open.charge(key, cost)
         if offset == 0:
             entry.header = header
         if not flags_frag & 0x2000 and not truncated:
             entry.total = offset + len(piece)
         if entry.total < 0 or not _covered(entry.pieces, entry.total):
             return None
-        del self._open[key]
-        self._bytes -= entry.size
+        self._open.pop(key)
         whole = bytearray(entry.total)
         for off, data in reversed(entry.pieces):  # earlier pieces written last: first one wins
             whole[off:off + len(data)] = data[:max(0, entry.total - off)]
         return bytes(whole), tuple(entry.frames)
 
-    def _evict_for(self, incoming: int, number: int, keep: tuple) -> None:
-        """Drop the oldest datagrams (never `keep`, the one growing) until a piece of `incoming` bytes fits."""
-        limit = MAX_IP_DATAGRAMS if keep in self._open else MAX_IP_DATAGRAMS - 1
-        while self._bytes + incoming > MAX_IP_BYTES or len(self._open) > limit:
-            victim = next((k for k in self._open if k != keep), None)
-            if victim is None:
-                return
-            self._evict(victim, number, "IP reassembly table full")
-
-    def _evict(self, key: tuple, number: int, why: str) -> None:
-        entry = self._open.pop(key)
-        self._bytes -= entry.size
-        self.evicted += 1
-        self._last_eviction = number
-        if self.evicted <= MAX_EVICTION_FINDINGS:
+    def _evicted(self, key: tuple, entry: _Reassembly, listed: bool, number: int, why: str) -> None:
+        if listed:
             self.findings.append(rules.finding(
-                "ip_frag_evicted", number, "ip.id", f"{key[3]:#06x}",
-                f"<= {MAX_IP_DATAGRAMS} open datagrams, {MAX_IP_BYTES} bytes, {MAX_IP_PIECES} pieces each",
+                IP_DATAGRAMS.rule, number, "ip.id", f"{key[3]:#06x}", f"{IP_DATAGRAMS.text()}, {IP_PIECES} pieces each",
                 f"{why}: datagram from frame {entry.first_frame} dropped ({len(entry.frames)} fragments)"))
 
     def open_frames(self) -> Iterator[int]:
@@ -240,12 +224,12 @@ class LinkDecoder:
 
     def finish(self) -> list[Finding]:
         """Findings for datagrams still incomplete at the end of the capture."""
-        if self.evicted > MAX_EVICTION_FINDINGS:
-            more = self.evicted - MAX_EVICTION_FINDINGS
+        more = self._open.unlisted()
+        if more:
             self.findings.append(rules.finding(
-                "ip_frag_evicted", self._last_eviction, "ip.id", self.evicted, f"<= {MAX_IP_DATAGRAMS} open datagrams",
+                IP_DATAGRAMS.rule, self._open.last_eviction, "ip.id", self.evicted, IP_DATAGRAMS.text(),
                 f"{more} more datagrams dropped by the reassembly caps ({self.evicted} in all; only the "
-                f"first {MAX_EVICTION_FINDINGS} are listed one by one)"))
+                f"first {MAX_LISTED} are listed one by one)"))
         out = self.findings + [rules.finding("ip_frag_incomplete", e.first_frame, "ip.id", f"{key[3]:#06x}",
                              "all fragments", f"IP datagram {ip_text(key[0])} -> {ip_text(key[1])} "
                              f"id {key[3]:#06x} incomplete at end of capture (frames "
@@ -253,7 +237,6 @@ class LinkDecoder:
                for key, e in self._open.items()]
         self.findings = []
         self._open.clear()
-        self._bytes = 0
         return out
 
 

@@ -8,12 +8,20 @@ response may use different DREP byte orders.
 from __future__ import annotations
 
 import hashlib
-from collections import OrderedDict
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 from pd_analyze.model import rules
+from pd_analyze.model.capped import (
+    ANSWERED_CALLS,
+    CL_DONE_SETS,
+    CL_FRAGMENT_SETS,
+    CL_SET_BYTES,
+    MAX_LISTED,
+    OPEN_CALLS,
+    CappedTable,
+)
 from pd_analyze.model.layout import Layout
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.values import (
@@ -45,18 +53,9 @@ _CONTROL_PTYPES = frozenset({PTYPE_PING, PTYPE_ACK, PTYPE_CANCEL, PTYPE_FACK, PT
 SKIP_NOT_RPC = "UDP, not DCE/RPC v4"
 SKIP_NOT_PNIO = "DCE/RPC, not PNIO (e.g. endpoint mapper)"
 
-MAX_OPEN_CALLS = 65_536
-MAX_OPEN_BYTES = 32 * 1024 * 1024  # open calls: request bodies and what was decoded from them (Call.cost)
-MAX_CLOSED_CALLS = 16_384  # remembered to tell duplicate responses from orphans
-MAX_CLOSED_BYTES = 16 * 1024 * 1024
 CALL_OVERHEAD = 512  # bytes a call costs beyond its body (objects), counted against the byte caps
-MAX_FRAG_SETS = 4_096
-MAX_FRAG_BYTES = 16 * 1024 * 1024  # held fragment bodies, each with FRAGMENT_OVERHEAD
-MAX_SET_BYTES = 1024 * 1024  # one fragment set (a PNIO record service needs a small fraction of it)
 FRAGMENT_OVERHEAD = 128  # bytes a held fragment costs beyond its body, so tiny fragments count too
-MAX_DONE_SETS = 4_096  # reassembled sets remembered to recognise late retransmitted fragments
-MAX_DONE_FRAGMENTS = 65_536  # fragment digests kept for those sets
-MAX_EVICTION_FINDINGS = 100  # evictions listed one by one; the rest are counted in one finding at the end
+DIGEST_SIZE = 16  # bytes of a remembered fragment's digest (CL_DONE_SETS counts them)
 
 
 def canonical_uuid(raw: bytes, little: bool) -> bytes:
@@ -128,20 +127,21 @@ class _Done(NamedTuple):
 
 
 def _digest(body: bytes) -> bytes:
-    return hashlib.blake2b(body, digest_size=16).digest()
+    return hashlib.blake2b(body, digest_size=DIGEST_SIZE).digest()
 
 
 class FragmentTable:
     """CL fragment reassembly keyed by activity + seq + direction + address pair (protocol.md 2.3)."""
 
     def __init__(self) -> None:
-        self._sets: dict[tuple, _FragSet] = {}
-        self._bytes = 0
-        self._done: dict[tuple, _Done] = {}
-        self._done_count = 0  # digests held by _done
+        self._sets: CappedTable[tuple, _FragSet] = CappedTable(CL_FRAGMENT_SETS)
+        self._done: CappedTable[tuple, _Done] = CappedTable(CL_DONE_SETS)  # by the bytes of their digests
         self._by_call: dict[tuple, list[tuple]] = {}  # (activity, seq) -> keys of its request sets
-        self.evicted = 0
-        self._last_eviction = 0
+
+    @property
+    def evicted(self) -> int:
+        """Fragment sets dropped by the caps."""
+        return self._sets.evicted
 
     def add(self, key: tuple, number: int, ts: float, hdr: Header, body: bytes,
             findings: list[Finding]) -> Reassembled | None:
@@ -155,12 +155,14 @@ class FragmentTable:
                 f"{done.frame} (identical copy)"))
             return None
         cost = len(body) + FRAGMENT_OVERHEAD
-        if entry is not None and entry.size + cost > MAX_SET_BYTES:
-            self._drop(key, number, findings, f"fragment set above {MAX_SET_BYTES} bytes")
+        if entry is not None and entry.size + cost > CL_SET_BYTES:
+            self._drop(key, number, findings, f"fragment set above {CL_SET_BYTES} bytes")
             entry = None
-        self._evict(number, findings, cost, key)
+        for victim, old, listed in self._sets.make_room(number, cost, key not in self._sets, keep=key):
+            self._dropped(victim, old, listed, number, findings, "fragment table full")
         if entry is None:
-            entry = self._sets[key] = _FragSet(number, ts)
+            entry = _FragSet(number, ts)
+            self._sets.put(key, entry)
             if key[2] == PTYPE_REQUEST:
                 self._by_call.setdefault(key[:2], []).append(key)
         num = hdr.frag_num
@@ -185,7 +187,7 @@ class FragmentTable:
         entry.bodies[num] = body
         entry.frames[num] = number
         entry.size += cost
-        self._bytes += cost
+        self._sets.charge(key, cost)
         if is_last:
             entry.last = num
         if entry.last < 0 or len(entry.bodies) != entry.last + 1:
@@ -218,24 +220,23 @@ class FragmentTable:
         return done is not None and done.digests.get(num) == _digest(body)
 
     def _remember(self, key: tuple, number: int, entry: _FragSet) -> None:
-        old = self._done.pop(key, None)
-        self._done_count -= len(old.digests) if old is not None else 0
-        self._done[key] = _Done(number, {n: _digest(b) for n, b in entry.bodies.items()})
-        self._done_count += len(entry.bodies)
-        while self._done and (len(self._done) > MAX_DONE_SETS or self._done_count > MAX_DONE_FRAGMENTS):
-            self._done_count -= len(self._done.pop(next(iter(self._done))).digests)
+        self._done.put(key, _Done(number, {n: _digest(b) for n, b in entry.bodies.items()}),
+                       DIGEST_SIZE * len(entry.bodies))
+        self._done.make_room(number)  # the oldest are forgotten
 
     def _pop(self, key: tuple) -> _FragSet:
         """Take a set out of the table (complete, missing pieces or dropped)."""
         entry = self._sets.pop(key)
-        self._bytes -= entry.size
+        self._unindex(key)
+        return entry
+
+    def _unindex(self, key: tuple) -> None:
         if key[2] == PTYPE_REQUEST:
             keys = self._by_call.get(key[:2], [])
             if key in keys:
                 keys.remove(key)
             if not keys:
                 self._by_call.pop(key[:2], None)
-        return entry
 
     def drop_call(self, call_key: tuple, number: int, findings: list[Finding]) -> None:
         """The call was answered: any unfinished fragment set of its request is missing pieces."""
@@ -252,35 +253,28 @@ class FragmentTable:
             "rpc_frag_missing", entry.first_frame, "rpc.frag_num", _spans(_runs(have), ","), expect,
             f"fragment set of seq {key[1]} incomplete (missing {missing}; noticed at frame {number})")
 
-    def _evict(self, number: int, findings: list[Finding], incoming: int, keep: tuple) -> None:
-        """Drop the oldest sets (never `keep`, the one growing) until a fragment of `incoming` bytes fits."""
-        limit = MAX_FRAG_SETS if keep in self._sets else MAX_FRAG_SETS - 1
-        while self._bytes + incoming > MAX_FRAG_BYTES or len(self._sets) > limit:
-            victim = next((k for k in self._sets if k != keep), None)
-            if victim is None:
-                return
-            self._drop(victim, number, findings, "fragment table full")
-
     def _drop(self, key: tuple, number: int, findings: list[Finding], why: str) -> None:
-        entry = self._pop(key)
-        self.evicted += 1
-        self._last_eviction = number
-        if self.evicted <= MAX_EVICTION_FINDINGS:
+        self._dropped(key, *self._sets.evict(key, number), number, findings, why)
+
+    def _dropped(self, key: tuple, entry: _FragSet, listed: bool, number: int, findings: list[Finding],
+                 why: str) -> None:
+        self._unindex(key)
+        if listed:
             findings.append(rules.finding(
-                "rpc_frag_evicted", number, "rpc.frag_num", len(entry.bodies),
-                f"<= {MAX_FRAG_SETS} open sets, {MAX_FRAG_BYTES} bytes, {MAX_SET_BYTES} bytes per set",
+                CL_FRAGMENT_SETS.rule, number, "rpc.frag_num", len(entry.bodies),
+                f"{CL_FRAGMENT_SETS.text()}, {CL_SET_BYTES} bytes per set",
                 f"{why}: set of seq {key[1]} from frame {entry.first_frame} dropped"))
 
     def finish(self, number: int) -> list[Finding]:
         out = [self._missing(key, entry, number) for key, entry in self._sets.items()]
-        if self.evicted > MAX_EVICTION_FINDINGS:
+        more = self._sets.unlisted()
+        if more:
             out.append(rules.finding(
-                "rpc_frag_evicted", self._last_eviction, "rpc.frag_num", self.evicted, f"<= {MAX_FRAG_SETS} open sets",
-                f"{self.evicted - MAX_EVICTION_FINDINGS} more fragment sets dropped by the table caps "
-                f"({self.evicted} in all; only the first {MAX_EVICTION_FINDINGS} are listed one by one)"))
+                CL_FRAGMENT_SETS.rule, self._sets.last_eviction, "rpc.frag_num", self.evicted, CL_FRAGMENT_SETS.text(),
+                f"{more} more fragment sets dropped by the table caps "
+                f"({self.evicted} in all; only the first {MAX_LISTED} are listed one by one)"))
         self._sets.clear()
         self._by_call.clear()
-        self._bytes = 0
         return out
 
 
@@ -340,14 +334,13 @@ class CallTable:
     """Open calls by (activity, seq); closed ones remembered a while to spot duplicates."""
 
     def __init__(self) -> None:
-        self.open: dict[tuple[bytes, int], Call] = {}
-        # oldest first, evicted from the front for ever: an OrderedDict pops it in O(1), where a dict's
-        # iterator would walk over every slot freed before (quadratic once the table is full)
-        self.closed: OrderedDict[tuple[bytes, int], Call] = OrderedDict()
-        self.open_bytes = 0
-        self.closed_bytes = 0
-        self.evicted = 0  # open calls dropped by the caps
-        self._last_eviction = 0
+        self.open: CappedTable[tuple[bytes, int], Call] = CappedTable(OPEN_CALLS)
+        self.closed: CappedTable[tuple[bytes, int], Call] = CappedTable(ANSWERED_CALLS)
+
+    @property
+    def evicted(self) -> int:
+        """Open calls dropped by the caps."""
+        return self.open.evicted
 
     def request(self, key: tuple[bytes, int], call: Call, findings: list[Finding]) -> Call:
         """Register a request; returns the call it belongs to (the first copy on retransmission)."""
@@ -364,8 +357,7 @@ class CallTable:
                     f"activity/sequence number of frame {known.frame} reused with a different body"))
             return known
         call.cost = CALL_OVERHEAD + len(call.body)
-        self.open[key] = call
-        self.open_bytes += call.cost
+        self.open.put(key, call, call.cost)
         self._evict(key, call.frame, findings)
         return call
 
@@ -373,23 +365,15 @@ class CallTable:
         """What was decoded from an open call's request (kept in `info`) adds `extra` bytes to its cost."""
         if self.open.get(key) is call:
             call.cost += extra
-            self.open_bytes += extra
+            self.open.charge(key, extra)
             self._evict(key, call.frame, findings)
 
     def _evict(self, keep: tuple[bytes, int], number: int, findings: list[Finding]) -> None:
         """Drop the oldest open calls (never `keep`) while the table is above its caps."""
-        while len(self.open) > MAX_OPEN_CALLS or self.open_bytes > MAX_OPEN_BYTES:
-            old_key = next((k for k in self.open if k != keep), None)
-            if old_key is None:
-                return
-            old = self.open.pop(old_key)
-            self.open_bytes -= old.cost
-            self.evicted += 1
-            self._last_eviction = number
-            if self.evicted <= MAX_EVICTION_FINDINGS:
+        for old_key, old, listed in self.open.make_room(number, keep=keep):
+            if listed:
                 findings.append(rules.finding(
-                    "rpc_call_evicted", number, "rpc.seq", old_key[1],
-                    f"<= {MAX_OPEN_CALLS} open calls, {MAX_OPEN_BYTES} bytes",
+                    OPEN_CALLS.rule, number, "rpc.seq", old_key[1], OPEN_CALLS.text(),
                     f"open-call table full: call of frame {old.frame} dropped unanswered"))
 
     def open_frames(self) -> Iterator[int]:
@@ -399,33 +383,30 @@ class CallTable:
     def close(self, key: tuple[bytes, int]) -> Call | None:
         call = self.open.pop(key, None)
         if call is not None:
-            self.open_bytes -= call.cost
-            old = self.closed.pop(key, None)
-            self.closed_bytes += call.cost - (old.cost if old is not None else 0)
-            self.closed[key] = call
-            while self.closed and (len(self.closed) > MAX_CLOSED_CALLS or self.closed_bytes > MAX_CLOSED_BYTES):
-                self.closed_bytes -= self.closed.popitem(last=False)[1].cost
+            self.closed.put(key, call, call.cost)
+            self.closed.make_room(call.frame)  # the oldest are forgotten
         return call
 
     def finish(self) -> list[Finding]:
         """At the end of the capture: how many open calls the caps dropped beyond those listed."""
-        if self.evicted <= MAX_EVICTION_FINDINGS:
+        more = self.open.unlisted()
+        if not more:
             return []
         return [rules.finding(
-            "rpc_call_evicted", self._last_eviction, "rpc.seq", self.evicted, f"<= {MAX_OPEN_CALLS} open calls",
-            f"{self.evicted - MAX_EVICTION_FINDINGS} more open calls dropped unanswered by the table caps "
-            f"({self.evicted} in all; only the first {MAX_EVICTION_FINDINGS} are listed one by one)")]
+            OPEN_CALLS.rule, self.open.last_eviction, "rpc.seq", self.evicted, OPEN_CALLS.text(),
+            f"{more} more open calls dropped unanswered by the table caps "
+            f"({self.evicted} in all; only the first {MAX_LISTED} are listed one by one)")]
 
     def expire(self, now: float, timeout: float) -> list[tuple[tuple[bytes, int], Call]]:
         """Calls opened more than `timeout` seconds of capture time before `now`."""
-        if not self.open or next(iter(self.open.values())).ts + timeout >= now:
+        first = self.open.oldest()
+        if first is None or first.ts + timeout >= now:
             return []  # the common case, checked for every frame: nothing is due
         out = []
         for key, call in self.open.items():
             if call.ts + timeout >= now:
                 break
             out.append((key, call))
-        for key, call in out:
-            del self.open[key]
-            self.open_bytes -= call.cost
+        for key, _call in out:
+            self.open.pop(key)
         return out

@@ -1,0 +1,153 @@
+"""Tables of open state with caps on count and bytes: when one is full, its oldest entry goes.
+
+Every table that holds state for something still open (IP datagrams in reassembly, CL-RPC fragment
+sets, open RPC calls, pending transactions) and every memory of things past (answered calls, the
+last request per channel) is a CappedTable with its Cap declared here: one name per cap, its limits,
+and the finding an eviction earns. A table counts its evictions; its owner turns the first
+MAX_LISTED of them into findings one by one and the rest into one finding with the total, so a flood
+cannot flood the findings as well. Bytes count what a Python object costs, not only its payload, so
+floods of tiny pieces are bounded too.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Generic, TypeVar
+
+MAX_LISTED = 100  # evictions of one table reported one by one; the rest in one finding at the end
+MIB = 1024 * 1024
+
+
+@dataclass(frozen=True, slots=True)
+class Cap:
+    """The limits of one table."""
+
+    name: str  # what the table holds, as messages and the README name it
+    count: int  # entries
+    bytes: int = 0  # summed entry costs; 0 = no byte cap
+    rule: str = ""  # finding name of an eviction; "" = entries are forgotten without a finding
+
+    def text(self) -> str:
+        """The cap as an expected value: '<= 1024 IP datagrams in reassembly, 16777216 bytes'."""
+        return f"<= {self.count} {self.name}" + (f", {self.bytes} bytes" if self.bytes else "")
+
+
+# The caps, one name each (README "Memory" lists them)
+IP_DATAGRAMS = Cap("IP datagrams in reassembly", 1024, 16 * MIB, "ip_frag_evicted")
+IP_PIECES = 256  # fragments of one datagram (45 carry the largest datagram at MTU 1500)
+CL_FRAGMENT_SETS = Cap("CL-RPC fragment sets", 4096, 16 * MIB, "rpc_frag_evicted")
+CL_SET_BYTES = MIB  # one fragment set (a PNIO record service needs a small fraction of it)
+CL_DONE_SETS = Cap("reassembled fragment sets remembered", 4096, MIB)  # MIB: 65,536 fragment digests
+CL_LINKED_SETS = Cap("fragment sets whose frames the dump will link", CL_FRAGMENT_SETS.count)
+IP_FRAGMENT_TIMES = Cap("IP fragment times awaiting their datagram", 65_536)
+OPEN_CALLS = Cap("open RPC calls", 65_536, 32 * MIB, "rpc_call_evicted")
+ANSWERED_CALLS = Cap("answered RPC calls remembered", 16_384, 16 * MIB)
+KNOWN_ACTIVITIES = Cap("activities known", 65_536)
+CHANNEL_REQUESTS = Cap("channels' last parameter requests", 16_384, 16 * MIB)
+PENDING_TRANSACTIONS = Cap("pending transactions", 16_384, 32 * MIB, "txn_evicted")
+TXN_FRAMES = 10_000  # frames of one transaction (10 s of B5 polling every millisecond)
+TXN_CALLS = Cap("transaction calls awaiting their answer", 65_536)
+CHANNEL_HISTORY = Cap("channels' last closed transactions", 65_536)
+
+K = TypeVar("K")
+V = TypeVar("V")
+
+
+class CappedTable(Generic[K, V]):
+    """An insertion-ordered table under a Cap. Eviction takes the oldest entry in O(1)."""
+
+    __slots__ = ("_costs", "_entries", "bytes", "cap", "evicted", "last_eviction")
+
+    def __init__(self, cap: Cap) -> None:
+        self.cap = cap
+        # an OrderedDict pops its front in O(1); a dict's iterator walks every slot freed before it
+        self._entries: OrderedDict[K, V] = OrderedDict()
+        self._costs: dict[K, int] = {}
+        self.bytes = 0
+        self.evicted = 0
+        self.last_eviction = 0  # frame of the last eviction
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def __contains__(self, key: object) -> bool:
+        return key in self._entries
+
+    def __iter__(self) -> Iterator[K]:
+        return iter(self._entries)
+
+    def __getitem__(self, key: K) -> V:
+        return self._entries[key]
+
+    def get(self, key: K, default: V | None = None) -> V | None:
+        return self._entries.get(key, default)
+
+    def items(self) -> Iterator[tuple[K, V]]:
+        return iter(self._entries.items())
+
+    def values(self) -> Iterator[V]:
+        return iter(self._entries.values())
+
+    def oldest(self) -> V | None:
+        return next(iter(self._entries.values()), None)
+
+    def put(self, key: K, value: V, cost: int = 0) -> None:
+        """Add an entry as the newest (a key already there is replaced and becomes the newest)."""
+        if key in self._entries:
+            self.pop(key)
+        self._entries[key] = value
+        self._costs[key] = cost
+        self.bytes += cost
+
+    def charge(self, key: K, extra: int) -> None:
+        """An entry grew (or shrank) by `extra` bytes."""
+        self._costs[key] += extra
+        self.bytes += extra
+
+    def pop(self, key: K, *default: V | None) -> V | None:
+        """Take an entry out (KeyError, or `default` when given, if it is not there)."""
+        if default and key not in self._entries:
+            return default[0]
+        self.bytes -= self._costs.pop(key)
+        return self._entries.pop(key)
+
+    def full(self, incoming: int = 0, adding: bool = False) -> bool:
+        """Over a cap once `incoming` bytes (and, `adding`, one more entry) come in."""
+        cap = self.cap
+        return len(self._entries) + adding > cap.count or (cap.bytes > 0 and self.bytes + incoming > cap.bytes)
+
+    def make_room(self, frame: int, incoming: int = 0, adding: bool = False,
+                  keep: K | None = None) -> list[tuple[K, V, bool]]:
+        """Evict the oldest entries (never `keep`, the one growing) until `incoming` bytes and, `adding`,
+        one more entry fit; each evicted (key, value, listed): listed for the first MAX_LISTED."""
+        out = []
+        while self._entries and self.full(incoming, adding):
+            victim = self._oldest_but(keep)
+            if victim is None:
+                break
+            out.append((victim, *self.evict(victim, frame)))
+        return out
+
+    def evict(self, key: K, frame: int) -> tuple[V, bool]:
+        """Drop an entry the caps cannot hold; (its value, whether to list the eviction one by one)."""
+        value: V = self.pop(key)  # type: ignore[assignment]
+        self.evicted += 1
+        self.last_eviction = frame
+        return value, self.evicted <= MAX_LISTED
+
+    def unlisted(self) -> int:
+        """Evictions beyond the first MAX_LISTED: counted in one finding at the end."""
+        return max(0, self.evicted - MAX_LISTED)
+
+    def clear(self) -> None:
+        self._entries.clear()
+        self._costs.clear()
+        self.bytes = 0
+
+    def _oldest_but(self, keep: K | None) -> K | None:
+        for key in self._entries:  # at most two steps: the oldest, or the one after `keep`
+            if key != keep:
+                return key
+        return None
