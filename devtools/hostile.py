@@ -185,7 +185,7 @@ def run(kind: str, count: int, dump: bool = False, seed: int = 1, tables: bool =
     results(d.finish())
     closed(engine.finish(last))
     if rows is not None:
-        from pd_analyze.analysis.rows import COLUMNS, frame_of
+        from pd_analyze.analysis.schema import COLUMNS, frame_of
 
         for name in COLUMNS:
             frame_of(name, getattr(rows, name))

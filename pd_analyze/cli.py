@@ -14,6 +14,7 @@ from collections.abc import Callable
 import click
 
 from pd_analyze import __version__
+from pd_analyze.analysis.pipeline import Settings
 from pd_analyze.capture import CaptureError
 from pd_analyze.model.fields import FIELDS
 from pd_analyze.output import dump
@@ -372,7 +373,7 @@ def _report(paths: list[str], out_dir: str, fmt: str, profile: str, timeout: flo
                                          tables_dir_note="the CSV files beside this page"))
         text, errors = report.summary(analysis), analysis.errors
     else:
-        streamed = report.stream(paths, out_dir, fmt, (profile, timeout, rpc_timeout), progress, jobs, chain)
+        streamed = report.stream(paths, out_dir, fmt, Settings(profile, timeout, rpc_timeout), progress, jobs, chain)
         written, text, errors = streamed.written, streamed.summary, streamed.errors
     return written, text, errors
 
@@ -393,7 +394,7 @@ def audit_command(captures: tuple[str, ...], read: str | None, fail_on: str, pro
     from pd_analyze.output import report
 
     paths = _files(captures, read, profile)
-    rows, results = report.stream_findings(paths, (profile, timeout, rpc_timeout), jobs, chain,
+    rows, results = report.stream_findings(paths, Settings(profile, timeout, rpc_timeout), jobs, chain,
                                            progress=_progress() if jobs == 1 else None)
     counts: dict[str, int] = dict.fromkeys(SEVERITIES, 0)
     total = worst = 0

@@ -21,7 +21,8 @@ from devtools.synth import samples
 from devtools.synth.profidrive import ParamAddress, change_ok, change_request, value_block
 from devtools.synth.scenario import Capture
 from pd_analyze.analysis import transactions
-from pd_analyze.analysis.rows import Rows, frame_of
+from pd_analyze.analysis.rows import Rows
+from pd_analyze.analysis.schema import frame_of
 from pd_analyze.analysis.transactions import TransactionEngine
 from pd_analyze.capture import reader as capture
 from pd_analyze.model import capped

@@ -22,16 +22,13 @@ from pd_analyze.output.writers import neutralise
 
 SAMPLES = Path("sample_pcaps")
 ALL = sorted(str(p) for p in SAMPLES.glob("*.pcap*"))
-SETTINGS = ("generic", 10.0, 5.0)
 TABLES = ("transactions", "parameters", "findings", "changes")
 
 
-def _settings() -> tuple[str, float, float]:
-    from pd_analyze.analysis.transactions import DEFAULT_TXN_TIMEOUT
-    from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT
-    from pd_analyze.protocol.profiles import DEFAULT
+def _settings():
+    from pd_analyze.analysis.pipeline import Settings
 
-    return (DEFAULT, DEFAULT_TXN_TIMEOUT, DEFAULT_RPC_TIMEOUT)
+    return Settings()
 
 
 def _csv_cell(value: object) -> str:

@@ -19,8 +19,10 @@ import dask
 import dask.dataframe as dd
 import pandas as pd
 
-from pd_analyze.analysis.api import CaptureResult, _analyze_file, accounting_frame, expand
-from pd_analyze.analysis.rows import COLUMNS, Rows, frame_of
+from pd_analyze.analysis.api import accounting_frame, expand
+from pd_analyze.analysis.pipeline import CaptureResult, Settings, analyze_file
+from pd_analyze.analysis.rows import Rows
+from pd_analyze.analysis.schema import COLUMNS, frame_of
 from pd_analyze.analysis.transactions import DEFAULT_TXN_TIMEOUT
 from pd_analyze.protocol import profiles
 from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT
@@ -47,8 +49,8 @@ def analyze(paths: str | Iterable[str], profile: str = profiles.DEFAULT, timeout
     """The tables of `paths` (files, directories, globs) as lazy Dask DataFrames, one partition per capture."""
     profiles.load(profile)
     files = expand(paths)
-    settings = (profile, timeout, rpc_timeout)
-    parts = [dask.delayed(_analyze_file, pure=True)(path, settings, dask_key_name=f"pd-analyze-{i}-{path}")
+    settings = Settings(profile, timeout, rpc_timeout)
+    parts = [dask.delayed(analyze_file, pure=True)(path, settings, dask_key_name=f"pd-analyze-{i}-{path}")
              for i, path in enumerate(files)]
     tables = {name: dd.from_delayed([dask.delayed(_table)(part, name) for part in parts],
                                     meta=frame_of(name, []), verify_meta=False)

@@ -7,7 +7,6 @@ State is kept only for open channels and open RPC calls; a closed transaction is
 
 from __future__ import annotations
 
-import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -76,7 +75,6 @@ class Transaction:
     frames: list[int] = field(default_factory=list)
     findings: list[Finding] = field(default_factory=list)
     verdict: str = ""
-    reuse_slot: tuple[int, int] | None = None  # split part, channel's last transaction unknown: (findings index, frame)
 
     @property
     def device(self) -> bytes:
@@ -105,7 +103,7 @@ class Transaction:
 class LastDone(NamedTuple):
     """What T1/T4 need of the last closed transaction of a channel."""
 
-    txn: str  # its number as the messages name it (see TransactionEngine.name)
+    frame: int  # its write request frame: messages name a transaction by it, the same in every split part
     ref: int
     verdict: str
 
@@ -116,16 +114,11 @@ def reuse_finding(last: LastDone, ref: int, frame: int) -> Finding | None:
         return None
     if last.verdict in ANSWERED:
         return finding("reference_reused", frame, "pd.ref", ref, f"a reference other than {last.ref}",
-                       f"Request Reference {ref} reused from transaction {last.txn}")
+                       f"Request Reference {ref} reused from the transaction of frame {last.frame}")
     if last.verdict in FAILED_UNANSWERED:
         return finding("retry", frame, "pd.ref", ref, "",
-                       f"retry of transaction {last.txn} ({last.verdict}) with the same reference")
+                       f"retry of the transaction of frame {last.frame} ({last.verdict}) with the same reference")
     return None
-
-
-# In a split part, messages name transactions by a mark the parent replaces with the number in the
-# whole capture: its number in the part (T), or the frame of its write request for a lead-in one (F).
-PART_MARK = re.compile("\x00([TF])(\\d+)\x00")
 
 
 def _cost(txn: Transaction) -> int:
@@ -150,6 +143,9 @@ class TransactionEngine:
         self.b5_threshold = b5_threshold
         self.loose: list[Finding] = []  # findings of frames that belong to no transaction, drained by callers
         self.number_from = 0  # frames before this only warm up the state (a split capture's lead-in): txn 0
+        # a split part: transactions whose channel's last one lies before the lead-in, so T1 is the parent's
+        # to decide (analysis.split): by id, (the transaction, where T1's finding goes in its findings, frame)
+        self.history_unknown: dict[int, tuple[Transaction, int, int]] = {}
         self._next = 1
         # open transactions by channel, in opening order; the oldest ends as a timeout when the table is full
         self._pending: CappedTable[Channel, Transaction] = CappedTable(PENDING_TRANSACTIONS)
@@ -157,12 +153,6 @@ class TransactionEngine:
         self._last_done: CappedTable[Channel, LastDone] = CappedTable(CHANNEL_HISTORY)  # for T1, T4
         self._calls: CappedTable[int, _Call] = CappedTable(TXN_CALLS)  # by request frame number
         self._now = float("-inf")
-
-    def name(self, txn: Transaction) -> str:
-        """A transaction's number as a message names it (a mark in a split part, see PART_MARK)."""
-        if not self.number_from:
-            return str(txn.txn)
-        return f"\x00T{txn.txn}\x00" if txn.txn else f"\x00F{txn.write_req_frame}\x00"
 
     # --- the frame loop ---------------------------------------------------------------------
     def feed(self, res: FrameResult) -> list[Transaction]:
@@ -255,15 +245,13 @@ class TransactionEngine:
         old = self._pending.get(channel)
         if old is not None:
             txn.findings.append(finding("write_while_pending", pdu.frame, "pd.ref", txn.ref,
-                                        f"none pending (transaction {self.name(old)})",
-                                        f"write while transaction {self.name(old)} (ref {old.ref}, frame "
-                                        f"{old.write_req_frame}) is pending: it ends as a timeout"))
+                                        f"none pending (the transaction of frame {old.write_req_frame})",
+                                        f"write while the transaction of frame {old.write_req_frame} (ref "
+                                        f"{old.ref}) is pending: it ends as a timeout"))
             closed.append(self._close(old, "superseded"))
         last = self._last_done.get(channel)
         if last is None and self.number_from and txn.txn:
-            # a split part: the channel's last transaction lies before the lead-in; the parent decides
-            # T1 (tables_out.stitch_reference_reuse)
-            txn.reuse_slot = (len(txn.findings), pdu.frame)
+            self.history_unknown[id(txn)] = (txn, len(txn.findings), pdu.frame)
         elif last is not None:
             reuse = reuse_finding(last, txn.ref, pdu.frame)
             if reuse is not None:
@@ -311,7 +299,7 @@ class TransactionEngine:
                 txn.findings.append(finding(
                     "fallback_pairing", pdu.frame, "iod.index", f"{v[rec.B_SLOT]}/{v[rec.B_SUBSLOT]}/"
                     f"{v[rec.B_INDEX]:#06x}", f"{txn.channel[4]}/{txn.channel[5]}/{txn.channel[6]:#06x}",
-                    f"read addressed differently from the write of transaction {self.name(txn)} (paired by device, "
+                    f"read addressed differently from the write of frame {txn.write_req_frame} (paired by device, "
                     "controller and AR)"))
         if txn is None:
             self.loose.append(finding("read_without_request", pdu.frame, "iod.index", f"{v[rec.B_INDEX]:#06x}",
@@ -396,8 +384,7 @@ class TransactionEngine:
         self._pending.evict(txn.channel, frame)  # counted; each evicted transaction is a row with its finding
         txn.findings.append(finding(PENDING_TRANSACTIONS.rule, frame, "pd.ref", txn.ref,
                                     f"{PENDING_TRANSACTIONS.text()}, {TXN_FRAMES} frames each",
-                                    f"{why}: transaction {self.name(txn)} (frame {txn.write_req_frame}) ends as a "
-                                    "timeout"))
+                                    f"{why}: the transaction of frame {txn.write_req_frame} ends as a timeout"))
         return self._close(txn, "evicted")
 
     def _close(self, txn: Transaction, why: str) -> Transaction:
@@ -417,7 +404,7 @@ class TransactionEngine:
         if why in UNANSWERED_ENDS and not txn.pnio_status and txn.b5_retries:
             txn.pnio_status = f"DE80{PNIORW_STATE_CONFLICT:02X}00"  # last answer was B5 (txn.last_status)
         # not the transaction itself: it is handed on
-        self._last_done.put(channel, LastDone(self.name(txn), txn.ref, txn.verdict))
+        self._last_done.put(channel, LastDone(txn.write_req_frame, txn.ref, txn.verdict))
         self._last_done.make_room(txn.write_req_frame)  # the oldest channels are forgotten
         return txn
 

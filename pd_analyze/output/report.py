@@ -11,17 +11,19 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from pd_analyze.analysis.rows import COLUMNS, Rows, sort_key
+from pd_analyze.analysis.rows import Rows
+from pd_analyze.analysis.schema import COLUMNS, sort_key
 from pd_analyze.output.spool import Spool
 from pd_analyze.output.summary import TOP, Summary
 from pd_analyze.output.writers import neutralise, open_table
 
 if TYPE_CHECKING:
-    from pd_analyze.analysis.api import Analysis, CaptureResult
+    from pd_analyze.analysis.api import Analysis
+    from pd_analyze.analysis.pipeline import CaptureResult, Progress, Settings
     from pd_analyze.analysis.transactions import Transaction
 
 __all__ = ["CHUNK_ROWS", "TABLES", "Streamed", "neutralise", "stream", "stream_findings", "summary", "write_tables"]
@@ -99,12 +101,12 @@ class Streamed:
         return [f"{c.path}: {c.error}" for c in self.captures if c.error]
 
 
-def stream(files: list[str], out_dir: str, fmt: str, settings: tuple[str, float, float],
-           progress: Callable[[str, int], None] | None = None, jobs: int = 1, chain: bool = False,
+def stream(files: list[str], out_dir: str, fmt: str, settings: Settings,
+           progress: Progress | None = None, jobs: int = 1, chain: bool = False,
            chunk_rows: int = CHUNK_ROWS) -> Streamed:
     """The report of `files` written to `out_dir` as csv / json / parquet without holding the tables:
     the files equal `write_tables(analyze(files))`, and the summary equals `summary(analyze(files))`."""
-    from pd_analyze.analysis.api import run
+    from pd_analyze.analysis.pipeline import run
 
     os.makedirs(out_dir, exist_ok=True)
     spill = tempfile.mkdtemp(prefix=".pd-analyze-", dir=out_dir)  # beside the output: room for big files
@@ -143,13 +145,13 @@ class _FindingsOnly(Rows):
                              for r in other.findings)
 
 
-def stream_findings(files: list[str], settings: tuple[str, float, float], jobs: int = 1, chain: bool = False,
-                    chunk_rows: int = CHUNK_ROWS, progress: Callable[[str, int], None] | None = None,
+def stream_findings(files: list[str], settings: Settings, jobs: int = 1, chain: bool = False,
+                    chunk_rows: int = CHUNK_ROWS, progress: Progress | None = None,
                     ) -> tuple[Iterator[tuple], list[CaptureResult]]:
     """Findings of `files` sorted by capture and frame (ties as found), streamed: for `audit`.
 
     The rows are read lazily; the spill files go once the iterator is exhausted or closed."""
-    from pd_analyze.analysis.api import run
+    from pd_analyze.analysis.pipeline import run
 
     spool = Spool(sort_key("findings", by_capture=True), chunk_rows)
     sink = _FindingsOnly(findings=spool)  # type: ignore[arg-type]

@@ -17,27 +17,19 @@ from collections import Counter
 from collections.abc import Iterable, Sequence
 from typing import TYPE_CHECKING
 
-from pd_analyze.analysis.rows import COLUMNS, sort_key
+from pd_analyze.analysis.schema import sort_key
 from pd_analyze.model.rules import SEVERITIES
 from pd_analyze.model.verdicts import VERDICTS
 
 if TYPE_CHECKING:
-    from pd_analyze.analysis.api import CaptureResult
+    from pd_analyze.analysis.pipeline import CaptureResult
 
 TOP = 10
 _LAST = float("inf")
 
 
-def _index(table: str, *names: str) -> tuple[int, ...]:
-    cols = [c.name for c in COLUMNS[table]]
-    return tuple(cols.index(n) for n in names)
-
-
-_T = _index("transactions", "txn", "device", "verdict", "b5_retries", "t_write_rtt", "t_total")
-_P = _index("parameters", "device", "do", "param", "error", "error_text")
 _TXN_ORDER = sort_key("transactions")
 _PARAM_ORDER = sort_key("parameters")
-_F = _index("findings", "severity", "rule", "name")
 
 
 def _missing(value: object) -> bool:
@@ -112,59 +104,56 @@ class Summary:
             self._findings(rows)
 
     def _transactions(self, rows: Iterable[tuple]) -> None:
-        txn_i, dev_i, verdict_i, b5_i, rtt_i, total_i = _T
         for r in rows:
             self.transactions += 1
             self.added["transactions"] += 1
-            verdict, device = r[verdict_i], r[dev_i]
+            verdict, device = r.verdict, r.device
             if verdict in VERDICTS:
                 self.verdicts[verdict] += 1
             if verdict != "ok":
                 self.any_failed = True
                 if verdict in VERDICTS and not _missing(device):
                     self.failed.setdefault(device, Counter())[verdict] += 1
-            b5 = r[b5_i]
+            b5 = r.b5_retries
             if not _missing(b5):
                 self.b5_total += b5
                 if b5 > 0:
                     self.b5_transactions += 1
                 place = (_TXN_ORDER(r), self.added["transactions"])
                 if self.b5_max is None or b5 > self.b5_max[0] or (b5 == self.b5_max[0] and place < self.b5_max[1]):
-                    self.b5_max = (b5, place, r[txn_i])
-            total = r[total_i]
+                    self.b5_max = (b5, place, r.txn)
+            total = r.t_total
             if not _missing(total) and not _missing(device):
                 totals, rtts = self.latency.setdefault(device, (array("d"), array("d")))
                 totals.append(total)
-                if not _missing(r[rtt_i]):
-                    rtts.append(r[rtt_i])
+                if not _missing(r.t_write_rtt):
+                    rtts.append(r.t_write_rtt)
 
     def _parameters(self, rows: Iterable[tuple]) -> None:
-        dev_i, do_i, param_i, err_i, text_i = _P
         first = self.first
         for r in rows:
             self.added["parameters"] += 1
-            err = r[err_i]
+            err = r.error
             if _missing(err) or err == "":
                 continue
-            self.naks[(r[dev_i], r[do_i], r[param_i], err, r[text_i])] += 1
+            self.naks[(r.device, r.do, r.param, err, r.error_text)] += 1
             place = (_PARAM_ORDER(r), self.added["parameters"])
             self.by_error[err] += 1
             if place < first.get(("error", err), (_LAST,)):
                 first[("error", err)] = place
-            do = r[do_i]
+            do = r.do
             if not _missing(do):
                 self.by_do[do] += 1
                 if place < first.get(("do", do), (_LAST,)):
                     first[("do", do)] = place
 
     def _findings(self, rows: Iterable[tuple]) -> None:
-        sev_i, rule_i, name_i = _F
         for r in rows:
             self.findings += 1
-            if r[sev_i] in SEVERITIES:
-                self.severities[r[sev_i]] += 1
-            if not _missing(r[rule_i]) and not _missing(r[name_i]):
-                self.rules[(r[rule_i], r[name_i])] += 1
+            if r.severity in SEVERITIES:
+                self.severities[r.severity] += 1
+            if not _missing(r.rule) and not _missing(r.name):
+                self.rules[(r.rule, r.name)] += 1
 
     def text(self, captures: Sequence[CaptureResult], top: int = TOP) -> str:
         """Accounting per capture; verdicts; failures by device; NAKs; B5 retries; latency; findings."""

@@ -20,7 +20,7 @@ from datetime import UTC, datetime, timedelta
 from typing import Any
 from urllib.parse import quote
 
-from pd_analyze.analysis.rows import COLUMNS, FIXED_CATEGORIES, TIME, Column, micros
+from pd_analyze.analysis.schema import COLUMNS, FIXED_CATEGORIES, TIME, Column, micros
 
 _FORMULA = re.compile(r"^[=+\-@\t\r]")
 _NUMBER = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$")
@@ -272,7 +272,7 @@ def _arrow_schema(name: str) -> Any:
     know how many values the whole column will have."""
     import pyarrow as pa
 
-    from pd_analyze.analysis.rows import frame_of
+    from pd_analyze.analysis.schema import frame_of
 
     meta = pa.Schema.from_pandas(frame_of(name, []), preserve_index=False).metadata
     simple = {"Int64": pa.int64(), "string": pa.large_string(), "Float64": pa.float64(), "boolean": pa.bool_(),

@@ -1,0 +1,188 @@
+"""The capture loop: frames -> dissector -> transaction engine -> rows, for one file, many, or a chain.
+
+`run` is the one way through for `analyze()` and the streamed report alike (lists or spools as
+`Rows`), so their tables cannot differ. `--jobs` over several files runs `analyze_file` in worker
+processes and hands their rows on in file order; one large file goes to `analysis.split`.
+"""
+
+from __future__ import annotations
+
+import os
+from bisect import bisect_right
+from collections import Counter
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+
+from pd_analyze import capture
+from pd_analyze.analysis.rows import Rows
+from pd_analyze.analysis.transactions import DEFAULT_TXN_TIMEOUT, Transaction, TransactionEngine, iter_closed
+from pd_analyze.capture import CaptureError
+from pd_analyze.protocol import profiles
+from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT, Dissector, dissect_frames
+from pd_analyze.protocol.frames import Accounting
+from pd_analyze.protocol.profidrive_checks import Checker
+
+Progress = Callable[[str, int], None]  # (capture, frames read so far)
+
+
+@dataclass(frozen=True, slots=True)
+class Settings:
+    """What an analysis is run with (the same in every worker process)."""
+
+    profile: str = profiles.DEFAULT
+    txn_timeout: float = DEFAULT_TXN_TIMEOUT  # seconds a transaction may wait for its final response
+    rpc_timeout: float = DEFAULT_RPC_TIMEOUT  # seconds a call may wait for its response
+
+    def checker(self) -> Checker:
+        return Checker.for_profile(self.profile)
+
+    def dissector(self) -> Dissector:
+        return Dissector(annotate=False, rpc_timeout=self.rpc_timeout, checker=self.checker())
+
+    def engine(self) -> TransactionEngine:
+        return TransactionEngine(self.txn_timeout)
+
+
+@dataclass(slots=True)
+class CaptureResult:
+    path: str
+    accounting: Accounting
+    error: str = ""
+    transactions: int = 0
+
+
+PARALLEL_MIN_BYTES = 8 * 1024 * 1024  # captures smaller than this in all are analysed in one process
+
+
+def run(files: list[str], rows: Rows, settings: Settings, progress: Progress | None = None, jobs: int = 1,
+        chain: bool = False) -> list[CaptureResult]:
+    """The pipeline over capture files, every row handed to `rows` (lists for `analyze()`, spools for
+    the streaming report).
+
+    One process streams frame by frame; the parallel paths (`jobs` > 1) get each file's or part's rows
+    from the workers and hand them on in order."""
+    if chain:
+        return _analyze_chain(files, settings, progress, rows)
+    if jobs > 1 and ("-" in files or _input_bytes(files) < PARALLEL_MIN_BYTES):
+        jobs = 1  # standard input is one stream; for small files, process start-up and shipping the rows
+        # back would cost more than the files take
+    if jobs > 1 and len(files) == 1:
+        from pd_analyze.analysis.split import analyze_split
+
+        split = analyze_split(files[0], settings, jobs, rows)
+        if split is not None:
+            return [split]
+    results: list[CaptureResult] = []
+    if jobs > 1 and len(files) > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=min(jobs, len(files))) as pool:
+            # merged in file order as results arrive: numbering does not depend on scheduling
+            for part_rows, result in pool.map(analyze_file, files, [settings] * len(files)):
+                rows.extend(part_rows, sum(r.transactions for r in results))
+                results.append(result)
+        return results
+    for path in files:
+        rows.new_capture()
+        _, result = analyze_file(path, settings, progress, rows, sum(r.transactions for r in results))
+        results.append(result)
+    return results
+
+
+def _input_bytes(files: list[str]) -> int:
+    """Capture bytes to analyse (a gzip file counted as its typical decompressed size)."""
+    total = 0
+    for path in files:
+        try:
+            total += os.path.getsize(path) * (5 if path.endswith(".gz") else 1)
+        except OSError:
+            total += PARALLEL_MIN_BYTES  # unreadable: its error is reported where it is read
+    return total
+
+
+def analyze_file(path: str, settings: Settings, progress: Progress | None = None, rows: Rows | None = None,
+                 offset: int = 0) -> tuple[Rows, CaptureResult]:
+    """One capture, numbered from transaction `offset` + 1 (a process-pool task: arguments and result pickle)."""
+    rows = Rows() if rows is None else rows
+    d = settings.dissector()
+    result = CaptureResult(path, d.accounting)
+    frames = capture.frames(path, ip_only=True)
+    run_frames(frames, d, settings.engine(), rows, lambda _frame: path, [result], progress, offset)
+    return rows, result
+
+
+def _analyze_chain(files: list[str], settings: Settings, progress: Progress | None, rows: Rows) -> list[CaptureResult]:
+    d = settings.dissector()
+    results: list[CaptureResult] = []
+    starts: list[int] = []  # first global frame number of each file
+
+    def frames() -> Iterator[capture.RawFrame]:
+        offset = 0
+        for path in files:
+            before = snapshot(d.accounting)
+            starts.append(offset + 1)
+            result = CaptureResult(path, Accounting())
+            results.append(result)
+            try:
+                for frame in capture.frames(path, ip_only=True):
+                    offset += frame.run or 1  # a run of skipped frames ends at its number
+                    yield frame._replace(number=offset)
+            except CaptureError as exc:
+                result.error = error_text(exc)
+            result.accounting = difference(d.accounting, before)
+
+    def capture_of(frame: int) -> str:
+        return files[max(0, bisect_right(starts, frame) - 1)] if files else ""
+
+    run_frames(frames(), d, settings.engine(), rows, capture_of, results, progress)
+    return results
+
+
+def run_frames(source: Iterable[capture.RawFrame], d: Dissector, engine: TransactionEngine, rows: Rows,
+               capture_of: Callable[[int], str], results: list[CaptureResult], progress: Progress | None,
+               offset: int = 0) -> None:
+    """The frame loop: dissector -> transaction engine -> rows (transactions numbered after `offset`)."""
+    last = [float("-inf")]
+
+    def frames() -> Iterator:
+        for res in dissect_frames(source, d):
+            if progress is not None:
+                progress(results[-1].path, d.accounting.read)
+            yield res
+            _drain(engine, d, rows, capture_of)
+
+    def add(txn: Transaction) -> None:
+        path = capture_of(txn.write_req_frame)
+        rows.add(path, txn, offset)
+        next(r for r in results if r.path == path).transactions += 1
+
+    try:
+        for txn in iter_closed(engine, frames(), last):
+            add(txn)
+    except CaptureError as exc:
+        results[-1].error = error_text(exc)
+        for txn in engine.finish(last[0]):
+            add(txn)
+    _drain(engine, d, rows, capture_of)
+
+
+def error_text(exc: CaptureError) -> str:
+    return exc.reason if exc.offset is None else f"byte {exc.offset}: {exc.reason}"
+
+
+def snapshot(acc: Accounting) -> Accounting:
+    return Accounting(acc.read, acc.decoded, Counter(acc.skipped), Counter(acc.malformed))
+
+
+def difference(acc: Accounting, before: Accounting) -> Accounting:
+    return Accounting(acc.read - before.read, acc.decoded - before.decoded, acc.skipped - before.skipped,
+                      acc.malformed - before.malformed)
+
+
+def _drain(engine: TransactionEngine, d: Dissector, rows: Rows, capture_of: Callable[[int], str]) -> None:
+    for f in engine.loose:
+        rows.add_finding(capture_of(f.frame), f)
+    engine.loose.clear()
+    for f in d.loose_findings:
+        rows.add_finding(capture_of(f.frame), f)
+    d.loose_findings.clear()

@@ -1,0 +1,175 @@
+"""The four tidy tables: their columns declared once (name, dtype, description), the row type of each,
+their order, and their typed DataFrames.
+
+The DataFrames, the streamed report files and `pd-analyze fields --tables` read the declaration. Rows
+are named tuples; pandas is imported only when a DataFrame is built (`frame_of`), never on the
+CSV/JSON report path.
+"""
+
+from __future__ import annotations
+
+from collections import namedtuple
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import TYPE_CHECKING
+
+from pd_analyze.model.rules import SEVERITIES
+from pd_analyze.model.verdicts import VERDICTS
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+VERDICT = "category:verdict"  # categoricals with fixed categories (the same in every chunk and file)
+SEVERITY = "category:severity"
+FIXED_CATEGORIES = {VERDICT: (VERDICTS, False), SEVERITY: (SEVERITIES, True)}
+TIME = "datetime64[ns, UTC]"
+MAX_TIME_SECONDS = 9.2e9  # datetime64[ns] spans 1677 ... 2262
+
+
+@dataclass(frozen=True, slots=True)
+class Column:
+    name: str
+    dtype: str  # a pandas dtype name, or VERDICT / SEVERITY
+    description: str
+
+
+def _cols(*cols: tuple[str, str, str]) -> tuple[Column, ...]:
+    return tuple(Column(*c) for c in cols)
+
+
+COLUMNS: Mapping[str, tuple[Column, ...]] = MappingProxyType({
+    "transactions": _cols(
+        ("txn", "Int64", "transaction number, 1, 2, ... in the order of the write request frames"),
+        ("capture", "category", "capture file"),
+        ("device", "category", "device (drive) IP address"),
+        ("controller", "category", "controller (PLC) IP address"),
+        ("ar", "string", "ARUUID of the channel"),
+        ("index", "category", "record index (0xb02e, 0xb02f, 0x002f)"),
+        ("api", "Int64", "API"), ("slot", "Int64", "slot"), ("subslot", "Int64", "subslot"),
+        ("ref", "Int64", "Request Reference"), ("req_id", "category", "Request ID"),
+        ("do", "Int64", "DO-ID"), ("n_params", "Int64", "No. of parameters"),
+        ("params", "string", "parameters addressed, e.g. P964[0] P2000[0..2]"),
+        ("resp_id", "category", "Response ID"),
+        ("verdict", VERDICT, "malformed, pnio_error, timeout, reference_mismatch, nak or ok"),
+        ("errors", "string", "PROFIdrive errors per parameter, e.g. P964[0]:0x02"),
+        ("pnio_status", "string", "PNIOStatus that closed the transaction (8 hex digits), empty when none"),
+        ("b5_retries", "Int64", "reads answered B5 (state conflict: not ready)"),
+        ("reads", "Int64", "read calls"),
+        ("rpc_retransmissions", "Int64", "duplicate request PDUs"),
+        ("write_req_frame", "Int64", "frame of the write request"),
+        ("write_res_frame", "Int64", "frame of the write response"),
+        ("read_req_frames", "string", "frames of the read requests"),
+        ("read_res_frame", "Int64", "frame of the final read response"),
+        ("frames", "string", "every frame of the transaction (requests, responses, B5 answers)"),
+        ("t_start", TIME, "time of the write request"),
+        ("t_write_rtt", "Float64", "seconds from write request to write response"),
+        ("t_total", "Float64", "seconds from write request to the final read response"),
+        ("t_final_read_rtt", "Float64", "seconds from the final read request to its response"),
+        ("t_first_read_gap", "Float64", "seconds from write response to the first read request"),
+        ("capture_ended", "boolean", "still open when the capture ended"),
+        ("closed_by", "category", "response, pnio_error, deadline, superseded, capture_end or evicted"),
+    ),
+    "parameters": _cols(
+        ("txn", "Int64", "transaction"), ("capture", "category", "capture file"),
+        ("device", "category", "device IP address"), ("do", "Int64", "DO-ID"),
+        ("param", "string", "P<pnu>[<subindex>..]"), ("pnu", "Int64", "parameter number"),
+        ("subindex", "Int64", "first subindex"), ("elements", "Int64", "No. of elements"),
+        ("attribute", "category", "Value, Description or Text"), ("format", "category", "data type"),
+        ("values_written", "string", "values of a change request"),
+        ("values_read", "string", "values of the response"),
+        ("error", "string", "PROFIdrive error number (0x..), empty when none"),
+        ("error_text", "string", "meaning of the error number"),
+    ),
+    "findings": _cols(
+        ("capture", "category", "capture file"), ("frame", "Int64", "frame number"),
+        ("txn", "Int64", "transaction, empty when the frame belongs to none"),
+        ("severity", SEVERITY, "info, warning or error"), ("rule", "category", "rule id (protocol.md 6)"),
+        ("name", "category", "rule name"), ("field", "string", "field name (pd-analyze fields)"),
+        ("value", "string", "observed value"), ("expected", "string", "expected value or range"),
+        ("source", "string", "document the limit comes from"), ("message", "string", "one-line message"),
+    ),
+    "changes": _cols(
+        ("capture", "category", "capture file"), ("device", "category", "device IP address"),
+        ("do", "Int64", "DO-ID"), ("txn", "Int64", "transaction"), ("frame", "Int64", "write request frame"),
+        ("t", TIME, "time of the change request"), ("param", "string", "P<pnu>[<subindex>..]"),
+        ("pnu", "Int64", "parameter number"), ("subindex", "Int64", "first subindex"),
+        ("value_written", "string", "values written"),
+        ("result", "string", "ok, the PROFIdrive error, or the transaction verdict"),
+        ("value_before", "string", "last value read earlier in the capture, empty when unknown"),
+    ),
+})
+
+
+def _row_type(table: str) -> type:
+    return namedtuple(table.capitalize()[:-1] + "Row", [c.name for c in COLUMNS[table]])
+
+
+# The row of each table: a tuple read by column name (row.txn, row.frame, ...)
+TransactionRow = _row_type("transactions")
+ParameterRow = _row_type("parameters")
+FindingRow = _row_type("findings")
+ChangeRow = _row_type("changes")
+ROW_TYPES: Mapping[str, type] = MappingProxyType({
+    "transactions": TransactionRow, "parameters": ParameterRow, "findings": FindingRow, "changes": ChangeRow})
+
+
+# The order of each table: by this column, ties in the order the rows were added (a stable sort).
+SORT_COLUMN: Mapping[str, str] = MappingProxyType({
+    "transactions": "txn", "parameters": "txn", "findings": "frame", "changes": "txn"})
+_LAST = float("inf")  # a missing key sorts last, as pandas puts NA last
+
+
+def sort_key(name: str, by_capture: bool = False) -> Callable[[tuple], object]:
+    """The sort key of a table's rows; `by_capture` groups findings by capture first (audit, Parquet)."""
+    col = ROW_TYPES[name]._fields.index(SORT_COLUMN[name])  # rows may come back from disk as plain lists
+    if by_capture:
+        cap = ROW_TYPES[name]._fields.index("capture")
+        return lambda r: (r[cap], _LAST if r[col] is None else r[col])
+    return lambda r: _LAST if r[col] is None else r[col]
+
+
+def micros(seconds: object) -> int | None:
+    """A capture time as the tables hold it: whole microseconds (None beyond datetime64[ns])."""
+    if seconds is None:
+        return None
+    s = float(seconds)  # type: ignore[arg-type]
+    if not abs(s) < MAX_TIME_SECONDS:  # NaN fails too
+        return None
+    return round(s * 1e6)
+
+
+def pandas_dtype(col: Column) -> object:
+    """The pandas dtype of a column (pandas imported here, on first use)."""
+    import pandas as pd
+
+    if col.dtype in FIXED_CATEGORIES:
+        categories, ordered = FIXED_CATEGORIES[col.dtype]
+        return pd.CategoricalDtype(list(categories), ordered=ordered)
+    return col.dtype
+
+
+def __getattr__(name: str) -> object:
+    # the pandas dtypes of the fixed categoricals, for callers that used the module constants
+    if name in ("VERDICT_DTYPE", "SEVERITY_DTYPE"):
+        return pandas_dtype(Column("", VERDICT if name == "VERDICT_DTYPE" else SEVERITY, ""))
+    raise AttributeError(name)
+
+
+def frame_of(name: str, rows: Iterable[tuple]) -> pd.DataFrame:
+    """A typed DataFrame of one table from its rows."""
+    import pandas as pd
+
+    cols = COLUMNS[name]
+    df = pd.DataFrame.from_records(list(rows), columns=[c.name for c in cols])
+    for c in cols:
+        if c.dtype == TIME:  # capture times to the microsecond (float seconds carry no more)
+            seconds = df[c.name].astype("float64")
+            seconds = seconds.where(seconds.abs() < MAX_TIME_SECONDS)  # a pcapng time beyond datetime64: NaT
+            micro = (seconds * 1e6).round().astype("Int64")
+            df[c.name] = pd.to_datetime(micro, unit="us", utc=True).astype(TIME)
+        else:
+            df[c.name] = df[c.name].astype(pandas_dtype(c))
+    if len(df):
+        df = df.sort_values([SORT_COLUMN[name]], kind="stable").reset_index(drop=True)
+    return df
