@@ -20,11 +20,12 @@ from devtools import fuzz, hostile
 from devtools.synth import samples
 from devtools.synth.profidrive import ParamAddress, change_ok, change_request, value_block
 from devtools.synth.scenario import Capture
+from pd_analyze import capture
 from pd_analyze.analysis import transactions
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.schema import frame_of
 from pd_analyze.analysis.transactions import TransactionEngine
-from pd_analyze.capture import reader as capture
+from pd_analyze.capture import gzip_stream, reader
 from pd_analyze.model import capped
 from pd_analyze.model.rules import finding
 from pd_analyze.protocol import link, profidrive, rpc
@@ -74,10 +75,10 @@ def test_gzip_of_a_highly_compressible_pcapng_reads_in_linear_time(tmp_path: Pat
 def test_gzip_inflates_in_bounded_steps() -> None:
     """A 100 MB run of zeros in 100 kB: one read inflates at most _GZIP_STEP bytes, not the whole member."""
     bomb = gzip.compress(bytes(100 * 1024 * 1024), compresslevel=9)
-    stream = capture._Gunzip(io.BytesIO(bomb))
+    stream = gzip_stream._Gunzip(io.BytesIO(bomb))
     for _ in range(1000):
         assert stream.read(16) == bytes(16)
-        assert len(stream.pending) <= 2 * capture._GZIP_STEP
+        assert len(stream.pending) <= 2 * gzip_stream._GZIP_STEP
     assert len(stream.backlog) <= len(bomb)
 
 
@@ -126,7 +127,7 @@ def test_permission_denied(monkeypatch: pytest.MonkeyPatch) -> None:
     def denied(path: str, mode: str) -> None:
         raise PermissionError(13, "Permission denied", path)
 
-    monkeypatch.setattr(capture, "open", denied, raising=False)
+    monkeypatch.setattr(reader, "open", denied, raising=False)
     with pytest.raises(capture.CaptureError, match="permission denied"):
         list(capture.frames("/some/capture.pcap"))
 

@@ -1,0 +1,47 @@
+"""What every capture reader hands on: frames, the errors of a damaged file, what was learnt of it."""
+
+from __future__ import annotations
+
+from typing import BinaryIO, NamedTuple
+
+MAX_CAPLEN = 262_144  # the largest snaplen tools write (tcpdump, Wireshark)
+
+
+class CaptureError(Exception):
+    """A capture cannot be read (further); `offset` is the byte offset of the damage, if known."""
+
+    def __init__(self, path: str, message: str, offset: int | None = None) -> None:
+        self.path = path
+        self.offset = offset
+        self.reason = message
+        where = f"byte {offset}: " if offset is not None else ""
+        super().__init__(f"{path}: {where}{message}")
+
+
+class RawFrame(NamedTuple):
+    """A frame; or, from an `ip_only` reader, a run of `run` skipped frames ending at `number`."""
+
+    number: int
+    ts: float
+    linktype: int
+    data: bytes
+    iface: int = 0
+    run: int = 0  # > 0: this record stands for that many Ethernet frames without IPv4 (data is empty)
+
+
+
+
+class CaptureInfo:
+    """What the reader learnt about the file: format, compression, interfaces."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self.format = ""
+        self.compressed = False
+        self.linktypes: list[int] = []
+
+
+def peek(stream: BinaryIO, size: int) -> bytes:
+    peek = getattr(stream, "peek", None)
+    data = peek(size)[:size] if peek else b""
+    return data
