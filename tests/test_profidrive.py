@@ -17,6 +17,7 @@ from devtools.synth.profidrive import (
 )
 from pd_analyze.model import pd_values as pt
 from pd_analyze.protocol import profidrive as pd
+from pd_analyze.protocol import profidrive_view as pdv
 from pd_analyze.protocol import profiles
 from pd_analyze.protocol.profidrive_checks import Checker
 from tests.worked_example import FRAME1_WRITE_REQ, FRAME6_READ_RES
@@ -42,7 +43,7 @@ def res(data: bytes, request=None, checker: Checker = GENERIC):
 
 def shown(block_bytes: bytes) -> list[tuple[object, str]]:
     p, _ = res(pd_response(1, 1, 1, [block_bytes]))
-    return [(v, s) for _, _, v, s in pd.values_of(p.blocks[0])]
+    return [(v, s) for _, _, v, s in pdv.values_of(p.blocks[0])]
 
 
 def test_worked_example_request_and_response_exactly():
@@ -55,8 +56,8 @@ def test_worked_example_request_and_response_exactly():
     r, found = res(FRAME6_READ_RES[164:], p)
     assert found == [] and r.complete and r.end == 22
     assert [(b.offset, b.format, b.n_values) for b in r.blocks] == [(4, 0x42, 1), (8, 0x43, 3)]
-    assert [v for _, _, v, _ in pd.values_of(r.blocks[1])] == [1, 2, 3]
-    sections = pd.annotate(r, FRAME6_READ_RES[164:], 164, GENERIC.describe, p)
+    assert [v for _, _, v, _ in pdv.values_of(r.blocks[1])] == [1, 2, 3]
+    sections = pdv.annotate(r, FRAME6_READ_RES[164:], 164, GENERIC.describe, p)
     titles = [t for t, _ in sections]
     assert titles == ["Parameter response header", "Parameter 1: P964[0] Word x 1",
                       "Parameter 2: P2000[0..2] Double word x 3"]
@@ -93,17 +94,17 @@ def test_worked_example_request_and_response_exactly():
 ])
 def test_every_numeric_format_is_decoded_at_its_true_size(fmt, raw, value, text):
     assert pt.FORMATS[fmt].size == len(raw)
-    assert pd.value_of(fmt, raw) == (value, text)
+    assert pdv.value_of(fmt, raw) == (value, text)
 
 
 def test_float_nan_is_shown_not_crashing():
-    value, text = pd.value_of(0x08, struct.pack(">f", math.nan))
+    value, text = pdv.value_of(0x08, struct.pack(">f", math.nan))
     assert (value, text) == ("nan", "nan")
 
 
 def test_date_format():
     raw = bytes([0x75, 0x30, 5, 14, 21, 3, 26])  # 30.000 s, 14:05, 21 March 2026
-    assert pd.value_of(0x32, raw) == (raw.hex(), "2026-03-21 14:05:30.000")
+    assert pdv.value_of(0x32, raw) == (raw.hex(), "2026-03-21 14:05:30.000")
 
 
 def test_strings_are_one_value_of_n_characters_with_pad():
@@ -113,7 +114,7 @@ def test_strings_are_one_value_of_n_characters_with_pad():
     assert found == [] and p.complete
     s = p.blocks[0]
     assert (s.format, s.n_values, s.data, s.pad, s.pad_offset) == (0x09, 5, b"ABCDE", 0, 23)
-    assert [(v, t) for _, _, v, t in pd.values_of(s)] == [("ABCDE", '"ABCDE"')]
+    assert [(v, t) for _, _, v, t in pdv.values_of(s)] == [("ABCDE", '"ABCDE"')]
     assert p.blocks[1].offset == 24 and p.end == len(request)
     octets = value_block(0x0A, b"\x00\xff\x10")
     assert shown(octets) == [("00ff10", "00 ff 10")]
@@ -142,7 +143,7 @@ def test_error_blocks_and_negative_responses():
     nak = pd_response(9, 0x81, 1, [value_block(0x06, [1]), error_block(0x02, 1)])
     r, found = res(nak, request)
     assert found == [] and [(b.error, b.error_subindex) for b in r.blocks] == [(-1, -1), (2, 1)]
-    titles = [t for t, _ in pd.annotate(r, nak, 0, GENERIC.describe, request)]
+    titles = [t for t, _ in pdv.annotate(r, nak, 0, GENERIC.describe, request)]
     assert titles[2] == "Parameter 2: P2000[0..2] error 0x02 (low or high limit exceeded)"
     r, found = res(pd_response(9, 0x81, 1, [error_block(0x00), error_block(0x02)]), request)
     assert names(found) == ["error_subindex_presence"]
@@ -196,7 +197,7 @@ def test_description_complete_element():
     data = pd_response(2, 1, 1, [value_block(0x0A, desc)])
     r, found = res(data, request)
     assert found == []
-    (_, header), (title, fields) = pd.annotate(r, data, 0, GENERIC.describe, request)
+    (_, header), (title, fields) = pdv.annotate(r, data, 0, GENERIC.describe, request)
     assert title == "Parameter 1: P1082[0] OctetString x 46, description element 0 (complete description)"
     by = {f.name: f for f in fields}
     assert by["pd.val[0].desc.identifier"].show == "0x4208 (data type FloatingPoint32; read-only, array)"

@@ -19,7 +19,7 @@ from devtools.fuzz import check_result
 from pd_analyze import capture
 from pd_analyze.analysis.transactions import TransactionEngine
 from pd_analyze.model.values import LINKTYPE_ETHERNET, LINKTYPE_RAW, LINKTYPE_SLL, LINKTYPE_SLL2
-from pd_analyze.protocol import link, profidrive, profiles, rpc
+from pd_analyze.protocol import link, profidrive, profidrive_view, profiles, rpc
 from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol.dissector import Dissector
 from pd_analyze.protocol.profidrive_checks import Checker
@@ -260,11 +260,11 @@ def test_profidrive_blocks_inside_the_record_or_a_finding(data: bytes, response:
         assert b.offset >= 4 and b.offset + 2 + len(b.data) <= len(data)
         assert data[b.offset + 2:b.offset + 2 + len(b.data)] == b.data
         assert b.end <= len(data)
-        profidrive.values_of(b)
+        profidrive_view.values_of(b)
     checked = checker.response(p, 1, None) if response else checker.request(p, 1)
     if not p.complete:
         assert findings or checked, "an incomplete decode must say why"
-    _inside(profidrive.annotate(p, data, 1000, checker.describe), data, 1000)
+    _inside(profidrive_view.annotate(p, data, 1000, checker.describe), data, 1000)
     assert profidrive.footprint(p) > 0
     profidrive.plausible(data, response)
 

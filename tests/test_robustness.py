@@ -29,7 +29,8 @@ from pd_analyze.capture import gzip_stream, reader
 from pd_analyze.model import capped
 from pd_analyze.model.rules import finding
 from pd_analyze.protocol import link, profidrive, rpc
-from pd_analyze.protocol.dissector import MAX_HELD_FIELDS, MAX_LOOSE_FINDINGS, Dissector
+from pd_analyze.protocol.dissector import MAX_LOOSE_FINDINGS, Dissector
+from pd_analyze.protocol.hold import MAX_HELD_FIELDS
 from tests.test_capture import FRAME_A, block, epb, idb, shb
 
 REPO = Path(__file__).resolve().parents[1]
@@ -319,9 +320,9 @@ def test_dump_hold_is_bounded_by_fields() -> None:
     d = Dissector(annotate=True)
     for raw in hostile.frames("calls", 3000):
         d.feed(raw)
-        assert d._held_fields <= MAX_HELD_FIELDS + 1000
-        assert len(d._frag_frames) <= capped.CL_FRAGMENT_SETS.count
-    assert set(d._held_index) == {r.frame for r in d._held}
+        assert d.hold._fields <= MAX_HELD_FIELDS + 1000
+        assert len(d.hold._fragments) <= capped.CL_FRAGMENT_SETS.count
+    assert set(d.hold._index) == {r.frame for r in d.hold._held}
 
 
 def test_dump_keeps_a_bounded_number_of_loose_findings() -> None:

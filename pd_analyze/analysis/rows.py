@@ -17,7 +17,8 @@ from pd_analyze.model import pd_values as pt
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.verdicts import ANSWERED
 from pd_analyze.protocol.link import ip_text
-from pd_analyze.protocol.profidrive import Address, Block, values_of
+from pd_analyze.protocol.profidrive import Address, Block
+from pd_analyze.protocol.profidrive_view import values_of
 
 ElementKey = tuple  # capture, device, DO, PNU, subindex: one array element of one drive's parameter
 

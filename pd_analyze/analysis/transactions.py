@@ -16,8 +16,6 @@ from pd_analyze.model.capped import CHANNEL_HISTORY, PENDING_TRANSACTIONS, TXN_C
 from pd_analyze.model.rules import Finding, finding
 from pd_analyze.model.values import (
     INDEX_WRITE_MULTIPLE,
-    OP_READ,
-    OP_READ_IMPLICIT,
     OP_WRITE,
     PNIORW_STATE_CONFLICT,
     PROFIDRIVE_INDICES,
@@ -25,6 +23,7 @@ from pd_analyze.model.values import (
     PTYPE_REJECT,
     PTYPE_REQUEST,
     PTYPE_RESPONSE,
+    RECORD_SERVICES,
 )
 from pd_analyze.model.verdicts import ANSWERED, FAILED_UNANSWERED, PRECEDENCE
 from pd_analyze.protocol import pnio as rec
@@ -194,7 +193,7 @@ class TransactionEngine:
 
     def _frame(self, res: FrameResult, closed: list[Transaction]) -> Transaction | None:
         pdu = res.pdu
-        if pdu is None or pdu.opnum not in (OP_READ, OP_WRITE, OP_READ_IMPLICIT):
+        if pdu is None or pdu.opnum not in RECORD_SERVICES:
             return None
         if pdu.ptype == PTYPE_REQUEST:
             if pdu.retransmission:

@@ -28,7 +28,7 @@ ATTRIBUTE: Mapping[int, str] = MappingProxyType({0x10: "Value", 0x20: "Descripti
 class Format(NamedTuple):
     name: str
     size: int  # bytes per value; 0 = no values
-    kind: str  # how values are decoded and shown (see profidrive.value_of)
+    kind: str  # how values are decoded and shown (see protocol.profidrive_view.value_of)
     scale: str = ""  # the scaling an engineer needs to read the raw value
 
 

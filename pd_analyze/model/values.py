@@ -56,6 +56,7 @@ EPM_INTERFACE = "e1af8308-5d1f-11c9-91a4-08002b14a0fa"
 # PNIO CM opnums (protocol.md 1.4).
 PNIO_OPNUM = _frozen({0: "Connect", 1: "Release", 2: "Read", 3: "Write", 4: "Control", 5: "ReadImplicit"})
 OP_CONNECT, OP_RELEASE, OP_READ, OP_WRITE, OP_CONTROL, OP_READ_IMPLICIT = 0, 1, 2, 3, 4, 5
+RECORD_SERVICES = frozenset({OP_READ, OP_WRITE, OP_READ_IMPLICIT})  # their stubs carry IOD blocks and records
 
 # DREP (protocol.md 2.1).
 DREP_INTEGER = _frozen({0: "big-endian", 1: "little-endian"})

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 from pd_analyze.model.layout import Field, Layout
 from pd_analyze.model.rules import Finding, finding
-from pd_analyze.protocol import profidrive
+from pd_analyze.protocol import profidrive, profidrive_view
 from pd_analyze.protocol.profidrive_checks import Checker
 
 DPV1 = Layout("PROFIBUS DP-V1 header", ">", (("dpv1.function", "B"), ("dpv1.slot", "B"), ("dpv1.index", "B"),
@@ -74,5 +74,5 @@ def decode(data: bytes, response: bool | None, checker: Checker, dpv1: bool = Fa
     else:
         parsed = profidrive.parse_request(data, 0, findings)
         findings += checker.request(parsed, 0)
-    sections += profidrive.annotate(parsed, data, base, checker.describe, req)
+    sections += profidrive_view.annotate(parsed, data, base, checker.describe, req)
     return Decoded(response, sections, findings)

@@ -10,18 +10,16 @@ field objects are built and nothing is held.
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Iterable, Iterator
 
 from pd_analyze import capture
 from pd_analyze.model.capped import (
     CHANNEL_REQUESTS,
-    CL_LINKED_SETS,
     IP_FRAGMENT_TIMES,
     KNOWN_ACTIVITIES,
     CappedTable,
 )
-from pd_analyze.model.layout import Field, derived, plain
+from pd_analyze.model.layout import derived
 from pd_analyze.model.rules import Finding, finding
 from pd_analyze.model.values import (
     FLAG1_FRAG,
@@ -30,11 +28,7 @@ from pd_analyze.model.values import (
     IP_ETHERTYPES,
     LINKTYPE_ETHERNET,
     NCA_STATUS,
-    OP_READ,
-    OP_READ_IMPLICIT,
-    OP_WRITE,
     PNIO_OPNUM,
-    PNIORW_STATE_CONFLICT,
     PROFIDRIVE_INDICES,
     PTYPE_CANCEL,
     PTYPE_FAULT,
@@ -44,20 +38,19 @@ from pd_analyze.model.values import (
     PTYPE_REQUEST,
     PTYPE_RESPONSE,
     PTYPE_WORKING,
+    RECORD_SERVICES,
     RPC_PTYPE,
 )
-from pd_analyze.protocol import link, profidrive, rpc
+from pd_analyze.protocol import link, pnio_view, profidrive, rpc
 from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol import pnio_checks as checks
 from pd_analyze.protocol.frames import Accounting, FrameResult, Layer, Pdu, mark_checks
+from pd_analyze.protocol.hold import HeldFrames
 from pd_analyze.protocol.pnio_checks import CHECKED_FIELDS
 from pd_analyze.protocol.profidrive_checks import Checker
 
 DEFAULT_RPC_TIMEOUT = 5.0
-MAX_HELD_FRAMES = 10_000
-MAX_HELD_FIELDS = 50_000  # annotated fields of the held frames (a field costs some 300 bytes)
 MAX_LOOSE_FINDINGS = 100_000  # kept when nobody drains them (the dump lists them at the end)
-RECORD_SERVICES = (OP_READ, OP_WRITE, OP_READ_IMPLICIT)
 
 # Frame outcomes beyond the link-layer skip reasons.
 MALFORMED_RPC = "PNIO RPC PDU truncated or undecodable"
@@ -81,11 +74,7 @@ class Dissector:
         self.loose_findings: list[Finding] = []  # findings on frames that are not PNIO RPC
         self.loose_dropped = 0  # beyond MAX_LOOSE_FINDINGS
         self._activities: CappedTable[bytes, None] = CappedTable(KNOWN_ACTIVITIES)
-        self._held: deque[FrameResult] = deque()
-        self._held_index: dict[int, FrameResult] = {}  # the held results by frame
-        self._held_fields = 0
-        self._waiting: dict[int, FrameResult] = {}
-        self._frag_frames: CappedTable[tuple, list[int]] = CappedTable(CL_LINKED_SETS)
+        self.hold = HeldFrames(rpc_timeout) if annotate else None  # the dump's ordered output
         self._now = float("-inf")
         self._fragment_times: CappedTable[int, float] = CappedTable(IP_FRAGMENT_TIMES)  # by frame
 
@@ -113,7 +102,7 @@ class Dissector:
         if len(self.loose_findings) > MAX_LOOSE_FINDINGS:
             self.loose_dropped += len(self.loose_findings) - MAX_LOOSE_FINDINGS
             del self.loose_findings[MAX_LOOSE_FINDINGS:]
-        return self._release(out) if self.annotate else out
+        return self._marked(self.hold.release(out, self._now)) if self.hold is not None else out
 
     def open_frames(self) -> Iterator[int]:
         """Frames whose outcome is still open: unanswered calls, unfinished IP or CL reassemblies."""
@@ -133,12 +122,7 @@ class Dissector:
             self.calls.open.pop(key)
             self._unanswered(call, key, out, "end of capture")
         self.loose_findings += self.calls.finish()
-        for number in list(self._waiting):
-            self._waiting.pop(number, None)
-        released = self._release(out)
-        rest = list(self._held)
-        self._held.clear()
-        return released + self._marked(rest)
+        return self._marked(self.hold.finish(out, self._now)) if self.hold is not None else out
 
     # --- UDP payload to PNIO RPC ------------------------------------------------------------
     def _udp(self, number: int, ts: float, linktype: int, data: bytes,
@@ -234,21 +218,20 @@ class Dissector:
                                             "a new fragment", "fragment retransmitted (identical copy)"))
                 res.summary = f"{_pdu_name(hdr)}, fragment {hdr.frag_num} [retransmission]"
                 done = self.frags.reassembled_in(fkey)
-                if self.annotate and done:
+                if self.hold is not None and done:
                     res.layers.append(Layer("Fragment", 0, [derived("rpc.reassembled_in", done)]))
                 return
             whole = self.frags.add(fkey, number, res.ts, hdr, body, res.findings)
-            if self.annotate:
-                self._link_later(fkey, number)
+            if self.hold is not None:
+                self.hold.link_fragment(fkey, number)
             if whole is None:
                 res.summary = f"{_pdu_name(hdr)}, fragment {hdr.frag_num} ({len(body)} bytes)"
-                if self.annotate:
-                    self._wait(res)
+                if self.hold is not None:
+                    self.hold.wait(res)
                 return
             body, frames, stub_base, whole_ts = whole.body, whole.frames, 0, whole.first_ts
-            if self.annotate:
-                for other in self._frag_frames.pop(fkey, []):
-                    self._link_reassembled(other, number)
+            if self.hold is not None:
+                self.hold.link_reassembled(fkey, number)
                 res.layers.append(Layer(f"Reassembled body: {len(body)} bytes from {len(frames)} fragments",
                                         0, [derived("rpc.fragments", frames)]))
         pdu = self._bare_pdu(number, res.ts, dgram, hdr)
@@ -279,8 +262,8 @@ class Dissector:
         if not response and not pdu.retransmission and pdu.request is not None:
             self.calls.charge(key, pdu.request, _decoded_cost(stub), res.findings)  # info keeps the stub
         if self.annotate:
-            res.summary = self._summary(hdr, stub, len(frames), opnum)
-            self._annotate_stub(res, stub, body, stub_base, opnum)
+            res.summary = pnio_view.pdu_summary(hdr.ptype, hdr.seq, stub, len(frames), opnum)
+            res.layers += pnio_view.stub_layers(stub, body, stub_base, opnum, response, self.checker.describe)
 
     def _first_frame(self, pdu: Pdu, dgram: link.Datagram, cl_frames: tuple[int, ...],
                      cl_first_ts: float | None) -> None:
@@ -303,8 +286,8 @@ class Dissector:
             res.findings.append(finding("pnio_interface", res.frame, "rpc.interface", hdr.interface.hex(),
                                         "PNIO Device interface", "Read/Write on a PNIO interface other "
                                                                  "than Device"))
-        if self.annotate and known is call:
-            self._wait(res)
+        if self.hold is not None and known is call:
+            self.hold.wait(res)
 
     def _response(self, res: FrameResult, hdr: rpc.Header, dgram: link.Datagram, key: tuple,
                   body: bytes, pdu: Pdu) -> None:
@@ -326,10 +309,10 @@ class Dissector:
         pdu.request = call
         call.response_frame = res.frame
         res.findings += checks.response_pairing(call, hdr, dgram.src, dgram.dst, res.frame)
-        if self.annotate:
+        if self.hold is not None:
             res.layers.append(Layer("Call", 0, [derived("rpc.request_frame", call.frame),
                                                 derived("rpc.rtt", round(res.ts - call.ts, 9))]))
-            self._link_response(call.frame, res.frame)
+            self.hold.link_response(call.frame, res.frame)
 
     def _fault(self, res: FrameResult, hdr: rpc.Header, dgram: link.Datagram, body: bytes,
                body_base: int) -> None:
@@ -348,8 +331,8 @@ class Dissector:
                                     f"call answered with {name} {text}"))
         if call is not None:
             self.frags.drop_call(key, res.frame, res.findings)
-            if self.annotate:
-                self._link_response(call.frame, res.frame)
+            if self.hold is not None:
+                self.hold.link_response(call.frame, res.frame)
         if self.annotate:
             fields = layout.annotate(body, 0, (status,), body_base) if status is not None else []
             if call is not None:
@@ -417,86 +400,10 @@ class Dissector:
         self._pd_requests.put(key, (parsed, number), profidrive.footprint(parsed))
         self._pd_requests.make_room(number, keep=key)
 
-    def _summary(self, hdr: rpc.Header, stub: rec.Stub, fragments: int, opnum: int) -> str:
-        op = PNIO_OPNUM.get(opnum, f"opnum {opnum}")
-        kind = "response" if hdr.ptype == PTYPE_RESPONSE else "request"
-        parts = [f"{op} {kind}", f"seq {hdr.seq}"]
-        if stub.status is not None and not stub.status.ok:
-            status = stub.status.text()
-            parts.append(f"PNIOStatus {status}" + (" (state conflict: not ready)"
-                                                   if stub.status.code1 == PNIORW_STATE_CONFLICT else ""))
-        for block in stub.blocks[:4]:
-            text = f"{block.layout.title.split(' ')[0]} api {block.values[rec.B_API]:#x} slot " \
-                   f"{block.values[rec.B_SLOT]}/{block.values[rec.B_SUBSLOT]:#x} index {block.index:#06x}"
-            if block.layout in (rec.WRITE_REQ, rec.READ_RES):
-                text += f" {block.record_len} bytes"
-            parts.append(text)
-        if len(stub.blocks) > 4:
-            parts.append(f"... {len(stub.blocks) - 4} more blocks")
-        if fragments:
-            parts.append(f"reassembled from {fragments} fragments")
-        return ", ".join(parts)
-
-    def _annotate_stub(self, res: FrameResult, stub: rec.Stub, body: bytes, base: int, opnum: int) -> None:
-        if not stub.ndr:
-            title = "NDR stub (truncated)" if opnum in PNIO_OPNUM else \
-                f"Stub of opnum {opnum} (not a PNIO operation: not decoded)"
-            res.layers.append(Layer(title, 0, [plain("rpc.body", 0, body, len(body), body, base)]))
-            return
-        layout = stub.ndr_layout
-        res.layers.append(Layer(layout.title, 0, layout.annotate(body, 0, stub.ndr, base)))
-        if opnum not in RECORD_SERVICES:
-            rest = body[rec.NDR_SIZE:]
-            if rest:
-                res.layers.append(Layer(f"{PNIO_OPNUM.get(opnum, 'PNIO')} blocks (not decoded)", 0,
-                                        [plain("ndr.blocks", rec.NDR_SIZE, body, len(rest), rest, base)]))
-            return
-        response = res.ptype == PTYPE_RESPONSE
-        pads = dict(rec.multi_pads(stub))
-        for block in stub.blocks:
-            depth = 1 + block.depth
-            res.layers.append(Layer(f"{block.layout.title}, index {block.index:#06x}", depth,
-                                    block.layout.annotate(body, block.offset, block.values, base)))
-            if block.layout in (rec.WRITE_REQ, rec.READ_RES) and block.index != INDEX_WRITE_MULTIPLE:
-                res.layers += self._record_layers(block, response, base, depth + 1)
-            end = block.record_offset + len(block.record)
-            if end in pads:
-                pad = body[end:end + pads[end]]
-                res.layers.append(Layer("Write-Multiple padding", depth,
-                                        [plain("iod.multi_pad", end, body, pads[end], pad, base)]))
-        if stub.trailing:
-            start = len(body) - stub.trailing
-            res.layers.append(Layer("Trailing bytes", 1, [plain("record.trailing", start, body, stub.trailing,
-                                                                body[start:], base)]))
-
-    def _record_layers(self, block: rec.Block, response: bool, base: int, depth: int) -> list[Layer]:
-        data = block.record
-        if isinstance(block.pd, tuple):
-            parsed, request = block.pd
-            at = base + block.record_offset
-            return [Layer(title, depth, fields) for title, fields in
-                    profidrive.annotate(parsed, data, at, self.checker.describe, request)]
-        what = "PROFIdrive, not decoded" if block.index in PROFIDRIVE_INDICES else "not PROFIdrive"
-        return [Layer(f"Record data, index {block.index:#06x} ({len(data)} bytes, {what})", depth,
-                      [_raw_record(block, base)])]
-
-    # --- held output (annotate mode) --------------------------------------------------------
-    def _wait(self, res: FrameResult) -> None:
-        self._waiting[res.frame] = res
-
-    def _link_response(self, request_frame: int, response_frame: int) -> None:
-        held = self._waiting.pop(request_frame, None)
-        if held is not None:
-            held.layers.append(Layer("Call", 0, [derived("rpc.response_frame", response_frame)]))
-
-    def _link_reassembled(self, fragment_frame: int, completing: int) -> None:
-        held = self._waiting.pop(fragment_frame, None)
-        if held is not None and fragment_frame != completing:
-            held.layers.append(Layer("Fragment", 0, [derived("rpc.reassembled_in", completing)]))
-
+    # --- findings discovered later, unanswered calls -----------------------------------------
     def _attach(self, f: Finding, out: list[FrameResult]) -> None:
         """A finding discovered later for an earlier frame: on its held result, else loose."""
-        held = self._waiting.pop(f.frame, None) or self._held_index.get(f.frame)
+        held = self.hold.find(f.frame) if self.hold is not None else None
         (held.findings if held is not None else self.loose_findings).append(f)
 
     def _unanswered(self, call: rpc.Call, key: tuple, out: list[FrameResult], why: str) -> None:
@@ -508,44 +415,12 @@ class Dissector:
         for key, call in self.calls.expire(self._now, self.rpc_timeout):
             self._unanswered(call, key, out, f"no response within {self.rpc_timeout:g} s")
 
-    def _release(self, new: list[FrameResult]) -> list[FrameResult]:
-        if not self.annotate:
-            return new
-        for res in new:
-            self._held.append(res)
-            self._held_index[res.frame] = res
-            self._held_fields += sum(len(layer.fields) for layer in res.layers)
-        ready = []
-        while self._held:
-            head = self._held[0]
-            blocked = head.frame in self._waiting
-            if blocked and (len(self._held) > MAX_HELD_FRAMES or self._held_fields > MAX_HELD_FIELDS
-                            or head.ts + self.rpc_timeout < self._now):
-                self._waiting.pop(head.frame, None)
-                blocked = False
-            if blocked:
-                break
-            ready.append(self._held.popleft())
-            self._held_index.pop(head.frame, None)
-            self._held_fields -= sum(len(layer.fields) for layer in head.layers)
-        return self._marked(ready)
-
     @staticmethod
     def _marked(results: list[FrameResult]) -> list[FrameResult]:
         """Annotated results as they leave: every field's check says ok or names its finding."""
         for res in results:
             mark_checks(res, CHECKED_FIELDS)
         return results
-
-    def _link_later(self, fkey: tuple, number: int) -> None:
-        """Remember a held fragment's frame, to link it to the frame that reassembles its PDU."""
-        frames = self._frag_frames.get(fkey)
-        if frames is None:
-            frames = []
-            self._frag_frames.put(fkey, frames)
-            self._frag_frames.make_room(number, keep=fkey)  # sets evicted or never completed
-        if len(frames) < MAX_HELD_FRAMES:  # beyond that, the frames have left the hold anyway
-            frames.append(number)
 
 
 def _decoded_cost(stub: rec.Stub) -> int:
@@ -563,11 +438,6 @@ def _channel(dgram: link.Datagram, v: tuple, target_ar: bytes, response: bool) -
     device, controller = (dgram.src, dgram.dst) if response else (dgram.dst, dgram.src)
     ar = target_ar if v[rec.B_AR] == rec.NIL_UUID and target_ar else v[rec.B_AR]
     return device, controller, ar, v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], v[rec.B_INDEX]
-
-
-def _raw_record(block: rec.Block, base: int) -> Field:
-    return Field("record.data", base + block.record_offset, len(block.record), bytes(block.record),
-                 bytes(block.record), f"{len(block.record)} bytes")
 
 
 def _pdu_name(hdr: rpc.Header) -> str:

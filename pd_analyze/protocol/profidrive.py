@@ -9,14 +9,11 @@ the report path never calls them. Range and consistency checks against the profi
 
 from __future__ import annotations
 
-import math
 import struct
-from collections.abc import Callable
 from dataclasses import dataclass, field
-from datetime import date, timedelta
 
 from pd_analyze.model import pd_values as pt
-from pd_analyze.model.layout import Field, Layout
+from pd_analyze.model.layout import Layout
 from pd_analyze.model.rules import Finding, finding
 from pd_analyze.protocol.profiles import generic_record
 
@@ -25,7 +22,6 @@ HEADER = Layout("PROFIdrive header", ">", (("pd.ref", "B"), ("pd.req_id", "B"), 
 RESPONSE_HEADER = Layout("PROFIdrive header", ">", (("pd.ref", "B"), ("pd.resp_id", "B"), ("pd.do", "B"),
                                                     ("pd.n_params", "B")))
 _ADDRESS = struct.Struct(">BBHH")
-_EPOCH_1984 = date(1984, 1, 1)
 
 
 @dataclass(slots=True)
@@ -283,206 +279,6 @@ def _date_size(data: bytes, pos: int, m: int, rest: int, response: bool) -> int:
     if _greedy_ok(data, pos + 2 + 8 * m, rest, response):
         return 8
     return 8 if (left - 7 * m) % 2 and not (left - 8 * m) % 2 else 7
-
-
-# --- presentation -----------------------------------------------------------------------------
-def values_of(block: Block) -> list[tuple[int, int, object, str]]:
-    """(offset, length, value, shown) per value of a value block; one entry for string formats."""
-    spec = pt.FORMATS.get(block.format)
-    start = block.offset + 2
-    if spec is None or block.unknown_size:
-        return [(start, len(block.data), block.data, f"{len(block.data)} bytes, undecoded: {block.data.hex(' ')}")]
-    if spec.kind == "string":
-        text = block.data.decode("latin-1")
-        return [(start, len(block.data), text, repr(text)[1:-1] if not text.isprintable() else f'"{text}"')]
-    if spec.kind == "octets":
-        return [(start, len(block.data), block.data.hex(), block.data.hex(" ") or "(empty)")]
-    if spec.kind == "unicode":
-        text = block.data.decode("utf-16-be", errors="replace")
-        return [(start, len(block.data), text, f'"{text}"')]
-    out = []
-    for j in range(block.n_values):
-        raw = block.data[j * block.size:(j + 1) * block.size]
-        value, shown = value_of(block.format, raw)
-        out.append((start + j * block.size, block.size, value, shown))
-    return out
-
-
-def value_of(fmt: int, raw: bytes) -> tuple[object, str]:
-    """One value as an engineer reads it: signed/unsigned/float/scaled, with the scaling stated."""
-    spec = pt.FORMATS[fmt]
-    kind = spec.kind
-    unsigned = int.from_bytes(raw, "big")
-    signed = int.from_bytes(raw, "big", signed=True)
-    if kind == "bool":
-        return unsigned, {0: "false", 1: "true"}.get(unsigned, f"{unsigned} (not 0/1)")
-    if kind == "int":
-        return signed, str(signed) + (f" ({spec.scale})" if spec.scale else "")
-    if kind == "uint":
-        return unsigned, str(unsigned) + (f" ({spec.scale})" if spec.scale else "")
-    if kind == "float":
-        value = struct.unpack(">f" if len(raw) == 4 else ">d", raw)[0]
-        if math.isnan(value) or math.isinf(value):
-            return str(value), str(value)
-        return value, f"{value:.7g}" if len(raw) == 4 else repr(value)
-    if kind == "hex":
-        return unsigned, f"0x{unsigned:0{2 * len(raw)}x}"
-    if kind == "n2":
-        return signed, f"{signed * 100 / 16384:.4f} % (raw {signed}; {spec.scale})"
-    if kind == "n4":
-        return signed, f"{signed * 100 / 2**30:.6f} % (raw {signed}; {spec.scale})"
-    if kind == "e2":
-        return signed, f"{signed / 128:g} (raw {signed}; {spec.scale})"
-    if kind == "c4":
-        return signed, f"{signed / 10000:.4f} (raw {signed}; {spec.scale})"
-    if kind == "t2":
-        eff = 0 if unsigned > 32767 else unsigned
-        return unsigned, f"{eff} x Ts" + (" (> 32767 means 0)" if unsigned > 32767 else "")
-    if kind == "bits":
-        bits = [str(b) for b in range(16) if unsigned >> b & 1]
-        return unsigned, f"0x{unsigned:04x} (bits set: {', '.join(bits) or 'none'})"
-    if kind == "nibbles":
-        return unsigned, "nibbles " + " ".join(f"{unsigned >> s & 0xF:x}" for s in (12, 8, 4, 0))
-    if kind == "time_date":
-        ms, days = int.from_bytes(raw[:4], "big"), int.from_bytes(raw[4:6], "big")
-        clock = f"{ms // 3_600_000:02d}:{ms // 60_000 % 60:02d}:{ms // 1000 % 60:02d}.{ms % 1000:03d}"
-        if fmt == 0x0C:
-            return unsigned, f"{_EPOCH_1984 + timedelta(days=days)} {clock} (ms {ms}, days {days})"
-        return unsigned, f"{days} days {ms} ms"
-    if kind == "date":
-        ms = int.from_bytes(raw[0:2], "big")
-        minute, hour, day, month, year = raw[2] & 0x3F, raw[3] & 0x1F, raw[4] & 0x1F, raw[5] & 0x0F, raw[6] & 0x7F
-        year += 2000 if year < 50 else 1900
-        return raw.hex(), f"{year:04d}-{month:02d}-{day:02d} {hour:02d}:{minute:02d}:{ms / 1000:06.3f}"
-    return unsigned, str(unsigned)
-
-
-def description_fields(block: Block, i: int, base: int) -> list[Field]:
-    """The complete description (attribute 0x20, subindex 0: 46 octets) element by element."""
-    out = []
-    for off, size, element, code in pt.DESCRIPTION_LAYOUT:
-        raw = block.data[off:off + size]
-        name = f"pd.val[{i}].desc.{element}"
-        if code:
-            value = struct.unpack(code, raw)[0]
-            shown = f"{value:.7g}" if isinstance(value, float) else str(value)
-            if element == "identifier":
-                fmt = value & 0xFF
-                flags = [text for bit, text in pt.IDENTIFIER_BITS.items() if value >> bit & 1]
-                shown = f"0x{value:04x} (data type {pt.FORMAT_NAME.get(fmt, hex(fmt))}" + \
-                        (f"; {', '.join(flags)}" if flags else "") + ")"
-            elif element in ("low_limit", "high_limit"):
-                shown = f"0x{value:08x} (as Float32 {struct.unpack('>f', raw)[0]:.7g})"
-        else:
-            value = raw.decode("latin-1")
-            shown = f'"{value}"' if value.isprintable() else repr(value)
-        out.append(Field(name, base + block.offset + 2 + off, size, bytes(raw), value, shown))
-    return out
-
-
-# --- annotation for the dump ----------------------------------------------------------------
-Section = tuple[str, list[Field]]  # (title, fields), one tree node of the dump
-Describe = Callable[[str, object], str]  # (limit key, value) -> check text, e.g. Checker.describe
-
-
-def annotate(p: Parsed, data: bytes, base: int, describe: Describe,
-             request: Parsed | None = None) -> list[Section]:
-    """The dump's tree of a parsed request/response; `describe(key, value)` gives a check text."""
-    if not p.header_ok:
-        return [("PROFIdrive record (shorter than its header)",
-                 [Field("pd.trailing", base, len(data), bytes(data), data.hex(), data.hex(" ") or "(empty)")])]
-    layout = RESPONSE_HEADER if p.response else HEADER
-    side = "response" if p.response else "request"
-    head = layout.annotate(data, 0, (p.ref, p.ident, p.do, p.n), base)
-    for fld, key in zip(head, ("ref", "resp_id" if p.response else "req_id", "do", "n_params"), strict=True):
-        fld.check = describe(f"{side}.{key}", fld.value)
-    sections: list[Section] = [(f"Parameter {side} header", head)]
-    for i, a in enumerate(p.addresses):
-        at = a.offset
-        fields = [Field(f"pd.addr[{i}].{n}", base + at + off, size, bytes(data[at + off:at + off + size]),
-                        v, _show_addr(n, v)) for n, off, size, v in
-                  (("attr", 0, 1, a.attr), ("n_elems", 1, 1, a.n_elems), ("pnu", 2, 2, a.pnu),
-                   ("subindex", 4, 2, a.subindex))]
-        for fld, key in zip(fields, ("attribute", "n_elems", "pnu", "subindex"), strict=True):
-            fld.check = describe(f"request.{key}", fld.value)
-        sections.append((f"Parameter address {i + 1}: {a.label()}", fields))
-    if p.echo:
-        sections.append(("Address echo (AKD manual layout)", [Field("pd.echo", base + 4, 6, bytes(data[4:10]),
-                                                                    data[4:10].hex(), data[4:10].hex(" "))]))
-    addresses = request.addresses if request is not None and p.response else p.addresses
-    for i, block in enumerate(p.blocks):
-        addr = addresses[i] if i < len(addresses) else None
-        sections.append((_block_title(i, block, addr, p.response), _block_fields(i, block, data, base, side,
-                                                                                describe, addr)))
-    if p.end < len(data):
-        rest = data[p.end:]
-        sections.append(("Bytes after the parsed record", [Field("pd.trailing", base + p.end, len(rest), bytes(rest),
-                                                                 rest.hex(), rest.hex(" "))]))
-    return sections
-
-
-
-
-def _show_addr(name: str, value: int) -> str:
-    if name == "attr":
-        return f"0x{value:02x} ({pt.ATTRIBUTE.get(value, 'reserved')})"
-    if name == "n_elems" and value == 0:
-        return "0 (single value / non-array)"
-    return str(value)
-
-
-def _block_title(i: int, block: Block, addr: Address | None, response: bool) -> str:
-    label = addr.label(block.n_values if addr is not None and addr.attr == pt.ATTR_VALUE
-                       and not block.is_error else None) if addr is not None else f"block {i + 1}"
-    if block.is_error:
-        return f"Parameter {i + 1}: {label} error {block.error:#04x} ({pt.error_text(max(block.error, 0))})"
-    if block.format in (pt.FMT_ZERO, pt.FMT_AKD_ZERO):
-        return f"Parameter {i + 1}: {label} written" if response else f"Parameter {i + 1}: {label} Zero"
-    name = pt.FORMAT_NAME.get(block.format, f"format {block.format:#04x}")
-    element = ""
-    if addr is not None and addr.attr == pt.ATTR_DESCRIPTION:
-        element = f", description element {addr.subindex} ({pt.DESCRIPTION_ELEMENT.get(addr.subindex, '?')})"
-    elif addr is not None and addr.attr == pt.ATTR_TEXT:
-        element = ", text"
-    return f"Parameter {i + 1}: {label} {name} x {block.n_values}{element}"
-
-
-def _block_fields(i: int, block: Block, data: bytes, base: int, side: str, describe: Describe,
-                  addr: Address | None) -> list[Field]:
-    pos = block.offset
-    fmt_show = f"0x{block.format:02x} ({pt.FORMAT_NAME.get(block.format, 'unknown format')})"
-    fields = [Field(f"pd.val[{i}].format", base + pos, 1, bytes(data[pos:pos + 1]), block.format, fmt_show,
-                    describe(f"{side}.format", block.format)),
-              Field(f"pd.val[{i}].n_values", base + pos + 1, 1, bytes(data[pos + 1:pos + 2]), block.n_values,
-                    str(block.n_values), describe(f"{side}.n_values", block.n_values) if not block.is_error else "")]
-    if block.is_error:
-        words = [block.data[k:k + 2] for k in range(0, len(block.data), 2)]
-        for k, word in enumerate(words):
-            value = int.from_bytes(word, "big")
-            if k == 0:
-                fields.append(Field(f"pd.val[{i}].error", base + pos + 2, 2, bytes(word), value,
-                                    f"0x{value:02x} ({pt.error_text(value)})"))
-            elif k == 1:
-                fields.append(Field(f"pd.val[{i}].error_subindex", base + pos + 4, 2, bytes(word), value, str(value)))
-            else:
-                fields.append(Field(f"pd.val[{i}].value[{k}]", base + pos + 2 + 2 * k, 2, bytes(word), value,
-                                    f"{value} (extra error value)"))
-    elif addr is not None and addr.attr == pt.ATTR_DESCRIPTION and addr.subindex == 0 \
-            and len(block.data) == pt.DESCRIPTION_SIZE:
-        fields += description_fields(block, i, base)
-    else:
-        for j, (off, size, value, shown) in enumerate(values_of(block)):
-            name = f"pd.val[{i}].value" if _is_text(block) else f"pd.val[{i}].value[{j}]"
-            fields.append(Field(name, base + off, size, bytes(data[off:off + size]), value, shown))
-    if block.pad >= 0:
-        fields.append(Field(f"pd.val[{i}].pad", base + block.pad_offset, 1, bytes([block.pad]), block.pad,
-                            f"0x{block.pad:02x} (word-alignment pad)"))
-    return fields
-
-
-def _is_text(block: Block) -> bool:
-    spec = pt.FORMATS.get(block.format)
-    return spec is None or block.unknown_size or spec.kind in ("string", "octets", "unicode")
 
 
 def plausible(data: bytes, response: bool | None = None, max_params: int | None = None) -> bool:

@@ -1,0 +1,93 @@
+"""How a decoded PNIO PDU is shown in the dump: its one-line summary and its layers (NDR args, IOD
+blocks, Write-Multiple padding, records), each field with offset, bytes and value."""
+
+from __future__ import annotations
+
+from pd_analyze.model.layout import Field, plain
+from pd_analyze.model.values import (
+    INDEX_WRITE_MULTIPLE,
+    PNIO_OPNUM,
+    PNIORW_STATE_CONFLICT,
+    PROFIDRIVE_INDICES,
+    PTYPE_RESPONSE,
+    RECORD_SERVICES,
+)
+from pd_analyze.protocol import pnio as rec
+from pd_analyze.protocol import profidrive_view
+from pd_analyze.protocol.frames import Layer
+from pd_analyze.protocol.profidrive_view import Describe
+
+
+def pdu_summary(ptype: int, seq: int, stub: rec.Stub, fragments: int, opnum: int) -> str:
+    """The one-line summary of a decoded PNIO PDU (the dump's frame heading)."""
+    op = PNIO_OPNUM.get(opnum, f"opnum {opnum}")
+    kind = "response" if ptype == PTYPE_RESPONSE else "request"
+    parts = [f"{op} {kind}", f"seq {seq}"]
+    if stub.status is not None and not stub.status.ok:
+        status = stub.status.text()
+        parts.append(f"PNIOStatus {status}" + (" (state conflict: not ready)"
+                                               if stub.status.code1 == PNIORW_STATE_CONFLICT else ""))
+    for block in stub.blocks[:4]:
+        text = f"{block.layout.title.split(' ')[0]} api {block.values[rec.B_API]:#x} slot " \
+               f"{block.values[rec.B_SLOT]}/{block.values[rec.B_SUBSLOT]:#x} index {block.index:#06x}"
+        if block.layout in (rec.WRITE_REQ, rec.READ_RES):
+            text += f" {block.record_len} bytes"
+        parts.append(text)
+    if len(stub.blocks) > 4:
+        parts.append(f"... {len(stub.blocks) - 4} more blocks")
+    if fragments:
+        parts.append(f"reassembled from {fragments} fragments")
+    return ", ".join(parts)
+
+
+def stub_layers(stub: rec.Stub, body: bytes, base: int, opnum: int, response: bool, describe: Describe) -> list[Layer]:
+    """The dump's layers of a decoded stub: NDR args, IOD blocks, records (PROFIdrive field by field)."""
+    layers: list[Layer] = []
+    if not stub.ndr:
+        title = "NDR stub (truncated)" if opnum in PNIO_OPNUM else \
+            f"Stub of opnum {opnum} (not a PNIO operation: not decoded)"
+        layers.append(Layer(title, 0, [plain("rpc.body", 0, body, len(body), body, base)]))
+        return layers
+    layout = stub.ndr_layout
+    layers.append(Layer(layout.title, 0, layout.annotate(body, 0, stub.ndr, base)))
+    if opnum not in RECORD_SERVICES:
+        rest = body[rec.NDR_SIZE:]
+        if rest:
+            layers.append(Layer(f"{PNIO_OPNUM.get(opnum, 'PNIO')} blocks (not decoded)", 0,
+                                    [plain("ndr.blocks", rec.NDR_SIZE, body, len(rest), rest, base)]))
+        return layers
+    pads = dict(rec.multi_pads(stub))
+    for block in stub.blocks:
+        depth = 1 + block.depth
+        layers.append(Layer(f"{block.layout.title}, index {block.index:#06x}", depth,
+                                block.layout.annotate(body, block.offset, block.values, base)))
+        if block.layout in (rec.WRITE_REQ, rec.READ_RES) and block.index != INDEX_WRITE_MULTIPLE:
+            layers += record_layers(block, base, depth + 1, describe)
+        end = block.record_offset + len(block.record)
+        if end in pads:
+            pad = body[end:end + pads[end]]
+            layers.append(Layer("Write-Multiple padding", depth,
+                                    [plain("iod.multi_pad", end, body, pads[end], pad, base)]))
+    if stub.trailing:
+        start = len(body) - stub.trailing
+        layers.append(Layer("Trailing bytes", 1, [plain("record.trailing", start, body, stub.trailing,
+                                                            body[start:], base)]))
+    return layers
+
+
+def record_layers(block: rec.Block, base: int, depth: int, describe: Describe) -> list[Layer]:
+    """A record's layers: a PROFIdrive request or response field by field, any other record raw."""
+    data = block.record
+    if isinstance(block.pd, tuple):
+        parsed, request = block.pd
+        at = base + block.record_offset
+        return [Layer(title, depth, fields) for title, fields in
+                profidrive_view.annotate(parsed, data, at, describe, request)]
+    what = "PROFIdrive, not decoded" if block.index in PROFIDRIVE_INDICES else "not PROFIdrive"
+    return [Layer(f"Record data, index {block.index:#06x} ({len(data)} bytes, {what})", depth,
+                  [raw_record(block, base)])]
+
+
+def raw_record(block: rec.Block, base: int) -> Field:
+    return Field("record.data", base + block.record_offset, len(block.record), bytes(block.record),
+                 bytes(block.record), f"{len(block.record)} bytes")
