@@ -19,7 +19,7 @@ from devtools.fuzz import check_result
 from pd_analyze import capture
 from pd_analyze.analysis.transactions import TransactionEngine
 from pd_analyze.model.values import LINKTYPE_ETHERNET, LINKTYPE_RAW, LINKTYPE_SLL, LINKTYPE_SLL2
-from pd_analyze.protocol import link, profidrive, profidrive_view, profiles, rpc
+from pd_analyze.protocol import link, profidrive, profidrive_view, profiles, rpc, rpc_calls, rpc_fragments
 from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol.dissector import Dissector
 from pd_analyze.protocol.profidrive_checks import Checker
@@ -150,7 +150,7 @@ def rpc_headers(draw: st.DrawFn, body: bytes = b"") -> bytes:
 @SETTINGS
 @given(st.lists(st.binary(max_size=40).flatmap(lambda body: rpc_headers(body)), min_size=1, max_size=12))
 def test_rpc_fragments_and_calls_stay_consistent(pdus: list[bytes]) -> None:
-    table, calls = rpc.FragmentTable(), rpc.CallTable()
+    table, calls = rpc_fragments.FragmentTable(), rpc_calls.CallTable()
     for number, payload in enumerate(pdus, 1):
         assert rpc.plausible(payload)
         hdr = rpc.header(payload)
@@ -162,7 +162,7 @@ def test_rpc_fragments_and_calls_stay_consistent(pdus: list[bytes]) -> None:
             if whole is not None:
                 assert len(whole.frames) >= 1 and number in whole.frames
         elif hdr.ptype == 0:
-            calls.request(key, rpc.Call(number, 0.0, b"a", b"b", hdr.interface, hdr.opnum, body), findings)
+            calls.request(key, rpc_calls.Call(number, 0.0, b"a", b"b", hdr.interface, hdr.opnum, body), findings)
         elif hdr.ptype == 2:
             calls.close(key)
             table.drop_call(key, number, findings)

@@ -28,7 +28,7 @@ from pd_analyze.analysis.transactions import TransactionEngine
 from pd_analyze.capture import gzip_stream, reader
 from pd_analyze.model import capped
 from pd_analyze.model.rules import finding
-from pd_analyze.protocol import link, profidrive, rpc
+from pd_analyze.protocol import link, profidrive, rpc, rpc_calls, rpc_fragments
 from pd_analyze.protocol.dissector import MAX_LOOSE_FINDINGS, Dissector
 from pd_analyze.protocol.hold import MAX_HELD_FIELDS
 from tests.test_capture import FRAME_A, block, epb, idb, shb
@@ -204,7 +204,7 @@ def _hdr(num: int, last: bool = False, seq: int = 1) -> rpc.Header:
 def test_fragment_set_flooded_with_numbers_is_capped() -> None:
     """Before: one set held any number of fragments (65,536 x 64 kB), and its 'missing' finding listed every
     absent number (a 300 kB message per set, 3 s to build at the end of the capture)."""
-    table = rpc.FragmentTable()
+    table = rpc_fragments.FragmentTable()
     findings: list = []
     for n in range(0, 3000, 2):
         table.add((b"a", 1, 0, b"s", b"d"), n, 0.0, _hdr(n), bytes(1384), findings)
@@ -215,7 +215,7 @@ def test_fragment_set_flooded_with_numbers_is_capped() -> None:
 
 
 def test_fragment_table_total_bytes_and_done_digests_are_capped() -> None:
-    table = rpc.FragmentTable()
+    table = rpc_fragments.FragmentTable()
     findings: list = []
     for s in range(20_000):
         table.add((b"a", s, 0, b"s", b"d"), s, 0.0, _hdr(0, seq=s), bytes(1384), findings)
@@ -229,7 +229,7 @@ def test_fragment_table_total_bytes_and_done_digests_are_capped() -> None:
 
 def test_answers_find_their_fragment_sets_without_a_scan() -> None:
     """Before: every response scanned all open fragment sets (4,096 per frame)."""
-    table = rpc.FragmentTable()
+    table = rpc_fragments.FragmentTable()
     findings: list = []
     for s in range(4000):
         table.add((b"a" * 16, s, 0, b"s", b"d"), s, 0.0, _hdr(0, seq=s), b"x", findings)
@@ -241,11 +241,11 @@ def test_answers_find_their_fragment_sets_without_a_scan() -> None:
 
 
 def test_open_and_closed_calls_are_capped_by_bytes() -> None:
-    calls = rpc.CallTable()
+    calls = rpc_calls.CallTable()
     findings: list = []
     for s in range(2000):
         key = (b"a", s)
-        call = calls.request(key, rpc.Call(s, 0.0, b"s", b"d", b"i", 3, bytes(60_000)), findings)
+        call = calls.request(key, rpc_calls.Call(s, 0.0, b"s", b"d", b"i", 3, bytes(60_000)), findings)
         calls.charge(key, call, 100_000, findings)
         assert calls.open.bytes <= capped.OPEN_CALLS.bytes + 200_000
         if s % 2:

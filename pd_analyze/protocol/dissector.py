@@ -41,7 +41,7 @@ from pd_analyze.model.values import (
     RECORD_SERVICES,
     RPC_PTYPE,
 )
-from pd_analyze.protocol import link, pnio_view, profidrive, rpc
+from pd_analyze.protocol import link, pnio_view, profidrive, rpc, rpc_calls, rpc_fragments
 from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol import pnio_checks as checks
 from pd_analyze.protocol.frames import Accounting, FrameResult, Layer, Pdu, mark_checks
@@ -68,8 +68,8 @@ class Dissector:
         # the last parameter request per channel and its frame, to label the blocks of responses
         self._pd_requests: CappedTable[tuple, tuple[profidrive.Parsed, int]] = CappedTable(CHANNEL_REQUESTS)
         self.link = link.LinkDecoder()
-        self.frags = rpc.FragmentTable()
-        self.calls = rpc.CallTable()
+        self.frags = rpc_fragments.FragmentTable()
+        self.calls = rpc_calls.CallTable()
         self.accounting = Accounting()
         self.loose_findings: list[Finding] = []  # findings on frames that are not PNIO RPC
         self.loose_dropped = 0  # beyond MAX_LOOSE_FINDINGS
@@ -146,7 +146,7 @@ class Dissector:
         present = len(payload) - rpc.HEADER_SIZE
         body = payload[rpc.HEADER_SIZE:rpc.HEADER_SIZE + hdr.frag_len]
         record_service = hdr.opnum in RECORD_SERVICES
-        res.findings += checks.rpc_header(hdr, number, present, record_service)
+        res.findings += rpc.check_header(hdr, number, present, record_service)
         if present < hdr.frag_len:
             res.findings.append(finding("rpc_truncated", number, "rpc.frag_len", hdr.frag_len,
                                         f"<= {present}", f"fragment body cut: {present} of "
@@ -277,7 +277,7 @@ class Dissector:
 
     def _request(self, res: FrameResult, hdr: rpc.Header, dgram: link.Datagram, key: tuple,
                  body: bytes, pdu: Pdu) -> None:
-        call = rpc.Call(res.frame, res.ts, dgram.src, dgram.dst, hdr.interface, hdr.opnum, body)
+        call = rpc_calls.Call(res.frame, res.ts, dgram.src, dgram.dst, hdr.interface, hdr.opnum, body)
         known = self.calls.request(key, call, res.findings)
         if known is not call:
             pdu.retransmission = True
@@ -308,7 +308,7 @@ class Dissector:
             return
         pdu.request = call
         call.response_frame = res.frame
-        res.findings += checks.response_pairing(call, hdr, dgram.src, dgram.dst, res.frame)
+        res.findings += rpc.check_response(call, hdr, dgram.src, dgram.dst, res.frame)
         if self.hold is not None:
             res.layers.append(Layer("Call", 0, [derived("rpc.request_frame", call.frame),
                                                 derived("rpc.rtt", round(res.ts - call.ts, 9))]))
@@ -406,7 +406,7 @@ class Dissector:
         held = self.hold.find(f.frame) if self.hold is not None else None
         (held.findings if held is not None else self.loose_findings).append(f)
 
-    def _unanswered(self, call: rpc.Call, key: tuple, out: list[FrameResult], why: str) -> None:
+    def _unanswered(self, call: rpc_calls.Call, key: tuple, out: list[FrameResult], why: str) -> None:
         self._attach(finding("rpc_unanswered", call.frame, "rpc.seq", key[1],
                              f"a response within {self.rpc_timeout:g} s",
                              f"request not answered ({why})"), out)

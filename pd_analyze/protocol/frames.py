@@ -9,8 +9,9 @@ from dataclasses import dataclass, field
 
 from pd_analyze.model.layout import Field
 from pd_analyze.model.rules import Finding
-from pd_analyze.protocol import link, rpc
+from pd_analyze.protocol import link
 from pd_analyze.protocol import pnio as rec
+from pd_analyze.protocol.rpc_calls import Call
 
 
 @dataclass(slots=True)
@@ -35,7 +36,7 @@ class Pdu:
     activity: bytes
     seq: int
     stub: rec.Stub | None = None
-    request: rpc.Call | None = None  # for responses/faults: the call they answer
+    request: Call | None = None  # for responses/faults: the call they answer
     retransmission: bool = False
     fault_status: int | None = None
     malformed: bool = False

@@ -1,4 +1,4 @@
-"""Rules R2, R4-R6, N1-N9 and H1-H14 of protocol.md section 6 on decoded RPC/NDR/IOD structures.
+"""Rules N1-N9 and H1-H14 of protocol.md section 6 on decoded NDR args and IOD blocks.
 
 Each function takes what the lower layers decoded (tuples, Stub) and returns findings; nothing here
 parses bytes. Structural findings that stop a decode (R1, R3, H5 truncation) come from the parsers.
@@ -13,64 +13,15 @@ from pd_analyze.model.values import (
     API_PROFIDRIVE,
     ERROR_DECODE_PNIO,
     ERROR_DECODE_PNIORW,
-    FLAG1_BROADCAST,
-    FLAG1_MAYBE,
     INDEX_PD_DPV1,
     INDEX_WRITE_MULTIPLE,
     OP_READ,
     OP_READ_IMPLICIT,
     OP_WRITE,
     PROFIDRIVE_INDICES,
-    PTYPE_REQUEST,
-    PTYPE_RESPONSE,
 )
 from pd_analyze.protocol import pnio as rec
-from pd_analyze.protocol import rpc
 from pd_analyze.protocol.pnio import Block, Stub
-
-
-def rpc_header(hdr: rpc.Header, frame: int, body_present: int, record_service: bool) -> list[Finding]:
-    """R2, R5, R6 and the serial-number note on one PDU header."""
-    out: list[Finding] = []
-    v = hdr.values
-    if body_present > hdr.frag_len:
-        out.append(finding("rpc_extra_bytes", frame, "rpc.frag_len", hdr.frag_len, body_present,
-                           f"{body_present - hdr.frag_len} bytes after the fragment body"))
-    if v[rpc.I_IFVER] != 1:
-        out.append(finding("rpc_header_values", frame, "rpc.if_version", v[rpc.I_IFVER], 1,
-                           "interface version is not 1"))
-    if v[rpc.I_AUTH] != 0:
-        out.append(finding("auth_present", frame, "rpc.auth_proto", v[rpc.I_AUTH], 0,
-                           "authentication protocol set: body not decoded"))
-    if record_service and hdr.ptype == PTYPE_REQUEST and hdr.flags1 & (FLAG1_MAYBE | FLAG1_BROADCAST):
-        out.append(finding("rpc_header_values", frame, "rpc.flags1", f"{hdr.flags1:#04x}",
-                           "maybe and broadcast clear", "Read/Write request flagged maybe/broadcast: "
-                                                        "no response expected"))
-    drep = v[rpc.I_DREP]
-    if drep[1] != 0:
-        out.append(finding("rpc_float_repr", frame, "rpc.drep", drep.hex(), "float representation 0 (IEEE)",
-                           f"DREP float representation {drep[1]} is not IEEE"))
-    serial = v[rpc.I_SERIAL_HI] << 8 | v[rpc.I_SERIAL_LO]
-    if serial != hdr.frag_num and hdr.ptype in (PTYPE_REQUEST, PTYPE_RESPONSE):
-        out.append(finding("rpc_serial", frame, "rpc.serial_lo", serial, hdr.frag_num,
-                           "serial number differs from the fragment number (a retransmission?)"))
-    return out
-
-
-def response_pairing(req: rpc.Call, hdr: rpc.Header, src: bytes, dst: bytes, frame: int) -> list[Finding]:
-    """R4: the response names the request's interface and opnum, and swaps its addresses."""
-    out = []
-    if hdr.interface != req.interface or hdr.opnum != req.opnum:
-        out.append(finding("rpc_response_mismatch", frame, "rpc.opnum", hdr.opnum, req.opnum,
-                           f"response interface/opnum differ from the request in frame {req.frame}"))
-    if (src, dst) != (req.dst, req.src):
-        out.append(finding("rpc_addresses_not_swapped", frame, "ip.src", _ip(src), _ip(req.dst),
-                           f"response addresses do not swap those of the request in frame {req.frame}"))
-    return out
-
-
-def _ip(addr: bytes) -> str:
-    return ".".join(str(b) for b in addr)
 
 
 def ndr(stub: Stub, stub_len: int, opnum: int, frame: int, request: Stub | None) -> list[Finding]:

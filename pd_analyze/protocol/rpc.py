@@ -1,31 +1,19 @@
-"""Connectionless DCE/RPC v4: header, PNIO recognition, CL fragment reassembly, call pairing.
+"""Connectionless DCE/RPC v4: the header, PNIO recognition and the header's checks (R2, R4-R6).
 
-Calls are keyed by activity UUID + sequence number only, never by UDP ports (devices answer from
-other ports). Activity UUIDs are kept in canonical big-endian form, because a request and its
-response may use different DREP byte orders.
+Fragment reassembly is in rpc_fragments, call pairing in rpc_calls. Calls are keyed by activity UUID +
+sequence number only, never by UDP ports (devices answer from other ports). Activity UUIDs are kept in
+canonical big-endian form, because a request and its response may use different DREP byte orders.
 """
 
 from __future__ import annotations
 
-import hashlib
-from collections.abc import Iterator
-from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from pd_analyze.model import rules
-from pd_analyze.model.capped import (
-    ANSWERED_CALLS,
-    CL_DONE_SETS,
-    CL_FRAGMENT_SETS,
-    CL_SET_BYTES,
-    MAX_LISTED,
-    OPEN_CALLS,
-    CappedTable,
-)
 from pd_analyze.model.layout import Layout
-from pd_analyze.model.rules import Finding
+from pd_analyze.model.rules import Finding, finding
 from pd_analyze.model.values import (
-    FLAG1_LASTFRAG,
+    FLAG1_BROADCAST,
+    FLAG1_MAYBE,
     PNIO_UUID_SUFFIX,
     PTYPE_ACK,
     PTYPE_CANCEL,
@@ -33,7 +21,9 @@ from pd_analyze.model.values import (
     PTYPE_FACK,
     PTYPE_PING,
     PTYPE_REQUEST,
+    PTYPE_RESPONSE,
 )
+from pd_analyze.protocol.rpc_calls import Call
 
 HEADER_SIZE = 80
 _FIELDS = (
@@ -53,9 +43,6 @@ _CONTROL_PTYPES = frozenset({PTYPE_PING, PTYPE_ACK, PTYPE_CANCEL, PTYPE_FACK, PT
 SKIP_NOT_RPC = "UDP, not DCE/RPC v4"
 SKIP_NOT_PNIO = "DCE/RPC, not PNIO (e.g. endpoint mapper)"
 
-CALL_OVERHEAD = 512  # bytes a call costs beyond its body (objects), counted against the byte caps
-FRAGMENT_OVERHEAD = 128  # bytes a held fragment costs beyond its body, so tiny fragments count too
-DIGEST_SIZE = 16  # bytes of a remembered fragment's digest (CL_DONE_SETS counts them)
 
 
 def canonical_uuid(raw: bytes, little: bool) -> bytes:
@@ -103,310 +90,46 @@ def is_control(ptype: int) -> bool:
     return ptype in _CONTROL_PTYPES
 
 
-@dataclass(slots=True)
-class _FragSet:
-    first_frame: int
-    first_ts: float
-    bodies: dict[int, bytes] = field(default_factory=dict)
-    frames: dict[int, int] = field(default_factory=dict)
-    last: int = -1
-    size: int = 0
+# --- checks: R2, R4-R6 and the serial-number note (protocol.md 6.1) -----------------------------------
+def check_header(hdr: Header, frame: int, body_present: int, record_service: bool) -> list[Finding]:
+    """R2, R5, R6 and the serial-number note on one PDU header."""
+    out: list[Finding] = []
+    v = hdr.values
+    if body_present > hdr.frag_len:
+        out.append(finding("rpc_extra_bytes", frame, "rpc.frag_len", hdr.frag_len, body_present,
+                           f"{body_present - hdr.frag_len} bytes after the fragment body"))
+    if v[I_IFVER] != 1:
+        out.append(finding("rpc_header_values", frame, "rpc.if_version", v[I_IFVER], 1,
+                           "interface version is not 1"))
+    if v[I_AUTH] != 0:
+        out.append(finding("auth_present", frame, "rpc.auth_proto", v[I_AUTH], 0,
+                           "authentication protocol set: body not decoded"))
+    if record_service and hdr.ptype == PTYPE_REQUEST and hdr.flags1 & (FLAG1_MAYBE | FLAG1_BROADCAST):
+        out.append(finding("rpc_header_values", frame, "rpc.flags1", f"{hdr.flags1:#04x}",
+                           "maybe and broadcast clear", "Read/Write request flagged maybe/broadcast: "
+                                                        "no response expected"))
+    drep = v[I_DREP]
+    if drep[1] != 0:
+        out.append(finding("rpc_float_repr", frame, "rpc.drep", drep.hex(), "float representation 0 (IEEE)",
+                           f"DREP float representation {drep[1]} is not IEEE"))
+    serial = v[I_SERIAL_HI] << 8 | v[I_SERIAL_LO]
+    if serial != hdr.frag_num and hdr.ptype in (PTYPE_REQUEST, PTYPE_RESPONSE):
+        out.append(finding("rpc_serial", frame, "rpc.serial_lo", serial, hdr.frag_num,
+                           "serial number differs from the fragment number (a retransmission?)"))
+    return out
 
 
-class Reassembled(NamedTuple):
-    body: bytes
-    frames: tuple[int, ...]  # frames of fragments 0..last, in fragment order
-    first_ts: float
+def check_response(req: Call, hdr: Header, src: bytes, dst: bytes, frame: int) -> list[Finding]:
+    """R4: the response names the request's interface and opnum, and swaps its addresses."""
+    out = []
+    if hdr.interface != req.interface or hdr.opnum != req.opnum:
+        out.append(finding("rpc_response_mismatch", frame, "rpc.opnum", hdr.opnum, req.opnum,
+                           f"response interface/opnum differ from the request in frame {req.frame}"))
+    if (src, dst) != (req.dst, req.src):
+        out.append(finding("rpc_addresses_not_swapped", frame, "ip.src", _ip(src), _ip(req.dst),
+                           f"response addresses do not swap those of the request in frame {req.frame}"))
+    return out
 
 
-class _Done(NamedTuple):
-    """A reassembled set: the frame that completed it and a digest of each fragment body."""
-
-    frame: int
-    digests: dict[int, bytes]
-
-
-def _digest(body: bytes) -> bytes:
-    return hashlib.blake2b(body, digest_size=DIGEST_SIZE).digest()
-
-
-class FragmentTable:
-    """CL fragment reassembly keyed by activity + seq + direction + address pair (protocol.md 2.3)."""
-
-    def __init__(self) -> None:
-        self._sets: CappedTable[tuple, _FragSet] = CappedTable(CL_FRAGMENT_SETS)
-        self._done: CappedTable[tuple, _Done] = CappedTable(CL_DONE_SETS)  # by the bytes of their digests
-        self._by_call: dict[tuple, list[tuple]] = {}  # (activity, seq) -> keys of its request sets
-
-    @property
-    def evicted(self) -> int:
-        """Fragment sets dropped by the caps."""
-        return self._sets.evicted
-
-    def add(self, key: tuple, number: int, ts: float, hdr: Header, body: bytes,
-            findings: list[Finding]) -> Reassembled | None:
-        """Add one fragment; the whole body once the set is complete, else None."""
-        entry = self._sets.get(key)
-        if entry is None and self._late_copy(key, hdr.frag_num, body):
-            done = self._done[key]
-            findings.append(rules.finding(
-                "rpc_retransmission", number, "rpc.frag_num", hdr.frag_num, "a new fragment",
-                f"fragment {hdr.frag_num} retransmitted after its PDU was reassembled in frame "
-                f"{done.frame} (identical copy)"))
-            return None
-        cost = len(body) + FRAGMENT_OVERHEAD
-        if entry is not None and entry.size + cost > CL_SET_BYTES:
-            self._drop(key, number, findings, f"fragment set above {CL_SET_BYTES} bytes")
-            entry = None
-        for victim, old, listed in self._sets.make_room(number, cost, key not in self._sets, keep=key):
-            self._dropped(victim, old, listed, number, findings, "fragment table full")
-        if entry is None:
-            entry = _FragSet(number, ts)
-            self._sets.put(key, entry)
-            if key[2] == PTYPE_REQUEST:
-                self._by_call.setdefault(key[:2], []).append(key)
-        num = hdr.frag_num
-        is_last = bool(hdr.flags1 & FLAG1_LASTFRAG)
-        if num in entry.bodies:
-            if entry.bodies[num] != body:
-                findings.append(rules.finding(
-                    "rpc_frag_conflict", number, "rpc.frag_num", num, "identical copy",
-                    f"fragment {num} repeated with different bytes (first copy from frame "
-                    f"{entry.frames[num]} kept)"))
-            return None
-        if (is_last and entry.last >= 0 and num != entry.last) or (entry.last >= 0 and num > entry.last):
-            findings.append(rules.finding(
-                "rpc_frag_inconsistent", number, "rpc.frag_num", num, f"<= {entry.last}",
-                f"fragment {num} conflicts with last fragment {entry.last}"))
-            return None
-        if is_last and any(n > num for n in entry.bodies):
-            findings.append(rules.finding(
-                "rpc_frag_inconsistent", number, "rpc.frag_num", num, f"> {max(entry.bodies)}",
-                f"last fragment {num} below fragment {max(entry.bodies)} already seen"))
-            return None
-        entry.bodies[num] = body
-        entry.frames[num] = number
-        entry.size += cost
-        self._sets.charge(key, cost)
-        if is_last:
-            entry.last = num
-        if entry.last < 0 or len(entry.bodies) != entry.last + 1:
-            return None
-        self._pop(key)
-        self._remember(key, number, entry)
-        order = range(entry.last + 1)
-        return Reassembled(b"".join(entry.bodies[n] for n in order),
-                           tuple(entry.frames[n] for n in order), entry.first_ts)
-
-    def open_frames(self) -> Iterator[int]:
-        """First frame of every unfinished set."""
-        return (entry.first_frame for entry in self._sets.values())
-
-    def seen(self, key: tuple, num: int, body: bytes) -> bool:
-        """True when this exact fragment is already held, or was part of the set reassembled last
-        under this key (a retransmitted copy, protocol.md 2.3)."""
-        entry = self._sets.get(key)
-        if entry is not None:
-            return entry.bodies.get(num) == body
-        return self._late_copy(key, num, body)
-
-    def reassembled_in(self, key: tuple) -> int | None:
-        """The frame that completed the last set reassembled under this key, if remembered."""
-        done = self._done.get(key)
-        return done.frame if done is not None else None
-
-    def _late_copy(self, key: tuple, num: int, body: bytes) -> bool:
-        done = self._done.get(key)
-        return done is not None and done.digests.get(num) == _digest(body)
-
-    def _remember(self, key: tuple, number: int, entry: _FragSet) -> None:
-        self._done.put(key, _Done(number, {n: _digest(b) for n, b in entry.bodies.items()}),
-                       DIGEST_SIZE * len(entry.bodies))
-        self._done.make_room(number)  # the oldest are forgotten
-
-    def _pop(self, key: tuple) -> _FragSet:
-        """Take a set out of the table (complete, missing pieces or dropped)."""
-        entry = self._sets.pop(key)
-        self._unindex(key)
-        return entry
-
-    def _unindex(self, key: tuple) -> None:
-        if key[2] == PTYPE_REQUEST:
-            keys = self._by_call.get(key[:2], [])
-            if key in keys:
-                keys.remove(key)
-            if not keys:
-                self._by_call.pop(key[:2], None)
-
-    def drop_call(self, call_key: tuple, number: int, findings: list[Finding]) -> None:
-        """The call was answered: any unfinished fragment set of its request is missing pieces."""
-        for key in list(self._by_call.get(call_key[:2], ())):
-            findings.append(self._missing(key, self._pop(key), number))
-
-    def _missing(self, key: tuple, entry: _FragSet, number: int) -> Finding:
-        have = sorted(entry.bodies)
-        top = entry.last if entry.last >= 0 else (have[-1] if have else 0)
-        absent = _gaps(have, top)  # ranges, not numbers: a set may name up to 65,536 fragments
-        missing = f"[{_spans(absent)}]" if absent else "the last fragment"
-        expect = f"fragments 0..{entry.last}" if entry.last >= 0 else "a last fragment"
-        return rules.finding(
-            "rpc_frag_missing", entry.first_frame, "rpc.frag_num", _spans(_runs(have), ","), expect,
-            f"fragment set of seq {key[1]} incomplete (missing {missing}; noticed at frame {number})")
-
-    def _drop(self, key: tuple, number: int, findings: list[Finding], why: str) -> None:
-        self._dropped(key, *self._sets.evict(key, number), number, findings, why)
-
-    def _dropped(self, key: tuple, entry: _FragSet, listed: bool, number: int, findings: list[Finding],
-                 why: str) -> None:
-        self._unindex(key)
-        if listed:
-            findings.append(rules.finding(
-                CL_FRAGMENT_SETS.rule, number, "rpc.frag_num", len(entry.bodies),
-                f"{CL_FRAGMENT_SETS.text()}, {CL_SET_BYTES} bytes per set",
-                f"{why}: set of seq {key[1]} from frame {entry.first_frame} dropped"))
-
-    def finish(self, number: int) -> list[Finding]:
-        out = [self._missing(key, entry, number) for key, entry in self._sets.items()]
-        more = self._sets.unlisted()
-        if more:
-            out.append(rules.finding(
-                CL_FRAGMENT_SETS.rule, self._sets.last_eviction, "rpc.frag_num", self.evicted, CL_FRAGMENT_SETS.text(),
-                f"{more} more fragment sets dropped by the table caps "
-                f"({self.evicted} in all; only the first {MAX_LISTED} are listed one by one)"))
-        self._sets.clear()
-        self._by_call.clear()
-        return out
-
-
-def _runs(numbers: list[int]) -> list[tuple[int, int]]:
-    """Sorted numbers as (first, last) runs of consecutive numbers."""
-    runs: list[tuple[int, int]] = []
-    for n in numbers:
-        if runs and n == runs[-1][1] + 1:
-            runs[-1] = (runs[-1][0], n)
-        else:
-            runs.append((n, n))
-    return runs
-
-
-def _gaps(have: list[int], top: int) -> list[tuple[int, int]]:
-    """The runs of 0..top missing from the sorted numbers `have`."""
-    gaps, expect = [], 0
-    for n in have:
-        if n > top:
-            break
-        if n > expect:
-            gaps.append((expect, n - 1))
-        expect = n + 1
-    if expect <= top:
-        gaps.append((expect, top))
-    return gaps
-
-
-def _spans(runs: list[tuple[int, int]], sep: str = ", ", limit: int = 8) -> str:
-    """'0, 2-5, 9' for runs; past `limit` runs the rest is counted, so the text stays short."""
-    parts = [str(lo) if lo == hi else f"{lo}-{hi}" for lo, hi in runs[:limit]]
-    if len(runs) > limit:
-        parts.append(f"... ({sum(hi - lo + 1 for lo, hi in runs[limit:])} more)")
-    return sep.join(parts)
-
-
-@dataclass(slots=True)
-class Call:
-    """An RPC call: the request as first seen, and what the analysis learnt from it."""
-
-    frame: int
-    ts: float
-    src: bytes
-    dst: bytes
-    interface: bytes
-    opnum: int
-    body: bytes
-    info: object = None  # what the record layer keeps for checking the response
-    copies: int = 0
-    working: int = 0
-    pings: int = 0
-    response_frame: int = 0
-    cost: int = 0  # bytes it keeps alive (body, what was decoded from it), counted against the caps
-
-
-class CallTable:
-    """Open calls by (activity, seq); closed ones remembered a while to spot duplicates."""
-
-    def __init__(self) -> None:
-        self.open: CappedTable[tuple[bytes, int], Call] = CappedTable(OPEN_CALLS)
-        self.closed: CappedTable[tuple[bytes, int], Call] = CappedTable(ANSWERED_CALLS)
-
-    @property
-    def evicted(self) -> int:
-        """Open calls dropped by the caps."""
-        return self.open.evicted
-
-    def request(self, key: tuple[bytes, int], call: Call, findings: list[Finding]) -> Call:
-        """Register a request; returns the call it belongs to (the first copy on retransmission)."""
-        known = self.open.get(key) or self.closed.get(key)
-        if known is not None:
-            if known.body == call.body:
-                known.copies += 1
-                findings.append(rules.finding(
-                    "rpc_retransmission", call.frame, "rpc.seq", key[1], "a new sequence number",
-                    f"request retransmitted (copy {known.copies} of frame {known.frame})"))
-            else:
-                findings.append(rules.finding(
-                    "rpc_key_reused", call.frame, "rpc.seq", key[1], "a new sequence number",
-                    f"activity/sequence number of frame {known.frame} reused with a different body"))
-            return known
-        call.cost = CALL_OVERHEAD + len(call.body)
-        self.open.put(key, call, call.cost)
-        self._evict(key, call.frame, findings)
-        return call
-
-    def charge(self, key: tuple[bytes, int], call: Call, extra: int, findings: list[Finding]) -> None:
-        """What was decoded from an open call's request (kept in `info`) adds `extra` bytes to its cost."""
-        if self.open.get(key) is call:
-            call.cost += extra
-            self.open.charge(key, extra)
-            self._evict(key, call.frame, findings)
-
-    def _evict(self, keep: tuple[bytes, int], number: int, findings: list[Finding]) -> None:
-        """Drop the oldest open calls (never `keep`) while the table is above its caps."""
-        for old_key, old, listed in self.open.make_room(number, keep=keep):
-            if listed:
-                findings.append(rules.finding(
-                    OPEN_CALLS.rule, number, "rpc.seq", old_key[1], OPEN_CALLS.text(),
-                    f"open-call table full: call of frame {old.frame} dropped unanswered"))
-
-    def open_frames(self) -> Iterator[int]:
-        """Request frame of every unanswered call."""
-        return (call.frame for call in self.open.values())
-
-    def close(self, key: tuple[bytes, int]) -> Call | None:
-        call = self.open.pop(key, None)
-        if call is not None:
-            self.closed.put(key, call, call.cost)
-            self.closed.make_room(call.frame)  # the oldest are forgotten
-        return call
-
-    def finish(self) -> list[Finding]:
-        """At the end of the capture: how many open calls the caps dropped beyond those listed."""
-        more = self.open.unlisted()
-        if not more:
-            return []
-        return [rules.finding(
-            OPEN_CALLS.rule, self.open.last_eviction, "rpc.seq", self.evicted, OPEN_CALLS.text(),
-            f"{more} more open calls dropped unanswered by the table caps "
-            f"({self.evicted} in all; only the first {MAX_LISTED} are listed one by one)")]
-
-    def expire(self, now: float, timeout: float) -> list[tuple[tuple[bytes, int], Call]]:
-        """Calls opened more than `timeout` seconds of capture time before `now`."""
-        first = self.open.oldest()
-        if first is None or first.ts + timeout >= now:
-            return []  # the common case, checked for every frame: nothing is due
-        out = []
-        for key, call in self.open.items():
-            if call.ts + timeout >= now:
-                break
-            out.append((key, call))
-        for key, _call in out:
-            self.open.pop(key)
-        return out
+def _ip(addr: bytes) -> str:
+    return ".".join(str(b) for b in addr)

@@ -1,0 +1,115 @@
+"""CL-RPC calls (protocol.md 2.4): requests paired with their responses by activity UUID + sequence number,
+never by ports; retransmissions and reused keys told apart; answered calls remembered a while to spot
+duplicates; open calls expire after rpc_timeout of capture time; both tables capped (model.capped)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+from pd_analyze.model import rules
+from pd_analyze.model.capped import ANSWERED_CALLS, MAX_LISTED, OPEN_CALLS, CappedTable
+from pd_analyze.model.rules import Finding
+
+CALL_OVERHEAD = 512  # bytes a call costs beyond its body (objects), counted against the byte caps
+
+
+@dataclass(slots=True)
+class Call:
+    """An RPC call: the request as first seen, and what the analysis learnt from it."""
+
+    frame: int
+    ts: float
+    src: bytes
+    dst: bytes
+    interface: bytes
+    opnum: int
+    body: bytes
+    info: object = None  # what the record layer keeps for checking the response
+    copies: int = 0
+    working: int = 0
+    pings: int = 0
+    response_frame: int = 0
+    cost: int = 0  # bytes it keeps alive (body, what was decoded from it), counted against the caps
+
+
+class CallTable:
+    """Open calls by (activity, seq); closed ones remembered a while to spot duplicates."""
+
+    def __init__(self) -> None:
+        self.open: CappedTable[tuple[bytes, int], Call] = CappedTable(OPEN_CALLS)
+        self.closed: CappedTable[tuple[bytes, int], Call] = CappedTable(ANSWERED_CALLS)
+
+    @property
+    def evicted(self) -> int:
+        """Open calls dropped by the caps."""
+        return self.open.evicted
+
+    def request(self, key: tuple[bytes, int], call: Call, findings: list[Finding]) -> Call:
+        """Register a request; returns the call it belongs to (the first copy on retransmission)."""
+        known = self.open.get(key) or self.closed.get(key)
+        if known is not None:
+            if known.body == call.body:
+                known.copies += 1
+                findings.append(rules.finding(
+                    "rpc_retransmission", call.frame, "rpc.seq", key[1], "a new sequence number",
+                    f"request retransmitted (copy {known.copies} of frame {known.frame})"))
+            else:
+                findings.append(rules.finding(
+                    "rpc_key_reused", call.frame, "rpc.seq", key[1], "a new sequence number",
+                    f"activity/sequence number of frame {known.frame} reused with a different body"))
+            return known
+        call.cost = CALL_OVERHEAD + len(call.body)
+        self.open.put(key, call, call.cost)
+        self._evict(key, call.frame, findings)
+        return call
+
+    def charge(self, key: tuple[bytes, int], call: Call, extra: int, findings: list[Finding]) -> None:
+        """What was decoded from an open call's request (kept in `info`) adds `extra` bytes to its cost."""
+        if self.open.get(key) is call:
+            call.cost += extra
+            self.open.charge(key, extra)
+            self._evict(key, call.frame, findings)
+
+    def _evict(self, keep: tuple[bytes, int], number: int, findings: list[Finding]) -> None:
+        """Drop the oldest open calls (never `keep`) while the table is above its caps."""
+        for old_key, old, listed in self.open.make_room(number, keep=keep):
+            if listed:
+                findings.append(rules.finding(
+                    OPEN_CALLS.rule, number, "rpc.seq", old_key[1], OPEN_CALLS.text(),
+                    f"open-call table full: call of frame {old.frame} dropped unanswered"))
+
+    def open_frames(self) -> Iterator[int]:
+        """Request frame of every unanswered call."""
+        return (call.frame for call in self.open.values())
+
+    def close(self, key: tuple[bytes, int]) -> Call | None:
+        call = self.open.pop(key, None)
+        if call is not None:
+            self.closed.put(key, call, call.cost)
+            self.closed.make_room(call.frame)  # the oldest are forgotten
+        return call
+
+    def finish(self) -> list[Finding]:
+        """At the end of the capture: how many open calls the caps dropped beyond those listed."""
+        more = self.open.unlisted()
+        if not more:
+            return []
+        return [rules.finding(
+            OPEN_CALLS.rule, self.open.last_eviction, "rpc.seq", self.evicted, OPEN_CALLS.text(),
+            f"{more} more open calls dropped unanswered by the table caps "
+            f"({self.evicted} in all; only the first {MAX_LISTED} are listed one by one)")]
+
+    def expire(self, now: float, timeout: float) -> list[tuple[tuple[bytes, int], Call]]:
+        """Calls opened more than `timeout` seconds of capture time before `now`."""
+        first = self.open.oldest()
+        if first is None or first.ts + timeout >= now:
+            return []  # the common case, checked for every frame: nothing is due
+        out = []
+        for key, call in self.open.items():
+            if call.ts + timeout >= now:
+                break
+            out.append((key, call))
+        for key, _call in out:
+            self.open.pop(key)
+        return out
