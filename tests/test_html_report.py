@@ -25,7 +25,7 @@ import pytest
 
 import pd_analyze
 from devtools.synth import samples
-from devtools.synth.profidrive import ParamAddress, error_block, pd_response, read_request, value_block
+from devtools.synth.pd_encode import ParamAddress, error_block, pd_response, read_request, value_block
 from devtools.synth.scenario import Capture
 from pd_analyze.output import html_report
 

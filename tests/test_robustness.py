@@ -18,7 +18,7 @@ import pytest
 import pd_analyze
 from devtools import fuzz, hostile
 from devtools.synth import samples
-from devtools.synth.profidrive import ParamAddress, change_ok, change_request, value_block
+from devtools.synth.pd_encode import ParamAddress, change_ok, change_request, value_block
 from devtools.synth.scenario import Capture
 from pd_analyze.analysis import transactions
 from pd_analyze.analysis.rows import Rows, frame_of
@@ -360,7 +360,7 @@ def test_hostile_command_line() -> None:
 
 def test_skipped_runs_give_the_same_results_and_accounting(tmp_path):
     """The reader's runs of non-IP frames (ip_only) change nothing but the speed."""
-    from devtools.synth.mixed import make_capture
+    from devtools.synth.mixed_capture import make_capture
     from pd_analyze.protocol.dissector import dissect_frames
 
     path = tmp_path / "mixed.pcap"

@@ -1,7 +1,7 @@
 """Deterministic generator of sample PROFINET IO / PROFIdrive captures.
 
-Layers: link/rpc/pnio/profidrive (pure encoders, re-exported by encode),
-writers (pcap, pcapng, gzip), scenario (clock, hosts, PNIO sessions),
+Layers: net_encode/rpc_encode/pnio_encode/pd_encode (pure encoders,
+re-exported by encode), capture_files (pcap, pcapng, gzip), scenario (clock, hosts, PNIO sessions),
 samples (the files in sample_pcaps/). `python -m devtools.synth [OUTDIR]`
 regenerates every sample byte for byte.
 """

@@ -33,9 +33,9 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from .pnio import STATUS_B5, STATUS_OK
+from .capture_files import Frame
+from .pnio_encode import STATUS_B5, STATUS_OK
 from .scenario import Call, Capture
-from .writers import Frame
 
 GENERIC = "generic"
 B5_TEXT = STATUS_B5.hex().upper()

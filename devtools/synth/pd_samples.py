@@ -20,9 +20,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from . import pnio, rpc
+from . import pnio_encode, rpc_encode
 from .expect import GENERIC, Intent
-from .profidrive import (
+from .pd_encode import (
     ATTR_DESCRIPTION,
     ATTR_TEXT,
     REQ_CHANGE,
@@ -41,18 +41,18 @@ from .profidrive import (
     value_block,
     zero_block,
 )
-from .profidrive import ParamAddress as P
+from .pd_encode import ParamAddress as P
 from .samples import pcap_of, sample, session
 from .scenario import Capture, PnioSession
 
 Built = tuple[Capture, Intent]
 
 # PNIOStatus values used below (protocol.md 4.6)
-DF_B0 = pnio.pnio_status(0xDF, 0x80, 0xB0, 0x00)  # write: invalid index
-DF_B1 = pnio.pnio_status(0xDF, 0x80, 0xB1, 0x00)  # write: write length error
-DF_B7 = pnio.pnio_status(0xDF, 0x80, 0xB7, 0x00)  # write: invalid range (request header)
-DE_B1 = pnio.pnio_status(0xDE, 0x80, 0xB1, 0x00)  # read: buffer too small for the response
-DE_B2 = pnio.pnio_status(0xDE, 0x80, 0xB2, 0x00)  # read: invalid slot/subslot
+DF_B0 = pnio_encode.pnio_status(0xDF, 0x80, 0xB0, 0x00)  # write: invalid index
+DF_B1 = pnio_encode.pnio_status(0xDF, 0x80, 0xB1, 0x00)  # write: write length error
+DF_B7 = pnio_encode.pnio_status(0xDF, 0x80, 0xB7, 0x00)  # write: invalid range (request header)
+DE_B1 = pnio_encode.pnio_status(0xDE, 0x80, 0xB1, 0x00)  # read: buffer too small for the response
+DE_B2 = pnio_encode.pnio_status(0xDE, 0x80, 0xB2, 0x00)  # read: invalid slot/subslot
 
 NCA_SERVER_TOO_BUSY = 0x1C010014
 NCA_PROTO_ERROR = 0x1C01000B
@@ -309,11 +309,11 @@ def pd_b5_and_pnio_errors_capture() -> Built:
     calls = s.parameter_access(one(7, 1, [P(964)]), None, b5_retries=1, read_status=DE_B2)
     x.txn(calls, 7, "pnio_error", "read DE 80 B2 00")
     # ref 8: the write is answered with an RPC fault (server too busy)
-    calls = s.parameter_access(one(8, 1, [P(964)]), None, write_fault=(rpc.FAULT, NCA_SERVER_TOO_BUSY))
+    calls = s.parameter_access(one(8, 1, [P(964)]), None, write_fault=(rpc_encode.FAULT, NCA_SERVER_TOO_BUSY))
     x.on(calls[0].response, "rpc_fault")
     x.txn(calls, 8, "pnio_error", "write answered with fault 0x1C010014")
     # ref 9: the final read is answered with an RPC reject (protocol error)
-    calls = s.parameter_access(one(9, 1, [P(964)]), None, b5_retries=1, read_fault=(rpc.REJECT, NCA_PROTO_ERROR))
+    calls = s.parameter_access(one(9, 1, [P(964)]), None, b5_retries=1, read_fault=(rpc_encode.REJECT, NCA_PROTO_ERROR))
     x.on(calls[-1].response, "rpc_fault")
     x.txn(calls, 9, "pnio_error", "read answered with reject 0x1C01000B")
     # ref 10: a normal read afterwards: the channel works again

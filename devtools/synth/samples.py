@@ -14,14 +14,22 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from . import link, pnio, rpc
+from . import net_encode, pnio_encode, rpc_encode
+from .capture_files import Frame, Pcapng, gzip_bytes, pcap_bytes
 from .expect import Intent
-from .link import ETH_ARP, ETH_PNRT, LINKTYPE_ETHERNET, LINKTYPE_LINUX_SLL, LINKTYPE_LINUX_SLL2, LINKTYPE_RAW, VlanTag
-from .pnio import InnerWrite
-from .profidrive import ParamAddress as P
-from .profidrive import change_ok, change_request, pd_response, read_request, value_block
+from .net_encode import (
+    ETH_ARP,
+    ETH_PNRT,
+    LINKTYPE_ETHERNET,
+    LINKTYPE_LINUX_SLL,
+    LINKTYPE_LINUX_SLL2,
+    LINKTYPE_RAW,
+    VlanTag,
+)
+from .pd_encode import ParamAddress as P
+from .pd_encode import change_ok, change_request, pd_response, read_request, value_block
+from .pnio_encode import InnerWrite, control_block
 from .scenario import EPOCH_NS, Call, Capture, Clock, Host, Medium, PnioSession, host
-from .writers import Frame, Pcapng, gzip_bytes, pcap_bytes
 
 BROADCAST = b"\xff" * 6
 
@@ -85,15 +93,17 @@ def session(cap: Capture, n: int = 1, *, net: str = "192.168.1", **kw: Any) -> P
 
 
 def arp_exchange(cap: Capture, asker: Host, target: Host, medium: Medium | None = None) -> None:
-    cap.send_ether(asker, BROADCAST, ETH_ARP, link.arp(1, asker.mac, asker.ip, bytes(6), target.ip), medium=medium)
+    request = net_encode.arp(1, asker.mac, asker.ip, bytes(6), target.ip)
+    cap.send_ether(asker, BROADCAST, ETH_ARP, request, medium=medium)
     cap.clock.advance_us(180)
-    cap.send_ether(target, asker.mac, ETH_ARP, link.arp(2, target.mac, target.ip, asker.mac, asker.ip), medium=medium)
+    reply = net_encode.arp(2, target.mac, target.ip, asker.mac, asker.ip)
+    cap.send_ether(target, asker.mac, ETH_ARP, reply, medium=medium)
     cap.clock.advance_us(500)
 
 
 def pn_rt(cap: Capture, src: Host, dst: Host, counter: int) -> None:
     """One cyclic PN-RT frame (EtherType 0x8892), VLAN-less as PN-RT class 1."""
-    cap.send_ether(src, dst.mac, ETH_PNRT, link.pn_rt_cyclic(0x8001, bytes(range(40)), cycle_counter=counter))
+    cap.send_ether(src, dst.mac, ETH_PNRT, net_encode.pn_rt_cyclic(0x8001, bytes(range(40)), cycle_counter=counter))
     cap.clock.advance_us(50)
 
 
@@ -106,18 +116,22 @@ def udp_noise(cap: Capture, src: Host, dst: Host) -> None:
 def epm_lookup(cap: Capture, ctrl: Host, dev: Host, drep: bytes) -> None:
     """Endpoint-mapper ept_lookup call + 'not registered' answer on the PNIO
     port: DCE/RPC v4 that a PNIO decoder must ignore silently."""
-    le = rpc.drep_little(drep)
+    le = rpc_encode.drep_little(drep)
+
+    def u32(value: int) -> bytes:
+        return rpc_encode.u32(value, le)
+
     act = fixed_uuid(0xE9, 1)
     # inquiry_type, NULL object ptr, NULL interface ptr, vers_option,
     # 20-byte NIL entry handle, max_ents
-    body = rpc.u32(0, le) + rpc.u32(0, le) + rpc.u32(0, le) + rpc.u32(1, le) + bytes(20) + rpc.u32(1, le)
-    epm = dict(activity=act, seq=0, opnum=2, interface=rpc.EPM_IF, if_version=3, drep=drep)
-    req = rpc.rpc_pdu(body, ptype=rpc.REQUEST, flags1=0x20, **epm)
+    body = u32(0) + u32(0) + u32(0) + u32(1) + bytes(20) + u32(1)
+    epm = dict(activity=act, seq=0, opnum=2, interface=rpc_encode.EPM_IF, if_version=3, drep=drep)
+    req = rpc_encode.rpc_pdu(body, ptype=rpc_encode.REQUEST, flags1=0x20, **epm)
     cap.send_udp(ctrl, 49160, dev, 34964, req)
     cap.clock.advance_us(900)
     # entry handle, num_ents 0, empty conformant varying array, ept_s_not_registered
-    res_body = bytes(20) + rpc.u32(0, le) + rpc.u32(1, le) + rpc.u32(0, le) + rpc.u32(0, le) + rpc.u32(0x16C9A0D6, le)
-    res = rpc.rpc_pdu(res_body, ptype=rpc.RESPONSE, flags1=0x0A, boot_time=0x5F000000, **epm)
+    res_body = bytes(20) + u32(0) + u32(1) + u32(0) + u32(0) + u32(0x16C9A0D6)
+    res = rpc_encode.rpc_pdu(res_body, ptype=rpc_encode.RESPONSE, flags1=0x0A, boot_time=0x5F000000, **epm)
     cap.send_udp(dev, 34964, ctrl, 49160, res)
     cap.clock.advance_us(2000)
 
@@ -188,12 +202,12 @@ def worked_example_capture() -> tuple[Capture, Intent]:
         dev,
         activity=uuid.UUID("11111111-2222-3333-4444-555566667777"),
         ar_uuid=uuid.UUID("aaaaaaaa-bbbb-cccc-dddd-eeeeffff0001"),
-        object_uuid=rpc.pnio_object_uuid(1, 0x0002, 0x0002),
+        object_uuid=rpc_encode.pnio_object_uuid(1, 0x0002, 0x0002),
     )
     x = Intent(cap)
     calls = [
         s.write(0xB02E, WORKED_REQUEST, rtt_us=2100, gap_us=400),  # frames 1, 2
-        s.read(0xB02E, status=pnio.STATUS_B5, rtt_us=1900, gap_us=10200),  # frames 3, 4
+        s.read(0xB02E, status=pnio_encode.STATUS_B5, rtt_us=1900, gap_us=10200),  # frames 3, 4
         s.read(0xB02E, WORKED_RESPONSE, rtt_us=1700),  # frames 5, 6
     ]
     x.txn(calls, 1, "ok", "protocol.md 9: t_write_rtt 2.1 ms, t_total 16.3 ms")
@@ -226,18 +240,18 @@ def record_rw_capture(drep: bytes) -> tuple[Capture, Intent]:
     return cap, x
 
 
-intent_of("record_rw_le.pcap", "record_rw_le.pcap.gz")(lambda: record_rw_capture(rpc.DREP_LE))
-intent_of("record_rw_be.pcap")(lambda: record_rw_capture(rpc.DREP_BE))
+intent_of("record_rw_le.pcap", "record_rw_le.pcap.gz")(lambda: record_rw_capture(rpc_encode.DREP_LE))
+intent_of("record_rw_be.pcap")(lambda: record_rw_capture(rpc_encode.DREP_BE))
 
 
 @sample("record_rw_le.pcap")
 def record_rw_le() -> bytes:
-    return pcap_of(record_rw_capture(rpc.DREP_LE)[0])
+    return pcap_of(record_rw_capture(rpc_encode.DREP_LE)[0])
 
 
 @sample("record_rw_be.pcap")
 def record_rw_be() -> bytes:
-    return pcap_of(record_rw_capture(rpc.DREP_BE)[0])
+    return pcap_of(record_rw_capture(rpc_encode.DREP_BE)[0])
 
 
 @sample("record_rw_le.pcap.gz")
@@ -253,7 +267,7 @@ def vlan_stacked_capture() -> tuple[Capture, Intent]:
     cap = Capture()
     x = Intent(cap)
     single = Medium(vlans=(VlanTag(100, pcp=6),))
-    stacked = Medium(vlans=(VlanTag(200, tpid=link.ETH_QINQ), VlanTag(100, pcp=6)))
+    stacked = Medium(vlans=(VlanTag(200, tpid=net_encode.ETH_QINQ), VlanTag(100, pcp=6)))
     s1 = session(cap, 1, medium=single)
     s2 = session(cap, 2, medium=stacked)
     x.txn(txn_read_one(s1, 1, b5=1), 1, "ok", "VLAN 100")
@@ -306,7 +320,7 @@ def cl_fragments_fack() -> bytes:
     data = bytes((7 * i) & 0xFF for i in range(2900))
     req, res = s.write_stubs(0x1000, data, api=0, slot=1, subslot=1)
     seq = s.next_seq()
-    frags = s.pdus(rpc.REQUEST, req, seq=seq, opnum=3, from_client=True)
+    frags = s.pdus(rpc_encode.REQUEST, req, seq=seq, opnum=3, from_client=True)
     assert len(frags) == 3
     s.send(frags[0], from_client=True)  # 1
     clk.advance_us(800)
@@ -328,9 +342,9 @@ def cl_fragments_fack() -> bytes:
     rec = bytes((3 * i) & 0xFF for i in range(1500))
     req, res, _ = s.read_stubs(0x1000, rec, api=0, slot=1, subslot=1, max_len=1600)
     seq = s.next_seq()
-    s.send(s.pdu(rpc.REQUEST, req, seq=seq, opnum=2, from_client=True), from_client=True)  # 8
+    s.send(s.pdu(rpc_encode.REQUEST, req, seq=seq, opnum=2, from_client=True), from_client=True)  # 8
     clk.advance_us(1200)
-    rfrags = s.pdus(rpc.RESPONSE, res, seq=seq, opnum=2, from_client=False, flags1=0)
+    rfrags = s.pdus(rpc_encode.RESPONSE, res, seq=seq, opnum=2, from_client=False, flags1=0)
     assert len(rfrags) == 2
     s.send(rfrags[0], from_client=False)  # 9
     clk.advance_us(300)
@@ -349,7 +363,7 @@ def im0_record() -> bytes:
     1.1, I&M1-4 supported."""
     body = struct.pack(">H", 0x0002) + b"PD-SYNTH-DRIVE-01".ljust(20) + b"SN-0001".ljust(16)
     body += struct.pack(">H", 3) + b"V" + bytes([4, 7, 0]) + struct.pack(">HHHHH", 0, 0x3A00, 0x0000, 0x0101, 0x001E)
-    return pnio.block(0x0020, body)
+    return pnio_encode.block(0x0020, body)
 
 
 @intent_of("implicit_read.pcap")
@@ -387,7 +401,7 @@ def write_multiple_capture() -> tuple[Capture, Intent]:
     ]
     calls = [s.write_multiple(writes)]  # frames 1, 2 (outer SeqNumber 10)
     s.iod_seq = 14
-    calls.append(s.read(0xB02E, status=pnio.STATUS_B5))  # frames 3, 4
+    calls.append(s.read(0xB02E, status=pnio_encode.STATUS_B5))  # frames 3, 4
     calls.append(s.read(0xB02E, pd_response(7, 0x01, 1, [value_block(0x42, [0x0815])])))  # frames 5, 6
     x.txn(calls, 7, "ok", "opened by the inner B02E write of a Write-Multiple")
     return cap, x
@@ -407,7 +421,7 @@ def other_port_response_capture() -> tuple[Capture, Intent]:
     x = Intent(cap)
     s = session(cap, 1, reply_port=49153)
     calls = [s.write(0xB02E, read_request(9, 1, [P(964)]))]  # 1, 2
-    calls.append(s.read(0xB02E, status=pnio.STATUS_B5))  # 3, 4
+    calls.append(s.read(0xB02E, status=pnio_encode.STATUS_B5))  # 3, 4
     # final read: request lost from the controller's view, sent again after 100 ms
     calls.append(s.read(0xB02E, pd_response(9, 0x01, 1, [value_block(0x42, [0x4711])]),
                         retransmit_after_us=[100_000]))  # 5, 6, 7  # fmt: skip
@@ -439,12 +453,8 @@ def two_interfaces_capture() -> tuple[Capture, Intent]:
     x.txn(txn_read_one(a, 1, b5=0), 1, "ok", "interface 0, µs")  # iface 0, file frames 1-4
     cap.clock.advance_us(0.123)  # make interface-1 times need nanoseconds
     x.txn(txn_read_one(b, 1, b5=1), 1, "ok", "interface 1 (SLL), ns")  # iface 1, file frames 6-11
-    spb_frame = Frame(
-        None,
-        link.ethernet(
-            BROADCAST, a.controller.mac, ETH_ARP, link.arp(1, a.controller.mac, a.controller.ip, bytes(6), a.device.ip)
-        ),
-    )
+    arp_request = net_encode.arp(1, a.controller.mac, a.controller.ip, bytes(6), a.device.ip)
+    spb_frame = Frame(None, net_encode.ethernet(BROADCAST, a.controller.mac, ETH_ARP, arp_request))
     cap.frames.insert(4, spb_frame)
     return cap, x
 
@@ -548,36 +558,36 @@ def rpc_control_pdus() -> bytes:
     s = session(cap, 1)
     clk = cap.clock
     ar, key = s.ar_uuid, 1
-    ctrl_obj = rpc.pnio_object_uuid(1, 0x0001, 0x002A)
+    ctrl_obj = rpc_encode.pnio_object_uuid(1, 0x0001, 0x002A)
     # Connect (seq 1): ARBlockReq / ARBlockRes only, blocks shown raw
     s.cm_call(
         0,
-        pnio.ar_block_req(
+        pnio_encode.ar_block_req(
             ar_uuid=ar, session_key=key, initiator_mac=s.controller.mac, initiator_object=ctrl_obj, station_name="plc1"
         ),
-        pnio.ar_block_res(ar_uuid=ar, session_key=key, responder_mac=s.device.mac),
+        pnio_encode.ar_block_res(ar_uuid=ar, session_key=key, responder_mac=s.device.mac),
         rtt_us=9000,
     )
     # Control PrmEnd (seq 2), not idempotent: the client acks the response
     c = s.cm_call(
         4,
-        pnio.control_block(pnio.IOD_CONTROL_REQ, ar_uuid=ar, session_key=key, command=pnio.CMD_PRM_END),
-        pnio.control_block(pnio.IOD_CONTROL_RES, ar_uuid=ar, session_key=key, command=pnio.CMD_DONE),
+        control_block(pnio_encode.IOD_CONTROL_REQ, ar_uuid=ar, session_key=key, command=pnio_encode.CMD_PRM_END),
+        control_block(pnio_encode.IOD_CONTROL_RES, ar_uuid=ar, session_key=key, command=pnio_encode.CMD_DONE),
         req_rpc={"flags1": 0},
         gap_us=200,
     )
-    s.send_pdu(rpc.ACK, seq=c.seq, opnum=4, from_client=True)
+    s.send_pdu(rpc_encode.ACK, seq=c.seq, opnum=4, from_client=True)
     clk.advance_us(5000)
 
     # Long write (seq 3): ping -> working twice, then the response
     req, res = s.write_stubs(0x1000, b"\x00\x01\x02\x03", api=0)
     seq = s.next_seq()
-    s.send(s.pdu(rpc.REQUEST, req, seq=seq, opnum=3, from_client=True), from_client=True)
+    s.send(s.pdu(rpc_encode.REQUEST, req, seq=seq, opnum=3, from_client=True), from_client=True)
     for _ in range(2):
         clk.advance_us(300_000)
-        s.send_pdu(rpc.PING, seq=seq, opnum=3, from_client=True)
+        s.send_pdu(rpc_encode.PING, seq=seq, opnum=3, from_client=True)
         clk.advance_us(800)
-        s.send_pdu(rpc.WORKING, seq=seq, opnum=3, from_client=False)
+        s.send_pdu(rpc_encode.WORKING, seq=seq, opnum=3, from_client=False)
     clk.advance_us(150_000)
     s.reply(3, res, seq=seq)
     clk.advance_us(3000)
@@ -586,12 +596,12 @@ def rpc_control_pdus() -> bytes:
     # sends the request again (identical RPC PDU) and gets the answer
     req, res, _ = s.read_stubs(0x1000, b"\x00\x01\x02\x03", api=0, max_len=64)
     seq = s.next_seq()
-    req_pdu = s.pdu(rpc.REQUEST, req, seq=seq, opnum=2, from_client=True)
+    req_pdu = s.pdu(rpc_encode.REQUEST, req, seq=seq, opnum=2, from_client=True)
     s.send(req_pdu, from_client=True)
     clk.advance_us(500_000)
-    s.send_pdu(rpc.PING, seq=seq, opnum=2, from_client=True)
+    s.send_pdu(rpc_encode.PING, seq=seq, opnum=2, from_client=True)
     clk.advance_us(700)
-    s.send_pdu(rpc.NOCALL, seq=seq, opnum=2, from_client=False)
+    s.send_pdu(rpc_encode.NOCALL, seq=seq, opnum=2, from_client=False)
     clk.advance_us(1000)
     s.send(req_pdu, from_client=True)
     clk.advance_us(1500)
@@ -599,29 +609,31 @@ def rpc_control_pdus() -> bytes:
     clk.advance_us(3000)
 
     # Fault (seq 5): read addressed to the Supervisor interface -> unknown interface
-    c = s.read(0x1000, api=0, max_len=64, respond=False, req_rpc={"interface": rpc.PNIO_SUPERVISOR_IF}, gap_us=900)
-    s.status_pdu(rpc.FAULT, 0x1C010003, seq=c.seq, opnum=2, interface=rpc.PNIO_SUPERVISOR_IF)
+    supervisor = {"interface": rpc_encode.PNIO_SUPERVISOR_IF}
+    c = s.read(0x1000, api=0, max_len=64, respond=False, req_rpc=supervisor, gap_us=900)
+    s.status_pdu(rpc_encode.FAULT, 0x1C010003, seq=c.seq, opnum=2, interface=rpc_encode.PNIO_SUPERVISOR_IF)
     clk.advance_us(3000)
 
     # Reject (seq 6): unknown opnum 9 -> operation range error
     c = s.call(9, s.req_stub(b"", args_max=0), None, gap_us=700)
-    s.status_pdu(rpc.REJECT, 0x1C010002, seq=c.seq, opnum=9)
+    s.status_pdu(rpc_encode.REJECT, 0x1C010002, seq=c.seq, opnum=9)
     clk.advance_us(3000)
 
     # Cancelled write (seq 7): cl_cancel, cancel_ack, then fault nca_s_fault_cancel
     c = s.write(0x1001, b"\x0a\x0b\x0c\x0d", api=0, respond=False, gap_us=200_000)
-    s.send_pdu(rpc.CL_CANCEL, seq=c.seq, opnum=3, from_client=True, body=rpc.cancel_body(1, s.little))
+    s.send_pdu(rpc_encode.CL_CANCEL, seq=c.seq, opnum=3, from_client=True, body=rpc_encode.cancel_body(1, s.little))
     clk.advance_us(900)
-    s.send_pdu(rpc.CANCEL_ACK, seq=c.seq, opnum=3, from_client=False, body=rpc.cancel_ack_body(1, s.little))
+    cancel_ack = rpc_encode.cancel_ack_body(1, s.little)
+    s.send_pdu(rpc_encode.CANCEL_ACK, seq=c.seq, opnum=3, from_client=False, body=cancel_ack)
     clk.advance_us(1200)
-    s.status_pdu(rpc.FAULT, 0x1C00000D, seq=c.seq, opnum=3)
+    s.status_pdu(rpc_encode.FAULT, 0x1C00000D, seq=c.seq, opnum=3)
     clk.advance_us(5000)
 
     # Release (seq 8)
     s.cm_call(
         1,
-        pnio.control_block(pnio.IOD_RELEASE_REQ, ar_uuid=ar, session_key=key, command=pnio.CMD_RELEASE),
-        pnio.control_block(pnio.IOD_RELEASE_RES, ar_uuid=ar, session_key=key, command=pnio.CMD_DONE),
+        control_block(pnio_encode.IOD_RELEASE_REQ, ar_uuid=ar, session_key=key, command=pnio_encode.CMD_RELEASE),
+        control_block(pnio_encode.IOD_RELEASE_RES, ar_uuid=ar, session_key=key, command=pnio_encode.CMD_DONE),
     )
     return pcap_of(cap)
 
@@ -716,12 +728,12 @@ def fault_trace_capture() -> tuple[Capture, Intent]:
     retry. sample_pcaps/README.md lists what the analyser must find."""
     import random
 
-    from .profidrive import error_block
+    from .pd_encode import error_block
 
     cap = Capture()
     x = Intent(cap)
     f32, w16, u16 = 0x08, 0x42, 0x06
-    df_b1 = pnio.pnio_status(0xDF, 0x80, 0xB1, 0x00)
+    df_b1 = pnio_encode.pnio_status(0xDF, 0x80, 0xB1, 0x00)
     refs: dict[str, int] = {}  # last Request Reference per device
     pauses: dict[str, random.Random] = {}  # the controllers' idle times between transactions
 
@@ -822,7 +834,7 @@ def crafted_strings() -> bytes:
     OctetString and UnicodeString values, read and written. Markup and script (<script>, attribute and
     URL injection), terminal control (ANSI CSI and OSC, C1 CSI, CR, BS, BEL) and spreadsheet formulas
     (leading =, +, -, @, tab, CR). Every output must show them inertly (tests/test_untrusted_strings.py)."""
-    from .profidrive import description, error_block, text_entries
+    from .pd_encode import description, error_block, text_entries
 
     cap = Capture()
     s = session(cap, 1)

@@ -16,9 +16,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from . import link, pnio, rpc
-from .link import LINKTYPE_ETHERNET, LINKTYPE_LINUX_SLL, LINKTYPE_LINUX_SLL2, LINKTYPE_RAW, VlanTag
-from .writers import Frame
+from . import net_encode, pnio_encode, rpc_encode
+from .capture_files import Frame
+from .net_encode import LINKTYPE_ETHERNET, LINKTYPE_LINUX_SLL, LINKTYPE_LINUX_SLL2, LINKTYPE_RAW, VlanTag
 
 EPOCH_NS: Final = 1_767_225_600 * 1_000_000_000  # 2026-01-01T00:00:00Z
 
@@ -56,7 +56,7 @@ class Host:
 
 
 def host(mac_text: str, ip: str, ip_ident: int = 0x0100) -> Host:
-    return Host(link.mac(mac_text), ip, ip_ident)
+    return Host(net_encode.mac(mac_text), ip, ip_ident)
 
 
 @dataclass(frozen=True)
@@ -75,14 +75,14 @@ class Medium:
 
     def frame(self, src_mac: bytes, dst_mac: bytes, ethertype: int, payload: bytes, src_ip: str | None) -> bytes:
         if self.linktype == LINKTYPE_ETHERNET:
-            return link.ethernet(dst_mac, src_mac, ethertype, payload, vlans=self.vlans)
-        pkttype = link.SLL_OUTGOING if src_ip is not None and src_ip == self.local_ip else link.SLL_HOST
+            return net_encode.ethernet(dst_mac, src_mac, ethertype, payload, vlans=self.vlans)
+        pkttype = net_encode.SLL_OUTGOING if src_ip is not None and src_ip == self.local_ip else net_encode.SLL_HOST
         if self.linktype == LINKTYPE_LINUX_SLL:
-            return link.sll(ethertype, payload, pkttype=pkttype, addr=src_mac)
+            return net_encode.sll(ethertype, payload, pkttype=pkttype, addr=src_mac)
         if self.linktype == LINKTYPE_LINUX_SLL2:
-            return link.sll2(ethertype, payload, pkttype=pkttype, addr=src_mac, ifindex=self.iface + 1)
+            return net_encode.sll2(ethertype, payload, pkttype=pkttype, addr=src_mac, ifindex=self.iface + 1)
         if self.linktype == LINKTYPE_RAW:
-            if ethertype != link.ETH_IPV4:
+            if ethertype != net_encode.ETH_IPV4:
                 raise ValueError("raw IP link type carries IPv4 only")
             return payload
         raise ValueError(f"unsupported link type {self.linktype}")
@@ -134,18 +134,18 @@ class Capture:
         t = self.clock.now_ns if ts_ns is None else ts_ns
         ip_id = src.next_ident() if ident is None else ident
         if 20 + len(ip_payload) <= m.mtu:
-            packets = [link.ipv4(src.ip, dst.ip, ip_payload, ident=ip_id, df=df)]
+            packets = [net_encode.ipv4(src.ip, dst.ip, ip_payload, ident=ip_id, df=df)]
         else:
-            packets = link.ip_fragments(src.ip, dst.ip, ip_payload, ident=ip_id, mtu=m.mtu)
+            packets = net_encode.ip_fragments(src.ip, dst.ip, ip_payload, ident=ip_id, mtu=m.mtu)
         order = range(len(packets)) if fragment_order is None else fragment_order
         out = []
         for k, i in enumerate(order):
-            data = m.frame(src.mac, dst.mac, link.ETH_IPV4, packets[i], src.ip)
+            data = m.frame(src.mac, dst.mac, net_encode.ETH_IPV4, packets[i], src.ip)
             out.append(self.add(data, ts_ns=t + k * fragment_gap_ns, medium=m))
         return out
 
     def send_udp(self, src: Host, sport: int, dst: Host, dport: int, payload: bytes, **ip_kw: Any) -> list[Frame]:
-        segment = link.udp(sport, dport, payload, src_ip=src.ip, dst_ip=dst.ip)
+        segment = net_encode.udp(sport, dport, payload, src_ip=src.ip, dst_ip=dst.ip)
         return self.send_ip(src, dst, segment, **ip_kw)
 
     def repeat(self, frame: Frame, ts_ns: int) -> Frame:
@@ -222,24 +222,24 @@ class PnioSession:
     device: Host
     activity: uuid.UUID
     ar_uuid: uuid.UUID
-    object_uuid: uuid.UUID = field(default_factory=lambda: rpc.pnio_object_uuid(1, 0x0002, 0x0002))
-    interface: uuid.UUID = rpc.PNIO_DEVICE_IF
+    object_uuid: uuid.UUID = field(default_factory=lambda: rpc_encode.pnio_object_uuid(1, 0x0002, 0x0002))
+    interface: uuid.UUID = rpc_encode.PNIO_DEVICE_IF
     controller_port: int = 49152
     device_port: int = 34964
     reply_port: int | None = None
-    drep: bytes = rpc.DREP_LE
+    drep: bytes = rpc_encode.DREP_LE
     server_boot: int = 0x5F000000
     client_boot: int = 0  # what the client puts in requests; learnt from the first reply
     seq: int = 1  # next RPC sequence number
     iod_seq: int = 1  # next IOD SeqNumber
-    api: int = pnio.API_PROFIDRIVE
+    api: int = pnio_encode.API_PROFIDRIVE
     slot: int = 1
     subslot: int = 1
     rtt_us: float = 1500.0
     gap_us: float = 1000.0
     jitter_us: float = 0.0
     rng: random.Random = field(default_factory=lambda: random.Random(0))
-    max_frag_body: int | None = rpc.MAX_FRAG_BODY  # None: never CL-fragment
+    max_frag_body: int | None = rpc_encode.MAX_FRAG_BODY  # None: never CL-fragment
     frag_gap_us: float = 100.0
     medium: Medium | None = None
     own_clock: Clock | None = None  # give each session its own clock to interleave, then cap.time_sorted()
@@ -247,7 +247,7 @@ class PnioSession:
     # ---- small helpers -------------------------------------------------
     @property
     def little(self) -> bool:
-        return rpc.drep_little(self.drep)
+        return rpc_encode.drep_little(self.drep)
 
     @property
     def clock(self) -> Clock:
@@ -287,8 +287,9 @@ class PnioSession:
         overrides any rpc_header field (flags1 defaults: request 0x20,
         response 0x0A, others 0)."""
         fields = self._hdr(ptype, seq, opnum, from_client)
-        fields["flags1"] = {rpc.REQUEST: rpc.REQ_FLAGS1, rpc.RESPONSE: rpc.RES_FLAGS1}.get(ptype, 0)
-        return rpc.rpc_pdu(body, **_merge(fields, hdr))
+        flags1 = {rpc_encode.REQUEST: rpc_encode.REQ_FLAGS1, rpc_encode.RESPONSE: rpc_encode.RES_FLAGS1}
+        fields["flags1"] = flags1.get(ptype, 0)
+        return rpc_encode.rpc_pdu(body, **_merge(fields, hdr))
 
     def pdus(
         self,
@@ -310,9 +311,9 @@ class PnioSession:
         if sizes is None and (limit is None or len(body) <= limit):
             return [self.pdu(ptype, body, seq=seq, opnum=opnum, from_client=from_client, **hdr)]
         fields = self._hdr(ptype, seq, opnum, from_client)
-        fields["flags1"] = rpc.F1_IDEMPOTENT if ptype == rpc.REQUEST else 0
+        fields["flags1"] = rpc_encode.F1_IDEMPOTENT if ptype == rpc_encode.REQUEST else 0
         fields = _merge(fields, hdr)
-        return rpc.cl_fragments(body, max_body=limit or rpc.MAX_FRAG_BODY, sizes=sizes, **fields)
+        return rpc_encode.cl_fragments(body, max_body=limit or rpc_encode.MAX_FRAG_BODY, sizes=sizes, **fields)
 
     # ---- emitters -------------------------------------------------------
     def send(self, pdu: bytes, *, from_client: bool, at_ns: int | None = None, **ip_kw: Any) -> list[Frame]:
@@ -364,22 +365,22 @@ class PnioSession:
         self, *, seq: int, opnum: int, frag_num: int, from_client: bool, at_ns: int | None = None, **body: Any
     ) -> list[Frame]:
         """FACK for fragment frag_num (header frag_num and body serial_num)."""
-        fb = rpc.fack_body(**_merge(dict(little=self.little, serial_num=frag_num), body))
+        fb = rpc_encode.fack_body(**_merge(dict(little=self.little, serial_num=frag_num), body))
         return self.send_pdu(
-            rpc.FACK, seq=seq, opnum=opnum, from_client=from_client, body=fb, frag_num=frag_num, at_ns=at_ns
+            rpc_encode.FACK, seq=seq, opnum=opnum, from_client=from_client, body=fb, frag_num=frag_num, at_ns=at_ns
         )
 
     def status_pdu(
         self, ptype: int, status: int, *, seq: int, opnum: int, at_ns: int | None = None, **hdr: Any
     ) -> list[Frame]:
         """Fault or reject from the server with a 4-byte NCA status."""
-        body = rpc.status_body(status, self.little)
+        body = rpc_encode.status_body(status, self.little)
         return self.send_pdu(ptype, seq=seq, opnum=opnum, from_client=False, body=body, at_ns=at_ns, **hdr)
 
     def reply(self, opnum: int, stub: bytes, *, seq: int, at_ns: int | None = None, **hdr: Any) -> list[Frame]:
         """Response PDU(s) for a call the caller drives by hand."""
         frames = self.send_all(
-            self.pdus(rpc.RESPONSE, stub, seq=seq, opnum=opnum, from_client=False, **hdr),
+            self.pdus(rpc_encode.RESPONSE, stub, seq=seq, opnum=opnum, from_client=False, **hdr),
             from_client=False,
             at_ns=at_ns,
         )
@@ -395,7 +396,7 @@ class PnioSession:
         seq: int | None = None,
         rtt_us: float | None = None,
         gap_us: float | None = None,
-        res_ptype: int = rpc.RESPONSE,
+        res_ptype: int = rpc_encode.RESPONSE,
         req_rpc: Overrides = None,
         res_rpc: Overrides = None,
         req_ip: Overrides = None,
@@ -409,7 +410,7 @@ class PnioSession:
         long after the first one (the reply follows the last copy)."""
         s = self.next_seq() if seq is None else seq
         t0 = self.clock.now_ns
-        req = self.pdus(rpc.REQUEST, req_stub, seq=s, opnum=opnum, from_client=True, **dict(req_rpc or {}))
+        req = self.pdus(rpc_encode.REQUEST, req_stub, seq=s, opnum=opnum, from_client=True, **dict(req_rpc or {}))
         req_frames = self.send_all(req, from_client=True, at_ns=t0, **dict(req_ip or {}))
         for delay in retransmit_after_us:
             req_frames += self.send_all(req, from_client=True, at_ns=t0 + round(delay * 1000), **dict(req_ip or {}))
@@ -437,17 +438,18 @@ class PnioSession:
         )
 
     def req_stub(self, block: bytes, *, args_max: int, ndr: Overrides = None) -> bytes:
-        return pnio.ndr_request(block, **_merge(dict(args_max=args_max, little=self.little), ndr))
+        return pnio_encode.ndr_request(block, **_merge(dict(args_max=args_max, little=self.little), ndr))
 
     def res_stub(self, blocks: bytes, *, status: bytes, max_count: int, ndr: Overrides = None) -> bytes:
-        return pnio.ndr_response(blocks, **_merge(dict(status=status, max_count=max_count, little=self.little), ndr))
+        fields = dict(status=status, max_count=max_count, little=self.little)
+        return pnio_encode.ndr_response(blocks, **_merge(fields, ndr))
 
     def write_stubs(
         self,
         index: int,
         data: bytes,
         *,
-        status: bytes = pnio.STATUS_OK,
+        status: bytes = pnio_encode.STATUS_OK,
         api: int | None = None,
         slot: int | None = None,
         subslot: int | None = None,
@@ -463,9 +465,9 @@ class PnioSession:
         """Write request and response stubs (NDR + IOD header [+ record]).
         The NDR status repeats the block status, as devices do."""
         addr = self._addr(index, api, slot, subslot, ar_uuid)
-        block = pnio.iod_write_req(**_merge(dict(addr, record_len=len(data)), req_iod)) + data
+        block = pnio_encode.iod_write_req(**_merge(dict(addr, record_len=len(data)), req_iod)) + data
         fields = dict(addr, record_len=len(data), status=status, add_val1=add_val1, add_val2=add_val2)
-        res_block = pnio.iod_write_res(**_merge(fields, res_iod))
+        res_block = pnio_encode.iod_write_res(**_merge(fields, res_iod))
         return (
             self.req_stub(block, args_max=args_max, ndr=req_ndr),
             self.res_stub(res_block, status=status, max_count=args_max, ndr=res_ndr),
@@ -476,7 +478,7 @@ class PnioSession:
         index: int,
         data: bytes | None = None,
         *,
-        status: bytes = pnio.STATUS_OK,
+        status: bytes = pnio_encode.STATUS_OK,
         max_len: int = 240,
         target_ar_uuid: Any = None,
         api: int | None = None,
@@ -497,12 +499,13 @@ class PnioSession:
         unless header_on_error."""
         amax = 64 + max_len if args_max is None else args_max
         addr = self._addr(index, api, slot, subslot, ar_uuid)
-        block = pnio.iod_read_req(**_merge(dict(addr, record_len=max_len, target_ar_uuid=target_ar_uuid), req_iod))
+        req_fields = dict(addr, record_len=max_len, target_ar_uuid=target_ar_uuid)
+        block = pnio_encode.iod_read_req(**_merge(req_fields, req_iod))
         payload = b""
-        if status == pnio.STATUS_OK or header_on_error:
+        if status == pnio_encode.STATUS_OK or header_on_error:
             rec = data or b""
             fields = dict(addr, record_len=len(rec), add_val1=add_val1, add_val2=add_val2)
-            payload = pnio.iod_read_res(**_merge(fields, res_iod)) + rec
+            payload = pnio_encode.iod_read_res(**_merge(fields, res_iod)) + rec
         return (
             self.req_stub(block, args_max=amax, ndr=req_ndr),
             self.res_stub(payload, status=status, max_count=amax, ndr=res_ndr),
@@ -529,9 +532,9 @@ class PnioSession:
         kw = _split_stub_kw(call_kw, stub_kw)
         req, res = self.write_stubs(index, data, args_max=args_max, **kw)
         if fault is not None:
-            res, call_kw["res_ptype"] = rpc.status_body(fault[1], self.little), fault[0]
+            res, call_kw["res_ptype"] = rpc_encode.status_body(fault[1], self.little), fault[0]
         c = self.call(3, req, res if respond else None, args_max=args_max, **call_kw)
-        return _answered(c, respond, kw.get("status", pnio.STATUS_OK), fault)
+        return _answered(c, respond, kw.get("status", pnio_encode.STATUS_OK), fault)
 
     def read(
         self,
@@ -548,22 +551,22 @@ class PnioSession:
         kw = _split_stub_kw(call_kw, stub_kw)
         req, res, amax = self.read_stubs(index, data, **kw)
         if fault is not None:
-            res, call_kw["res_ptype"] = rpc.status_body(fault[1], self.little), fault[0]
+            res, call_kw["res_ptype"] = rpc_encode.status_body(fault[1], self.little), fault[0]
         c = self.call(opnum, req, res if respond else None, args_max=amax, **call_kw)
-        return _answered(c, respond, kw.get("status", pnio.STATUS_OK), fault)
+        return _answered(c, respond, kw.get("status", pnio_encode.STATUS_OK), fault)
 
     def read_implicit(self, index: int, data: bytes | None = None, *, target_ar_uuid: Any = None, **kw: Any) -> Call:
         """ReadImplicit (opnum 5): NIL ARUUID, TargetARUUID names the AR
         (default: this session's)."""
         target = self.ar_uuid if target_ar_uuid is None else target_ar_uuid
-        return self.read(index, data, opnum=5, ar_uuid=rpc.NIL_UUID, target_ar_uuid=target, **kw)
+        return self.read(index, data, opnum=5, ar_uuid=rpc_encode.NIL_UUID, target_ar_uuid=target, **kw)
 
     def write_multiple(
         self,
-        writes: Sequence[tuple[int, bytes] | pnio.InnerWrite],
+        writes: Sequence[tuple[int, bytes] | pnio_encode.InnerWrite],
         *,
         statuses: Sequence[bytes] | None = None,
-        status: bytes = pnio.STATUS_OK,
+        status: bytes = pnio_encode.STATUS_OK,
         args_max: int = WRITE_ARGS_MAX,
         inner_res_record_len: int | None = None,
         outer: Overrides = None,
@@ -575,20 +578,19 @@ class PnioSession:
         given. The response holds one IODWriteResHeader per inner write
         (record length mirrored unless inner_res_record_len is given)."""
         outer_seq = self.next_iod_seq()
-        inner: list[pnio.InnerWrite] = []
+        inner: list[pnio_encode.InnerWrite] = []
         for w in writes:
-            if isinstance(w, pnio.InnerWrite):
+            if isinstance(w, pnio_encode.InnerWrite):
                 inner.append(w)
             else:
                 idx, data = w
-                inner.append(
-                    pnio.InnerWrite(idx, data, self.next_iod_seq(), self.ar_uuid, self.api, self.slot, self.subslot)
-                )
-        body = pnio.write_multiple_req(inner, **_merge(dict(seq=outer_seq, ar_uuid=self.ar_uuid), outer))
+                seq = self.next_iod_seq()
+                inner.append(pnio_encode.InnerWrite(idx, data, seq, self.ar_uuid, self.api, self.slot, self.subslot))
+        body = pnio_encode.write_multiple_req(inner, **_merge(dict(seq=outer_seq, ar_uuid=self.ar_uuid), outer))
         req = self.req_stub(body, args_max=args_max)
-        sts = list(statuses) if statuses is not None else [pnio.STATUS_OK] * len(inner)
+        sts = list(statuses) if statuses is not None else [pnio_encode.STATUS_OK] * len(inner)
         res_inner = [
-            pnio.iod_write_res(
+            pnio_encode.iod_write_res(
                 seq=w.seq,
                 ar_uuid=w.ar_uuid,
                 api=w.api,
@@ -600,7 +602,7 @@ class PnioSession:
             )
             for w, st in zip(inner, sts, strict=True)
         ]
-        res_body = pnio.write_multiple_res(
+        res_body = pnio_encode.write_multiple_res(
             res_inner, **_merge(dict(seq=outer_seq, ar_uuid=self.ar_uuid, status=status), res_outer)
         )
         res = self.res_stub(res_body, status=status, max_count=args_max)
@@ -613,8 +615,8 @@ class PnioSession:
         *,
         index: int = 0xB02E,
         b5_retries: int = 0,
-        write_status: bytes = pnio.STATUS_OK,
-        read_status: bytes = pnio.STATUS_OK,
+        write_status: bytes = pnio_encode.STATUS_OK,
+        read_status: bytes = pnio_encode.STATUS_OK,
         write_fault: tuple[int, int] | None = None,
         read_fault: tuple[int, int] | None = None,
         read_gap_us: float | None = None,
@@ -636,14 +638,14 @@ class PnioSession:
         wkw = _merge(dict(common_kw or {}), write_kw)
         rkw = _merge(dict(common_kw or {}), read_kw)
         calls = [self.write(index, request, status=write_status, fault=write_fault, **wkw)]
-        if write_status != pnio.STATUS_OK or write_fault is not None:
+        if write_status != pnio_encode.STATUS_OK or write_fault is not None:
             return calls
         for _ in range(b5_retries):
             kw = _merge(dict(gap_us=read_gap_us), rkw)
-            calls.append(self.read(index, status=pnio.STATUS_B5, **kw))
+            calls.append(self.read(index, status=pnio_encode.STATUS_B5, **kw))
         if read_fault is not None:
             calls.append(self.read(index, fault=read_fault, **rkw))
-        elif read_status != pnio.STATUS_OK:
+        elif read_status != pnio_encode.STATUS_OK:
             calls.append(self.read(index, status=read_status, **rkw))
         elif response is not None:
             calls.append(self.read(index, response, **rkw))
@@ -655,7 +657,7 @@ class PnioSession:
         req_blocks: bytes,
         res_blocks: bytes,
         *,
-        status: bytes = pnio.STATUS_OK,
+        status: bytes = pnio_encode.STATUS_OK,
         args_max: int = 4096,
         **call_kw: Any,
     ) -> Call:
