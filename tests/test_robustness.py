@@ -17,7 +17,7 @@ import pytest
 
 import pd_analyze
 from devtools import fuzz, hostile
-from devtools.synth import samples
+from devtools.synth import fixtures
 from devtools.synth.pd_encode import ParamAddress, change_ok, change_request, value_block
 from devtools.synth.scenario import Capture
 from pd_analyze.analysis import transactions
@@ -295,7 +295,7 @@ def test_transaction_engine_state_is_bounded() -> None:
 def test_long_b5_polling_is_linear_and_bounded() -> None:
     """Before: every frame of a transaction was checked against all its frames (quadratic), without limit."""
     cap = Capture()
-    s = samples.session(cap, 1, rtt_us=1, gap_us=1)
+    s = fixtures.session(cap, 1, rtt_us=1, gap_us=1)
     req = change_request(1, 1, [(ParamAddress(1120), value_block(0x08, [1.0]))])
     s.parameter_access(req, change_ok(1, 1, 1), b5_retries=6000)
     d, engine = Dissector(), TransactionEngine()

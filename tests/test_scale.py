@@ -132,9 +132,9 @@ def test_split_parts_stitch_value_before_from_reads_before_their_lead_in(tmp_pat
     """A change in the second part whose parameter was last read long before (beyond the lead-in):
     the parent fills in value_before from the earlier part's reads, so the tables equal one process."""
     from devtools.synth.capture_files import pcap_bytes
+    from devtools.synth.fixtures import session
     from devtools.synth.pd_encode import ParamAddress as P
     from devtools.synth.pd_encode import change_ok, change_request, pd_response, read_request, value_block
-    from devtools.synth.samples import session
     from devtools.synth.scenario import Capture
 
     cap = Capture()
@@ -155,9 +155,9 @@ def test_split_parts_stitch_reference_reuse_across_the_split(tmp_path, monkeypat
     """T1 on the first write of a channel in the second part: its last transaction lies in the lead-in
     (numbered by the first part) or before it (the channel idle longer); both as in one process."""
     from devtools.synth.capture_files import pcap_bytes
+    from devtools.synth.fixtures import session
     from devtools.synth.pd_encode import ParamAddress as P
     from devtools.synth.pd_encode import pd_response, read_request, value_block
-    from devtools.synth.samples import session
     from devtools.synth.scenario import Capture
 
     cap = Capture()

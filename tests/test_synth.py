@@ -7,6 +7,7 @@ RPC/NDR/IOD/PROFIdrive) and the worked example against protocol.md 9.
 
 from __future__ import annotations
 
+import ast
 import gzip
 import io
 import itertools
@@ -18,7 +19,18 @@ from pathlib import Path
 import dpkt
 import pytest
 
-from devtools.synth import capture_files, net_encode, pd_encode, pnio_encode, rpc_encode, samples, scenario
+from devtools.synth import (
+    basic_samples,
+    build,
+    capture_files,
+    catalog,
+    fixtures,
+    net_encode,
+    pd_encode,
+    pnio_encode,
+    rpc_encode,
+    scenario,
+)
 from devtools.synth.__main__ import main as synth_main
 
 SAMPLE_DIR = Path(__file__).resolve().parent.parent / "sample_pcaps"
@@ -52,7 +64,7 @@ def test_worked_example_hex_lengths() -> None:
 
 
 def test_worked_example_frames_match_protocol_md() -> None:
-    frames = udp_payloads(samples.worked_example())
+    frames = udp_payloads(basic_samples.worked_example())
     assert len(frames) == 6
     times = [round((ts - EPOCH) * 1e4) for ts, _ in frames]
     assert times == [0, 21, 25, 44, 146, 163]  # 0.1 ms units, table of section 9
@@ -66,7 +78,7 @@ def test_worked_example_frames_match_protocol_md() -> None:
 
 
 def test_worked_example_frames_2_to_5() -> None:
-    p = [bytes(e.data.data.data) for _, e in udp_payloads(samples.worked_example())]
+    p = [bytes(e.data.data.data) for _, e in udp_payloads(basic_samples.worked_example())]
     # frame 2 Write.res: NDR status 0, IODWriteResHeader RecordDataLength 16, status OK
     assert p[1][1] == 2 and struct.unpack_from("<IH", p[1], 64)[0] == 1
     assert p[1][80:100] == struct.pack("<5I", 0, 64, 16696, 0, 64)
@@ -88,14 +100,14 @@ def test_worked_example_frames_2_to_5() -> None:
 def test_regeneration_is_byte_identical(tmp_path: Path) -> None:
     assert synth_main(["synth", str(tmp_path)]) == 0
     names = sorted(p.name for p in tmp_path.iterdir() if p.is_file())
-    assert names == sorted(s.name for s in samples.SAMPLES)
+    assert names == sorted(s.name for s in catalog.SAMPLES)
     for name in names:
         committed = SAMPLE_DIR / name
         assert committed.exists(), f"{name} missing from sample_pcaps/"
         assert (tmp_path / name).read_bytes() == committed.read_bytes(), name
     # the expected findings are generated too (from the generator's intent) and committed
     expected = sorted(p.name for p in (tmp_path / "expected").iterdir())
-    assert expected == sorted(f"{n}.json" for n in samples.build_expected())
+    assert expected == sorted(f"{n}.json" for n in build.build_expected())
     for name in expected:
         committed = SAMPLE_DIR / "expected" / name
         assert committed.exists(), f"expected/{name} missing from sample_pcaps/"
@@ -103,12 +115,12 @@ def test_regeneration_is_byte_identical(tmp_path: Path) -> None:
 
 
 def test_build_twice_identical() -> None:
-    assert samples.build_all() == samples.build_all()
+    assert build.build_all() == build.build_all()
 
 
 def test_readme_mentions_every_sample() -> None:
     readme = (SAMPLE_DIR / "README.md").read_text()
-    for s in samples.SAMPLES:
+    for s in catalog.SAMPLES:
         assert f"`{s.name}`" in readme, s.name
 
 
@@ -337,7 +349,7 @@ def _pcapng_blocks(data: bytes) -> list[tuple[int, bytes]]:
 
 
 def test_pcapng_two_interfaces_sample() -> None:
-    blocks = _pcapng_blocks(samples.two_interfaces())
+    blocks = _pcapng_blocks(basic_samples.two_interfaces())
     types = [t for t, _ in blocks]
     assert types[:3] == [0x0A0D0D0A, 1, 1] and 3 in types and 0x0B0B in types
     idbs = [b for t, b in blocks if t == 1]
@@ -357,8 +369,8 @@ def test_gzip_deterministic_and_valid() -> None:
     gz = capture_files.gzip_bytes(data)
     assert gz[:4] == b"\x1f\x8b\x08\x00" and gz[4:8] == bytes(4)  # no FNAME, mtime 0
     assert gzip.decompress(gz) == data
-    assert gzip.decompress(samples.gzip_pcapng_named())[:4] == b"\x0a\x0d\x0d\x0a"
-    assert gzip.decompress(samples.record_rw_le_gz()) == samples.record_rw_le()
+    assert gzip.decompress(basic_samples.gzip_pcapng_named())[:4] == b"\x0a\x0d\x0d\x0a"
+    assert gzip.decompress(basic_samples.record_rw_le_gz()) == basic_samples.record_rw_le()
 
 
 # ---- scenario -----------------------------------------------------------------------------
@@ -366,7 +378,7 @@ def test_gzip_deterministic_and_valid() -> None:
 
 def test_session_sequence_boot_time_and_reply_port() -> None:
     cap = scenario.Capture()
-    ctrl, dev = samples.plant(1)
+    ctrl, dev = fixtures.plant(1)
     s = scenario.PnioSession(cap, ctrl, dev, activity=ACT, ar_uuid=uuid.UUID(int=5), reply_port=50000, seq=7)
     calls = s.parameter_access(
         pd_encode.read_request(1, 1, [pd_encode.ParamAddress(964)]), b"\x01\x01\x01\x01", b5_retries=2
@@ -386,7 +398,7 @@ def test_session_sequence_boot_time_and_reply_port() -> None:
 
 
 def test_retransmitted_request_is_identical_rpc_pdu() -> None:
-    frames = udp_payloads(samples.other_port_response())
+    frames = udp_payloads(basic_samples.other_port_response())
     assert len(frames) == 7
     p5, p6 = (bytes(frames[i][1].data.data.data) for i in (4, 5))
     assert p5 == p6 and round(frames[5][0] - frames[4][0], 3) == 0.1
@@ -399,7 +411,7 @@ MAX_FRAMES = {"fault_trace.pcap": 450, "pd_out_of_range.pcap": 160, "pd_negative
 
 
 def test_all_pcap_samples_parse_with_dpkt() -> None:
-    for s in samples.SAMPLES:
+    for s in catalog.SAMPLES:
         data = s.build()
         if s.name.endswith(".gz") or data[:2] == b"\x1f\x8b":
             data = gzip.decompress(data)
@@ -411,8 +423,8 @@ def test_all_pcap_samples_parse_with_dpkt() -> None:
 
 
 def test_truncated_sample_caplen() -> None:
-    recs = list(dpkt.pcap.Reader(io.BytesIO(samples.truncated_snaplen())))
-    data = samples.truncated_snaplen()
+    recs = list(dpkt.pcap.Reader(io.BytesIO(basic_samples.truncated_snaplen())))
+    data = basic_samples.truncated_snaplen()
     pos, cut = 24, []
     for _ in recs:
         _, _, incl, orig = struct.unpack_from("<IIII", data, pos)
@@ -423,7 +435,7 @@ def test_truncated_sample_caplen() -> None:
 
 def test_session_overrides_reach_the_wire() -> None:
     cap = scenario.Capture()
-    ctrl, dev = samples.plant(1)
+    ctrl, dev = fixtures.plant(1)
     s = scenario.PnioSession(cap, ctrl, dev, activity=ACT, ar_uuid=uuid.UUID(int=5))
     s.write(
         0xB02E,
@@ -443,10 +455,10 @@ def test_session_overrides_reach_the_wire() -> None:
 
 def test_interleaved_sessions_with_own_clocks() -> None:
     cap = scenario.Capture()
-    a = samples.session(cap, 1, own_clock=scenario.Clock(scenario.EPOCH_NS))
-    b = samples.session(cap, 2, own_clock=scenario.Clock(scenario.EPOCH_NS + 500_000))
+    a = fixtures.session(cap, 1, own_clock=scenario.Clock(scenario.EPOCH_NS))
+    b = fixtures.session(cap, 2, own_clock=scenario.Clock(scenario.EPOCH_NS + 500_000))
     for s in (a, b):
-        samples.txn_read_one(s, 1, b5=0)
+        fixtures.txn_read_one(s, 1, b5=0)
     order = [dpkt.ethernet.Ethernet(f.data).data.src[-1] for f in cap.time_sorted()]
     assert order[:4] == [11, 12, 21, 22]  # the two channels interleave in time
 
@@ -454,7 +466,7 @@ def test_interleaved_sessions_with_own_clocks() -> None:
 def test_sll_packet_type_by_capturing_host() -> None:
     m = scenario.Medium(net_encode.LINKTYPE_LINUX_SLL, local_ip="192.168.1.11")
     cap = scenario.Capture(medium=m)
-    samples.txn_read_one(samples.session(cap, 1, medium=m), 1, b5=0)
+    fixtures.txn_read_one(fixtures.session(cap, 1, medium=m), 1, b5=0)
     assert [struct.unpack_from(">H", f.data)[0] for f in cap.frames] == [4, 0, 4, 0]
 
 
@@ -505,7 +517,7 @@ def _blocks(record: bytes, pos: int, n: int) -> list[tuple[int, int, bytes]]:
 
 def test_commissioning_covers_every_common_format_with_pads() -> None:
     formats, pads = set(), 0
-    for _, ptype, _, rec in _pnio_records(samples.build_all()["pd_commissioning.pcap"]):
+    for _, ptype, _, rec in _pnio_records(build.build_all()["pd_commissioning.pcap"]):
         n = rec[3]
         if ptype == 2 and rec[1] == 0x01:
             blocks = _blocks(rec, 4, n)
@@ -523,7 +535,7 @@ def test_commissioning_covers_every_common_format_with_pads() -> None:
 
 
 def test_commissioning_39_parameters_and_description() -> None:
-    recs = _pnio_records(samples.build_all()["pd_commissioning.pcap"])
+    recs = _pnio_records(build.build_all()["pd_commissioning.pcap"])
     first_write = recs[0][3]
     assert (first_write[1], first_write[3], len(first_write)) == (0x01, 39, 238)
     descr = next(r for _, t, _, r in recs if t == 0 and r[4] == 0x20)
@@ -535,7 +547,7 @@ def test_commissioning_39_parameters_and_description() -> None:
 
 def test_session_fault_and_error_endings() -> None:
     cap = scenario.Capture()
-    s = samples.session(cap, 1)
+    s = fixtures.session(cap, 1)
     req = pd_encode.read_request(1, 1, [pd_encode.ParamAddress(964)])
     calls = s.parameter_access(req, None, write_fault=(rpc_encode.FAULT, 0x1C010014))
     assert len(calls) == 1 and len(cap.frames) == 2
@@ -555,13 +567,11 @@ INTERLEAVED = {"pd_interleaved.pcap", "pd_timeouts.pcap"}  # sessions on their o
 
 
 def test_pd_samples_registered_deterministic_with_expectations() -> None:
-    from devtools.synth import pd_samples
-
-    names = [s.name for s in samples.SAMPLES if s.name.startswith("pd_")]
-    assert names == list(pd_samples.EXPECTED) and len(names) == 10
-    first, second = samples.build_expected(), samples.build_expected()
+    names = [s.name for s in catalog.SAMPLES if s.name.startswith("pd_")]
+    assert names == list(catalog.EXPECTED) and len(names) == 10
+    first, second = build.build_expected(), build.build_expected()
     assert first == second
-    built = samples.build_all()
+    built = build.build_all()
     for name in names:
         doc = json.loads(first[name])
         frames = sum(1 for _ in dpkt.pcap.Reader(io.BytesIO(built[name])))
@@ -581,7 +591,7 @@ def test_intent_frames_and_profiles() -> None:
     from devtools.synth.expect import Intent, dumps
 
     cap = scenario.Capture()
-    s = samples.session(cap, 1)
+    s = fixtures.session(cap, 1)
     x = Intent(cap, ("generic", "akd"))
     calls = s.parameter_access(pd_encode.read_request(3, 0, [pd_encode.ParamAddress(1)]), b"\x03\x01\x00\x01",
                                b5_retries=2)  # fmt: skip
@@ -609,7 +619,7 @@ def test_intent_figures_from_the_calls() -> None:
     from devtools.synth.expect import Intent, dumps
 
     cap = scenario.Capture(scenario.Clock(scenario.EPOCH_NS + 999))
-    s = samples.session(cap, 1, rtt_us=1000.5, gap_us=500)
+    s = fixtures.session(cap, 1, rtt_us=1000.5, gap_us=500)
     x = Intent(cap)
     req = pd_encode.read_request(1, 1, [pd_encode.ParamAddress(964)])
     calls = s.parameter_access(req, None, b5_retries=2)  # stops after the B5 answers
@@ -632,3 +642,64 @@ def test_intent_figures_from_the_calls() -> None:
     ns = Intent(cap, resolution_ns=1)
     ns.txn(calls, 1, "pnio_error")
     assert ns.render("t.pcapng")["transactions"][0]["t_write_rtt"] == 0.0010005
+
+
+# ---- structure of devtools ---------------------------------------------------------------------------------
+
+DEVTOOLS = Path(__file__).resolve().parent.parent / "devtools"
+
+
+def _devtools_modules() -> dict[str, tuple[Path, bool]]:
+    """Dotted name -> (file, is a package) for every module under devtools/."""
+    out = {}
+    for path in sorted(DEVTOOLS.rglob("*.py")):
+        parts = list(path.relative_to(DEVTOOLS.parent).with_suffix("").parts)
+        package = parts[-1] == "__init__"
+        out[".".join(parts[:-1] if package else parts)] = (path, package)
+    return out
+
+
+def _imported(name: str, modules: dict[str, tuple[Path, bool]]) -> set[str]:
+    """Dotted names of what module `name` imports, at the top or deferred inside a function:
+    `from pkg import module` imports that module, `from module import name` the module."""
+    path, package = modules[name]
+    here = name if package else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = here.split(".")[: len(here.split(".")) - node.level + 1]
+                base = ".".join(anchor + ([base] if base else []))
+            found |= {f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names}
+    return found
+
+
+def test_devtools_imports_form_no_cycle() -> None:
+    """The imports inside devtools flow one way: no module reaches itself again, deferred imports included."""
+    modules = _devtools_modules()
+    graph = {name: {m for m in _imported(name, modules) if m in modules and m != name} for name in modules}
+    assert {"devtools.synth.catalog", "devtools.synth.basic_samples"} <= graph["devtools.synth.build"]
+    done: set[str] = set()
+
+    def visit(name: str, path: tuple[str, ...]) -> None:
+        assert name not in path, "import cycle: " + " -> ".join((*path[path.index(name):], name))
+        if name not in done:
+            for target in sorted(graph[name]):
+                visit(target, (*path, name))
+            done.add(name)
+
+    for name in sorted(graph):
+        visit(name, ())
+
+
+def test_generator_imports_nothing_from_the_analyser() -> None:
+    """The samples are the analyser's ground truth, so the generator must not be built from the analyser."""
+    modules = _devtools_modules()
+    synth = {name: spec for name, spec in modules.items() if name.startswith("devtools.synth")}
+    assert "devtools.synth.build" in synth
+    for name in synth:
+        used = {m for m in _imported(name, modules) if m.split(".")[0] == "pd_analyze"}
+        assert not used, f"{name} imports {sorted(used)}"

@@ -1,11 +1,20 @@
 """Deterministic generator of sample PROFINET IO / PROFIdrive captures.
 
-Layers: net_encode/rpc_encode/pnio_encode/pd_encode (pure encoders,
-re-exported by encode), capture_files (pcap, pcapng, gzip), scenario (clock, hosts, PNIO sessions),
-samples (the files in sample_pcaps/). `python -m devtools.synth [OUTDIR]`
-regenerates every sample byte for byte.
-"""
+`python -m devtools.synth [OUTDIR]` regenerates every file of sample_pcaps/ and
+sample_pcaps/expected/ byte for byte. Nothing here imports the analyser (pd_analyze).
+The imports flow one way, each module from those above it:
 
-# The PROFIdrive samples (pd_*.pcap) register themselves in samples.SAMPLES on import.
-from . import pd_samples as pd_samples
-from . import txn_samples as txn_samples
+    net_encode, rpc_encode,       pure encoders: Ethernet/VLAN/SLL/IPv4/UDP, CL DCE/RPC,
+    pnio_encode, pd_encode        PNIO records, PROFIdrive parameter records
+    encode                        one import point re-exporting every encoder
+    capture_files                 frames into pcap, pcapng, gzip bytes
+    scenario                      clock, hosts, media, the capture being built, PNIO sessions
+    expect                        Intent: what a capture is built to contain, rendered to JSON
+    fixtures                      shared hosts, sessions, background traffic, standard exchanges
+    catalog                       the registries: SAMPLES, INTENTS, STATIC_EXPECTED, EXPECTED
+    basic_samples, pd_samples,    the sample files, each registering itself in the catalog
+    txn_samples
+    build                         imports every sample module; build_all(), build_expected()
+    __main__                      the command line
+    mixed_capture                 a large mixed capture for benchmarks and scale tests
+"""

@@ -11,9 +11,9 @@ import struct
 from pathlib import Path
 
 from . import net_encode
+from .fixtures import pn_rt, session
 from .pd_encode import ParamAddress as P
 from .pd_encode import change_ok, change_request, error_block, pd_response, read_request, value_block
-from .samples import pn_rt, session
 from .scenario import Capture, PnioSession
 
 

@@ -6,7 +6,7 @@ drives.
 Each file is built by a `*_capture()` function that returns the capture and
 its Intent: every injected violation is declared with `x.on(frame, rule)`
 on the line that injects it, every transaction with `x.txn(...)` and the
-verdict of protocol.md 7.4. `EXPECTED` maps file names to those functions;
+verdict of protocol.md 7.4. `pd_sample` registers each in catalog.EXPECTED;
 `python -m devtools.synth` writes them to sample_pcaps/expected/.
 
 Conventions as sample_pcaps/README.md: session 1 (.11 -> .21), API 0x3A00,
@@ -16,12 +16,13 @@ up per transaction (never reused, so no transaction-level T findings).
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 from . import pnio_encode, rpc_encode
+from .catalog import Built, pd_sample
 from .expect import GENERIC, Intent
+from .fixtures import session
 from .pd_encode import (
     ATTR_DESCRIPTION,
     ATTR_TEXT,
@@ -42,10 +43,7 @@ from .pd_encode import (
     zero_block,
 )
 from .pd_encode import ParamAddress as P
-from .samples import pcap_of, sample, session
 from .scenario import Capture, PnioSession
-
-Built = tuple[Capture, Intent]
 
 # PNIOStatus values used below (protocol.md 4.6)
 DF_B0 = pnio_encode.pnio_status(0xDF, 0x80, 0xB0, 0x00)  # write: invalid index
@@ -56,19 +54,6 @@ DE_B2 = pnio_encode.pnio_status(0xDE, 0x80, 0xB2, 0x00)  # read: invalid slot/su
 
 NCA_SERVER_TOO_BUSY = 0x1C010014
 NCA_PROTO_ERROR = 0x1C01000B
-
-EXPECTED: dict[str, Callable[[], dict[str, Any]]] = {}
-
-
-def pd_sample(name: str) -> Callable[[Callable[[], Built]], Callable[[], Built]]:
-    """Register a capture builder both as a sample file and as its expectations."""
-
-    def register(build: Callable[[], Built]) -> Callable[[], Built]:
-        sample(name)(lambda: pcap_of(build()[0]))
-        EXPECTED[name] = lambda: build()[1].render(name)
-        return build
-
-    return register
 
 
 def _ok_read(ref: int, do: int, blocks: list[bytes]) -> bytes:

@@ -19,11 +19,11 @@ from typing import Any
 
 from . import pnio_encode
 from .capture_files import Frame
+from .catalog import Built, pd_sample
 from .expect import Intent
+from .fixtures import fixed_uuid, plant
 from .pd_encode import ParamAddress as P
 from .pd_encode import change_ok, change_request, error_block, pd_response, read_request, value_block
-from .pd_samples import Built, pd_sample
-from .samples import fixed_uuid, plant
 from .scenario import EPOCH_NS, Call, Capture, Clock, Host, PnioSession
 
 DF_B1 = pnio_encode.pnio_status(0xDF, 0x80, 0xB1, 0x00)  # write: write length error (buffer too small)

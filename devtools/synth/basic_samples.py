@@ -1,4 +1,5 @@
-"""The sample captures of sample_pcaps/, one function each.
+"""The older sample captures of sample_pcaps/ (record services, link types, file formats, the fault trace
+and the untrusted strings), one builder each.
 
 Every function builds its file from constants only (fixed UUIDs, addresses,
 timestamps from EPOCH_NS, seeded Random), so the output is byte for byte
@@ -8,181 +9,45 @@ should find in each file; keep it in step when changing a function here.
 
 from __future__ import annotations
 
+import random
 import struct
 import uuid
-from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 from . import net_encode, pnio_encode, rpc_encode
-from .capture_files import Frame, Pcapng, gzip_bytes, pcap_bytes
+from .capture_files import Frame, Pcapng, gzip_bytes
+from .catalog import intent_of, sample
 from .expect import Intent
-from .net_encode import (
-    ETH_ARP,
-    ETH_PNRT,
-    LINKTYPE_ETHERNET,
-    LINKTYPE_LINUX_SLL,
-    LINKTYPE_LINUX_SLL2,
-    LINKTYPE_RAW,
-    VlanTag,
+from .fixtures import (
+    BROADCAST,
+    arp_exchange,
+    epm_lookup,
+    fixed_uuid,
+    pcap_of,
+    pcapng_of,
+    plant,
+    pn_rt,
+    session,
+    txn_change_float,
+    txn_global_do,
+    txn_read_multi,
+    txn_read_one,
+    udp_noise,
 )
+from .net_encode import ETH_ARP, LINKTYPE_ETHERNET, LINKTYPE_LINUX_SLL, LINKTYPE_LINUX_SLL2, LINKTYPE_RAW, VlanTag
 from .pd_encode import ParamAddress as P
-from .pd_encode import change_ok, change_request, pd_response, read_request, value_block
+from .pd_encode import (
+    change_ok,
+    change_request,
+    description,
+    error_block,
+    pd_response,
+    read_request,
+    text_entries,
+    value_block,
+)
 from .pnio_encode import InnerWrite, control_block
-from .scenario import EPOCH_NS, Call, Capture, Clock, Host, Medium, PnioSession, host
-
-BROADCAST = b"\xff" * 6
-
-
-@dataclass(frozen=True)
-class Sample:
-    name: str
-    build: Callable[[], bytes]
-
-
-SAMPLES: list[Sample] = []
-
-
-def sample(name: str) -> Callable[[Callable[[], bytes]], Callable[[], bytes]]:
-    def register(fn: Callable[[], bytes]) -> Callable[[], bytes]:
-        SAMPLES.append(Sample(name, fn))
-        return fn
-
-    return register
-
-
-def build_all() -> dict[str, bytes]:
-    return {s.name: s.build() for s in SAMPLES}
-
-
-# file name -> the transactions the file is built to contain (the README's description of the file, recorded
-# by its builder); the frame-level findings of these files are STATIC_EXPECTED below.
-INTENTS: dict[str, Callable[[], Intent]] = {}
-
-
-def intent_of(*names: str) -> Callable[[Callable[..., tuple[Capture, Intent]]], Callable[..., tuple[Capture, Intent]]]:
-    """Register a builder returning (capture, intent) as the transaction intent of the files named."""
-
-    def register(build: Callable[..., tuple[Capture, Intent]]) -> Callable[..., tuple[Capture, Intent]]:
-        for name in names:
-            INTENTS[name] = lambda: build()[1]
-        return build
-
-    return register
-
-
-# ---- shared fixtures ---------------------------------------------------------
-
-
-def fixed_uuid(kind: int, n: int) -> uuid.UUID:
-    """Readable deterministic UUIDs: kind 0xAC = activity, 0xA2 = AR, ..."""
-    return uuid.UUID(f"{kind:08x}-0000-1000-8000-{n:012x}")
-
-
-def plant(n: int = 1, *, net: str = "192.168.1") -> tuple[Host, Host]:
-    """Controller .10+n and device .20+n with matching MACs."""
-    ctrl = host(f"02:00:00:00:01:{n:02x}", f"{net}.{10 + n}", ip_ident=0x1000 * n)
-    dev = host(f"02:00:00:00:02:{n:02x}", f"{net}.{20 + n}", ip_ident=0x1000 * n + 0x800)
-    return ctrl, dev
-
-
-def session(cap: Capture, n: int = 1, *, net: str = "192.168.1", **kw: Any) -> PnioSession:
-    """Session n of a plant: activity 000000ac-...-n, ARUUID 000000a2-...-n."""
-    ctrl, dev = plant(n, net=net)
-    return PnioSession(cap, ctrl, dev, activity=fixed_uuid(0xAC, n), ar_uuid=fixed_uuid(0xA2, n), **kw)
-
-
-def arp_exchange(cap: Capture, asker: Host, target: Host, medium: Medium | None = None) -> None:
-    request = net_encode.arp(1, asker.mac, asker.ip, bytes(6), target.ip)
-    cap.send_ether(asker, BROADCAST, ETH_ARP, request, medium=medium)
-    cap.clock.advance_us(180)
-    reply = net_encode.arp(2, target.mac, target.ip, asker.mac, asker.ip)
-    cap.send_ether(target, asker.mac, ETH_ARP, reply, medium=medium)
-    cap.clock.advance_us(500)
-
-
-def pn_rt(cap: Capture, src: Host, dst: Host, counter: int) -> None:
-    """One cyclic PN-RT frame (EtherType 0x8892), VLAN-less as PN-RT class 1."""
-    cap.send_ether(src, dst.mac, ETH_PNRT, net_encode.pn_rt_cyclic(0x8001, bytes(range(40)), cycle_counter=counter))
-    cap.clock.advance_us(50)
-
-
-def udp_noise(cap: Capture, src: Host, dst: Host) -> None:
-    """A UDP datagram that is not DCE/RPC, between ports no dissector claims."""
-    cap.send_udp(src, 50010, dst, 50020, b"plain UDP, not DCE/RPC " * 4)
-    cap.clock.advance_us(300)
-
-
-def epm_lookup(cap: Capture, ctrl: Host, dev: Host, drep: bytes) -> None:
-    """Endpoint-mapper ept_lookup call + 'not registered' answer on the PNIO
-    port: DCE/RPC v4 that a PNIO decoder must ignore silently."""
-    le = rpc_encode.drep_little(drep)
-
-    def u32(value: int) -> bytes:
-        return rpc_encode.u32(value, le)
-
-    act = fixed_uuid(0xE9, 1)
-    # inquiry_type, NULL object ptr, NULL interface ptr, vers_option,
-    # 20-byte NIL entry handle, max_ents
-    body = u32(0) + u32(0) + u32(0) + u32(1) + bytes(20) + u32(1)
-    epm = dict(activity=act, seq=0, opnum=2, interface=rpc_encode.EPM_IF, if_version=3, drep=drep)
-    req = rpc_encode.rpc_pdu(body, ptype=rpc_encode.REQUEST, flags1=0x20, **epm)
-    cap.send_udp(ctrl, 49160, dev, 34964, req)
-    cap.clock.advance_us(900)
-    # entry handle, num_ents 0, empty conformant varying array, ept_s_not_registered
-    res_body = bytes(20) + u32(0) + u32(1) + u32(0) + u32(0) + u32(0x16C9A0D6)
-    res = rpc_encode.rpc_pdu(res_body, ptype=rpc_encode.RESPONSE, flags1=0x0A, boot_time=0x5F000000, **epm)
-    cap.send_udp(dev, 34964, ctrl, 49160, res)
-    cap.clock.advance_us(2000)
-
-
-def pcap_of(cap: Capture, **kw: Any) -> bytes:
-    return pcap_bytes(cap.frames, linktype=cap.medium.linktype, **kw)
-
-
-def pcapng_of(frames: list[Frame], linktype: int = LINKTYPE_ETHERNET) -> bytes:
-    ng = Pcapng()
-    ng.section_header()
-    ng.interface(linktype, name="eth0")
-    for f in frames:
-        ng.epb(f)
-    return ng.tobytes()
-
-
-# Standard PROFIdrive exchanges reused by several files ---------------------
-
-
-def txn_read_one(s: PnioSession, ref: int, *, b5: int = 1) -> list[Call]:
-    """Read P964[0] (Word 0x1234)."""
-    return s.parameter_access(
-        read_request(ref, 1, [P(964)]), pd_response(ref, 0x01, 1, [value_block(0x42, [0x1234])]), b5_retries=b5
-    )
-
-
-def txn_change_float(s: PnioSession, ref: int) -> list[Call]:
-    """Change P1120[0] (ramp-up time) to 10.0 s; positive change response."""
-    return s.parameter_access(change_request(ref, 1, [(P(1120), value_block(0x08, [10.0]))]), change_ok(ref, 1, 1))
-
-
-def txn_read_multi(s: PnioSession, ref: int, *, b5: int = 2) -> list[Call]:
-    """Read P2000[0] (Float32), P2001[0..1] (Double word), P107[0..2]
-    (Unsigned8 x3: odd count -> pad byte after the last list)."""
-    req = read_request(ref, 1, [P(2000), P(2001, n_elems=2), P(107, n_elems=3)])
-    res = pd_response(
-        ref,
-        0x01,
-        1,
-        [value_block(0x08, [1500.0]), value_block(0x43, [0x000186A0, 0x00000001]), value_block(0x05, [1, 2, 3])],
-    )
-    return s.parameter_access(req, res, b5_retries=b5)
-
-
-def txn_global_do(s: PnioSession, ref: int) -> list[Call]:
-    """Global access (0xB02F) to DO 2: read P10[0] (Unsigned16 1)."""
-    return s.parameter_access(
-        read_request(ref, 2, [P(10)]), pd_response(ref, 0x01, 2, [value_block(0x06, [1])]), index=0xB02F, b5_retries=0
-    )
-
+from .scenario import EPOCH_NS, Capture, Clock, Medium, PnioSession, host
 
 # ---- 1. worked example -------------------------------------------------------
 
@@ -662,61 +527,6 @@ def truncated_snaplen() -> bytes:
     return pcap_of(truncated_snaplen_capture()[0], snaplen=256)
 
 
-# ---- expected findings -----------------------------------------------------------------------------------
-# The intent of the files above, as sample_pcaps/README.md states it (frame numbers are the README's).
-# Clean files expect no finding; the pd_*.pcap files record theirs while they are built (pd_samples.py).
-STATIC_EXPECTED: dict[str, list[tuple[int, str]]] = {
-    "worked_example.pcap": [],
-    "record_rw_le.pcap": [],
-    "record_rw_be.pcap": [],
-    "record_rw_le.pcap.gz": [],
-    "vlan_stacked.pcap": [],
-    "ip_fragments.pcap": [],
-    "cl_fragments_fack.pcapng": [(6, "rpc_retransmission")],  # frag 1 again, identical: dropped and counted
-    "implicit_read.pcap": [],
-    "write_multiple.pcap": [],
-    "other_port_response.pcap": [(6, "rpc_retransmission")],  # identical request 100 ms later
-    "two_interfaces.pcapng": [],
-    "gzip_pcapng_named.pcap": [],
-    "linux_sll.pcap": [],
-    "linux_sll2.pcap": [],
-    "raw_ipv4.pcap": [],
-    "pcap_nsec_be.pcap": [],
-    "rpc_control_pdus.pcap": [
-        (14, "rpc_nocall"),  # nocall: W on the call
-        (15, "rpc_retransmission"),  # identical request again
-        (17, "pnio_interface"),  # Read to the Supervisor interface: I
-        (18, "rpc_fault"),  # fault 0x1C010003
-        (20, "rpc_fault"),  # reject 0x1C010002
-        (22, "rpc_cancel"),  # cl_cancel: I on the call
-        (24, "rpc_fault"),  # fault nca_s_fault_cancel
-    ],
-    "truncated_snaplen.pcap": [
-        (7, "rpc_truncated"),  # R1: RPC body 134 of 176 bytes
-        (7, "record_truncated"),  # H5: 50 of 92 record bytes present
-        (7, "truncated_capture_pnio"),  # E: cut inside a PNIO RPC PDU
-        (11, "truncated_capture"),  # I: cut outside PNIO
-    ],
-    "fault_trace.pcap": [],  # its one finding, T4 retry on frame 291, is a transaction's (fault_trace_capture)
-}
-
-
-def build_expected() -> dict[str, str]:
-    """sample name -> text of sample_pcaps/expected/<name>.json."""
-    from . import pd_samples
-    from .expect import dumps
-
-    out = {}
-    for name, findings in STATIC_EXPECTED.items():
-        doc = {"file": name, "profiles": [{"profile": "generic", "findings": [list(f) for f in sorted(findings)]}]}
-        if name in INTENTS:
-            doc |= {k: v for k, v in INTENTS[name]().render(name).items() if k in ("transactions", "loose")}
-        out[name] = dumps(doc)
-    for name, render in pd_samples.EXPECTED.items():
-        out[name] = dumps(render())
-    return out
-
-
 # ---- fault_trace.pcap: three drives interleaved, for the notebook and the HTML report -------------------
 
 
@@ -726,10 +536,6 @@ def fault_trace_capture() -> tuple[Capture, Intent]:
     merged by time): change trails preceded by reads, NAKs with several error
     numbers, B5 polling, a write refused with DF 80 B1 00, a timeout and its
     retry. sample_pcaps/README.md lists what the analyser must find."""
-    import random
-
-    from .pd_encode import error_block
-
     cap = Capture()
     x = Intent(cap)
     f32, w16, u16 = 0x08, 0x42, 0x06
@@ -834,8 +640,6 @@ def crafted_strings() -> bytes:
     OctetString and UnicodeString values, read and written. Markup and script (<script>, attribute and
     URL injection), terminal control (ANSI CSI and OSC, C1 CSI, CR, BS, BEL) and spreadsheet formulas
     (leading =, +, -, @, tab, CR). Every output must show them inertly (tests/test_untrusted_strings.py)."""
-    from .pd_encode import description, error_block, text_entries
-
     cap = Capture()
     s = session(cap, 1)
 
