@@ -25,6 +25,7 @@ from devtools.synth import (
     capture_files,
     catalog,
     fixtures,
+    format_samples,
     net_encode,
     pd_encode,
     pnio_encode,
@@ -349,7 +350,7 @@ def _pcapng_blocks(data: bytes) -> list[tuple[int, bytes]]:
 
 
 def test_pcapng_two_interfaces_sample() -> None:
-    blocks = _pcapng_blocks(basic_samples.two_interfaces())
+    blocks = _pcapng_blocks(format_samples.two_interfaces())
     types = [t for t, _ in blocks]
     assert types[:3] == [0x0A0D0D0A, 1, 1] and 3 in types and 0x0B0B in types
     idbs = [b for t, b in blocks if t == 1]
@@ -369,7 +370,7 @@ def test_gzip_deterministic_and_valid() -> None:
     gz = capture_files.gzip_bytes(data)
     assert gz[:4] == b"\x1f\x8b\x08\x00" and gz[4:8] == bytes(4)  # no FNAME, mtime 0
     assert gzip.decompress(gz) == data
-    assert gzip.decompress(basic_samples.gzip_pcapng_named())[:4] == b"\x0a\x0d\x0d\x0a"
+    assert gzip.decompress(format_samples.gzip_pcapng_named())[:4] == b"\x0a\x0d\x0d\x0a"
     assert gzip.decompress(basic_samples.record_rw_le_gz()) == basic_samples.record_rw_le()
 
 
@@ -423,8 +424,8 @@ def test_all_pcap_samples_parse_with_dpkt() -> None:
 
 
 def test_truncated_sample_caplen() -> None:
-    recs = list(dpkt.pcap.Reader(io.BytesIO(basic_samples.truncated_snaplen())))
-    data = basic_samples.truncated_snaplen()
+    recs = list(dpkt.pcap.Reader(io.BytesIO(format_samples.truncated_snaplen())))
+    data = format_samples.truncated_snaplen()
     pos, cut = 24, []
     for _ in recs:
         _, _, incl, orig = struct.unpack_from("<IIII", data, pos)

@@ -12,8 +12,10 @@ The imports flow one way, each module from those above it:
     expect                        Intent: what a capture is built to contain, rendered to JSON
     fixtures                      shared hosts, sessions, background traffic, standard exchanges
     catalog                       the registries: SAMPLES, INTENTS, STATIC_EXPECTED, EXPECTED
-    basic_samples, pd_samples,    the sample files, each registering itself in the catalog
-    txn_samples
+    basic_samples                 samples 1-9 of sample_pcaps/README.md: record services
+    format_samples                samples 10-15: file formats, link types, RPC control PDUs
+    trace_samples                 fault_trace and crafted_strings (notebook, HTML report)
+    pd_samples, txn_samples       PROFIdrive and transaction samples with their expectations
     build                         imports every sample module; build_all(), build_expected()
     __main__                      the command line
     mixed_capture                 a large mixed capture for benchmarks and scale tests

@@ -7,7 +7,8 @@ the order of the files (that of sample_pcaps/README.md), in which `python -m dev
 from __future__ import annotations
 
 # isort: off
-from . import basic_samples, pd_samples, txn_samples  # noqa: F401  (imported to register their files)
+from . import basic_samples, format_samples, trace_samples  # noqa: F401  (imported to register their files)
+from . import pd_samples, txn_samples  # noqa: F401
 
 # isort: on
 from .catalog import EXPECTED, INTENTS, SAMPLES, STATIC_EXPECTED
