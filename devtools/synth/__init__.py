@@ -15,7 +15,10 @@ The imports flow one way, each module from those above it:
     basic_samples                 samples 1-9 of sample_pcaps/README.md: record services
     format_samples                samples 10-15: file formats, link types, RPC control PDUs
     trace_samples                 fault_trace and crafted_strings (notebook, HTML report)
-    pd_samples, txn_samples       PROFIdrive and transaction samples with their expectations
+    pd_samples                    PROFIdrive: commissioning, negative responses, B5 and PNIO errors
+    pd_range_samples              PROFIdrive: one injected range violation per transaction
+    pd_vendor_samples             PROFIdrive: global/DPV1 index, AKD-like and Yaskawa-like drives
+    txn_samples                   transactions: interleaved channels, retries and duplicates, timeouts
     build                         imports every sample module; build_all(), build_expected()
     __main__                      the command line
     mixed_capture                 a large mixed capture for benchmarks and scale tests

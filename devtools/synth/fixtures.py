@@ -11,7 +11,7 @@ from __future__ import annotations
 import uuid
 from typing import Any
 
-from . import net_encode, rpc_encode
+from . import net_encode, pnio_encode, rpc_encode
 from .capture_files import Frame, Pcapng, pcap_bytes
 from .net_encode import ETH_ARP, ETH_PNRT, LINKTYPE_ETHERNET
 from .pd_encode import ParamAddress as P
@@ -19,6 +19,14 @@ from .pd_encode import change_ok, change_request, pd_response, read_request, val
 from .scenario import Call, Capture, Host, Medium, PnioSession, host
 
 BROADCAST = b"\xff" * 6
+
+# PNIOStatus values the samples answer with (protocol.md 4.6)
+DF_B0 = pnio_encode.pnio_status(0xDF, 0x80, 0xB0, 0x00)  # write: invalid index
+DF_B1 = pnio_encode.pnio_status(0xDF, 0x80, 0xB1, 0x00)  # write: write length error (buffer too small)
+DF_B5 = pnio_encode.pnio_status(0xDF, 0x80, 0xB5, 0x00)  # write: state conflict (the channel is busy)
+DF_B7 = pnio_encode.pnio_status(0xDF, 0x80, 0xB7, 0x00)  # write: invalid range (request header)
+DE_B1 = pnio_encode.pnio_status(0xDE, 0x80, 0xB1, 0x00)  # read: buffer too small for the response
+DE_B2 = pnio_encode.pnio_status(0xDE, 0x80, 0xB2, 0x00)  # read: invalid slot/subslot
 
 
 def fixed_uuid(kind: int, n: int) -> uuid.UUID:
@@ -129,3 +137,8 @@ def txn_global_do(s: PnioSession, ref: int) -> list[Call]:
     return s.parameter_access(
         read_request(ref, 2, [P(10)]), pd_response(ref, 0x01, 2, [value_block(0x06, [1])]), index=0xB02F, b5_retries=0
     )
+
+
+def ok_read(ref: int, do: int, blocks: list[bytes]) -> bytes:
+    """A positive read response (Response ID 0x01) carrying these value blocks."""
+    return pd_response(ref, 0x01, do, blocks)

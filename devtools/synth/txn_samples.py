@@ -21,14 +21,10 @@ from . import pnio_encode
 from .capture_files import Frame
 from .catalog import Built, pd_sample
 from .expect import Intent
-from .fixtures import fixed_uuid, plant
+from .fixtures import DE_B2, DF_B1, DF_B5, fixed_uuid, plant
 from .pd_encode import ParamAddress as P
 from .pd_encode import change_ok, change_request, error_block, pd_response, read_request, value_block
 from .scenario import EPOCH_NS, Call, Capture, Clock, Host, PnioSession
-
-DF_B1 = pnio_encode.pnio_status(0xDF, 0x80, 0xB1, 0x00)  # write: write length error (buffer too small)
-DF_B5 = pnio_encode.pnio_status(0xDF, 0x80, 0xB5, 0x00)  # write: state conflict (the channel is busy)
-DE_B2 = pnio_encode.pnio_status(0xDE, 0x80, 0xB2, 0x00)  # read: invalid slot/subslot
 
 MS = 1_000_000  # ns
 
