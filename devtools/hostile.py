@@ -45,7 +45,8 @@ def _templates() -> dict[str, bytes]:
     """One frame per kind, from the sample generator (Ethernet, no VLAN: IPv4 at 14, RPC at 42)."""
     from devtools.synth import net_encode, rpc_encode
     from devtools.synth.pd_encode import ParamAddress, change_request, value_block
-    from devtools.synth.scenario import Capture, PnioSession, host
+    from devtools.synth.pnio_session import PnioSession
+    from devtools.synth.sim_capture import Capture, host
 
     cap = Capture()
     ctrl, dev = host("02:00:00:00:01:01", "192.168.1.11"), host("02:00:00:00:02:01", "192.168.1.21")

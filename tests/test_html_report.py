@@ -26,7 +26,7 @@ import pytest
 import pd_analyze
 from devtools.synth import fixtures
 from devtools.synth.pd_encode import ParamAddress, error_block, pd_response, read_request, value_block
-from devtools.synth.scenario import Capture
+from devtools.synth.sim_capture import Capture
 from pd_analyze.output import html_report
 
 REPO = Path(__file__).resolve().parents[1]

@@ -19,7 +19,7 @@ import pd_analyze
 from devtools import fuzz, hostile
 from devtools.synth import fixtures
 from devtools.synth.pd_encode import ParamAddress, change_ok, change_request, value_block
-from devtools.synth.scenario import Capture
+from devtools.synth.sim_capture import Capture
 from pd_analyze.analysis import transactions
 from pd_analyze.analysis.rows import Rows, frame_of
 from pd_analyze.analysis.transactions import TransactionEngine

@@ -135,7 +135,7 @@ def test_split_parts_stitch_value_before_from_reads_before_their_lead_in(tmp_pat
     from devtools.synth.fixtures import session
     from devtools.synth.pd_encode import ParamAddress as P
     from devtools.synth.pd_encode import change_ok, change_request, pd_response, read_request, value_block
-    from devtools.synth.scenario import Capture
+    from devtools.synth.sim_capture import Capture
 
     cap = Capture()
     s = session(cap, 1)
@@ -158,7 +158,7 @@ def test_split_parts_stitch_reference_reuse_across_the_split(tmp_path, monkeypat
     from devtools.synth.fixtures import session
     from devtools.synth.pd_encode import ParamAddress as P
     from devtools.synth.pd_encode import pd_response, read_request, value_block
-    from devtools.synth.scenario import Capture
+    from devtools.synth.sim_capture import Capture
 
     cap = Capture()
     busy, idle = session(cap, 1), session(cap, 2)

@@ -29,8 +29,9 @@ from devtools.synth import (
     net_encode,
     pd_encode,
     pnio_encode,
+    pnio_session,
     rpc_encode,
-    scenario,
+    sim_capture,
 )
 from devtools.synth.__main__ import main as synth_main
 
@@ -374,13 +375,13 @@ def test_gzip_deterministic_and_valid() -> None:
     assert gzip.decompress(basic_samples.record_rw_le_gz()) == basic_samples.record_rw_le()
 
 
-# ---- scenario -----------------------------------------------------------------------------
+# ---- simulated capture and sessions -----------------------------------------------------
 
 
 def test_session_sequence_boot_time_and_reply_port() -> None:
-    cap = scenario.Capture()
+    cap = sim_capture.Capture()
     ctrl, dev = fixtures.plant(1)
-    s = scenario.PnioSession(cap, ctrl, dev, activity=ACT, ar_uuid=uuid.UUID(int=5), reply_port=50000, seq=7)
+    s = pnio_session.PnioSession(cap, ctrl, dev, activity=ACT, ar_uuid=uuid.UUID(int=5), reply_port=50000, seq=7)
     calls = s.parameter_access(
         pd_encode.read_request(1, 1, [pd_encode.ParamAddress(964)]), b"\x01\x01\x01\x01", b5_retries=2
     )
@@ -395,7 +396,7 @@ def test_session_sequence_boot_time_and_reply_port() -> None:
     iod_seqs = [struct.unpack_from(">H", p, 106)[0] for p in pl if len(p) > 100]
     assert iod_seqs == [1, 1, 2, 3, 4, 4]
     ts = [f.ts_ns for f in cap.frames]
-    assert ts == sorted(ts) and ts[0] == scenario.EPOCH_NS
+    assert ts == sorted(ts) and ts[0] == sim_capture.EPOCH_NS
 
 
 def test_retransmitted_request_is_identical_rpc_pdu() -> None:
@@ -435,9 +436,9 @@ def test_truncated_sample_caplen() -> None:
 
 
 def test_session_overrides_reach_the_wire() -> None:
-    cap = scenario.Capture()
+    cap = sim_capture.Capture()
     ctrl, dev = fixtures.plant(1)
-    s = scenario.PnioSession(cap, ctrl, dev, activity=ACT, ar_uuid=uuid.UUID(int=5))
+    s = pnio_session.PnioSession(cap, ctrl, dev, activity=ACT, ar_uuid=uuid.UUID(int=5))
     s.write(
         0xB02E,
         b"\x01\x01\x01\x01",
@@ -455,9 +456,9 @@ def test_session_overrides_reach_the_wire() -> None:
 
 
 def test_interleaved_sessions_with_own_clocks() -> None:
-    cap = scenario.Capture()
-    a = fixtures.session(cap, 1, own_clock=scenario.Clock(scenario.EPOCH_NS))
-    b = fixtures.session(cap, 2, own_clock=scenario.Clock(scenario.EPOCH_NS + 500_000))
+    cap = sim_capture.Capture()
+    a = fixtures.session(cap, 1, own_clock=sim_capture.Clock(sim_capture.EPOCH_NS))
+    b = fixtures.session(cap, 2, own_clock=sim_capture.Clock(sim_capture.EPOCH_NS + 500_000))
     for s in (a, b):
         fixtures.txn_read_one(s, 1, b5=0)
     order = [dpkt.ethernet.Ethernet(f.data).data.src[-1] for f in cap.time_sorted()]
@@ -465,8 +466,8 @@ def test_interleaved_sessions_with_own_clocks() -> None:
 
 
 def test_sll_packet_type_by_capturing_host() -> None:
-    m = scenario.Medium(net_encode.LINKTYPE_LINUX_SLL, local_ip="192.168.1.11")
-    cap = scenario.Capture(medium=m)
+    m = sim_capture.Medium(net_encode.LINKTYPE_LINUX_SLL, local_ip="192.168.1.11")
+    cap = sim_capture.Capture(medium=m)
     fixtures.txn_read_one(fixtures.session(cap, 1, medium=m), 1, b5=0)
     assert [struct.unpack_from(">H", f.data)[0] for f in cap.frames] == [4, 0, 4, 0]
 
@@ -547,7 +548,7 @@ def test_commissioning_39_parameters_and_description() -> None:
 
 
 def test_session_fault_and_error_endings() -> None:
-    cap = scenario.Capture()
+    cap = sim_capture.Capture()
     s = fixtures.session(cap, 1)
     req = pd_encode.read_request(1, 1, [pd_encode.ParamAddress(964)])
     calls = s.parameter_access(req, None, write_fault=(rpc_encode.FAULT, 0x1C010014))
@@ -591,7 +592,7 @@ def test_pd_samples_registered_deterministic_with_expectations() -> None:
 def test_intent_frames_and_profiles() -> None:
     from devtools.synth.expect import Intent, dumps
 
-    cap = scenario.Capture()
+    cap = sim_capture.Capture()
     s = fixtures.session(cap, 1)
     x = Intent(cap, ("generic", "akd"))
     calls = s.parameter_access(pd_encode.read_request(3, 0, [pd_encode.ParamAddress(1)]), b"\x03\x01\x00\x01",
@@ -619,7 +620,7 @@ def test_intent_figures_from_the_calls() -> None:
     answers and the closing PNIOStatus from the calls, loose transaction-level findings."""
     from devtools.synth.expect import Intent, dumps
 
-    cap = scenario.Capture(scenario.Clock(scenario.EPOCH_NS + 999))
+    cap = sim_capture.Capture(sim_capture.Clock(sim_capture.EPOCH_NS + 999))
     s = fixtures.session(cap, 1, rtt_us=1000.5, gap_us=500)
     x = Intent(cap)
     req = pd_encode.read_request(1, 1, [pd_encode.ParamAddress(964)])

@@ -75,7 +75,7 @@ def test_retransmissions_of_an_unanswered_call_count_in_a_timeout(tmp_path):
     used to add a call's copies only when its response arrived, so this timeout reported 0."""
     from devtools.synth import fixtures, pnio_encode
     from devtools.synth.pd_encode import ParamAddress, read_request
-    from devtools.synth.scenario import Capture
+    from devtools.synth.sim_capture import Capture
 
     cap = Capture()
     s = fixtures.session(cap, 1)

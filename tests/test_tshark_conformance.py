@@ -1088,7 +1088,7 @@ def _synthetic_bugs() -> tuple[bytes, dict[int, str]]:
     from devtools.synth.fixtures import pcap_of, session
     from devtools.synth.pd_encode import ParamAddress as P
     from devtools.synth.pd_encode import change_request, error_block, pd_response, read_request, value_block
-    from devtools.synth.scenario import Capture
+    from devtools.synth.sim_capture import Capture
 
     cap = Capture()
     s = session(cap, 1)

@@ -8,7 +8,9 @@ The imports flow one way, each module from those above it:
     pnio_encode, pd_encode        PNIO records, PROFIdrive parameter records
     encode                        one import point re-exporting every encoder
     capture_files                 frames into pcap, pcapng, gzip bytes
-    scenario                      clock, hosts, media, the capture being built, PNIO sessions
+    sim_capture                   clock, hosts, link media, the capture being built
+    rpc_session                   CL-RPC calls between a controller and a device
+    pnio_session                  PNIO record services and PROFIdrive parameter access over those calls
     expect                        Intent: what a capture is built to contain, rendered to JSON
     fixtures                      shared hosts, sessions, background traffic, standard exchanges
     catalog                       the registries: SAMPLES, INTENTS, STATIC_EXPECTED, EXPECTED

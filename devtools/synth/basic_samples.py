@@ -36,7 +36,8 @@ from .net_encode import VlanTag
 from .pd_encode import ParamAddress as P
 from .pd_encode import pd_response, read_request, value_block
 from .pnio_encode import InnerWrite
-from .scenario import EPOCH_NS, Capture, Clock, Medium, PnioSession, host
+from .pnio_session import PnioSession
+from .sim_capture import EPOCH_NS, Capture, Clock, Medium, host
 
 # ---- 1. worked example -------------------------------------------------------
 

@@ -18,7 +18,7 @@ from typing import Any
 
 from .expect import Intent
 from .fixtures import pcap_of
-from .scenario import Capture
+from .sim_capture import Capture
 
 Built = tuple[Capture, Intent]
 

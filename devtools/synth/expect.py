@@ -35,7 +35,8 @@ from typing import Any
 
 from .capture_files import Frame
 from .pnio_encode import STATUS_B5, STATUS_OK
-from .scenario import Call, Capture
+from .rpc_session import Call
+from .sim_capture import Capture
 
 GENERIC = "generic"
 B5_TEXT = STATUS_B5.hex().upper()

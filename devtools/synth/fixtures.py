@@ -16,7 +16,9 @@ from .capture_files import Frame, Pcapng, pcap_bytes
 from .net_encode import ETH_ARP, ETH_PNRT, LINKTYPE_ETHERNET
 from .pd_encode import ParamAddress as P
 from .pd_encode import change_ok, change_request, pd_response, read_request, value_block
-from .scenario import Call, Capture, Host, Medium, PnioSession, host
+from .pnio_session import PnioSession
+from .rpc_session import Call
+from .sim_capture import Capture, Host, Medium, host
 
 BROADCAST = b"\xff" * 6
 

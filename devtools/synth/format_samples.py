@@ -29,7 +29,8 @@ from .net_encode import ETH_ARP, LINKTYPE_ETHERNET, LINKTYPE_LINUX_SLL, LINKTYPE
 from .pd_encode import ParamAddress as P
 from .pd_encode import change_ok, change_request, value_block
 from .pnio_encode import control_block
-from .scenario import EPOCH_NS, Capture, Clock, Medium, PnioSession, host
+from .pnio_session import PnioSession
+from .sim_capture import EPOCH_NS, Capture, Clock, Medium, host
 
 # ---- 10. pcapng with two interfaces --------------------------------------------
 

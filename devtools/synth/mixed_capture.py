@@ -14,7 +14,8 @@ from . import net_encode
 from .fixtures import pn_rt, session
 from .pd_encode import ParamAddress as P
 from .pd_encode import change_ok, change_request, error_block, pd_response, read_request, value_block
-from .scenario import Capture, PnioSession
+from .pnio_session import PnioSession
+from .sim_capture import Capture
 
 
 def make_capture(path: Path, frames: int, seed: int = 1, pnio_share: float = 0.1) -> int:

@@ -32,7 +32,7 @@ from .pd_encode import (
     zero_block,
 )
 from .pd_encode import ParamAddress as P
-from .scenario import Capture
+from .sim_capture import Capture
 
 # ---- pd_out_of_range.pcap -----------------------------------------------------------------------------------
 

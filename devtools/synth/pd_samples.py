@@ -40,7 +40,7 @@ from .pd_encode import (
     zero_block,
 )
 from .pd_encode import ParamAddress as P
-from .scenario import Capture
+from .sim_capture import Capture
 
 # NCA status of the RPC fault / reject that answer a call instead of a response
 NCA_SERVER_TOO_BUSY = 0x1C010014

@@ -26,7 +26,8 @@ from .pd_encode import (
     zero_block,
 )
 from .pd_encode import ParamAddress as P
-from .scenario import Capture, PnioSession
+from .pnio_session import PnioSession
+from .sim_capture import Capture
 
 # ---- pd_global_and_dpv1_index.pcap ---------------------------------------------------------------------------
 

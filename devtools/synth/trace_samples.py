@@ -28,7 +28,8 @@ from .pd_encode import (
     text_entries,
     value_block,
 )
-from .scenario import EPOCH_NS, Capture, Clock, PnioSession
+from .pnio_session import PnioSession
+from .sim_capture import EPOCH_NS, Capture, Clock
 
 # ---- fault_trace.pcap: three drives interleaved, for the notebook and the HTML report -------------------
 

@@ -24,7 +24,9 @@ from .expect import Intent
 from .fixtures import DE_B2, DF_B1, DF_B5, fixed_uuid, plant
 from .pd_encode import ParamAddress as P
 from .pd_encode import change_ok, change_request, error_block, pd_response, read_request, value_block
-from .scenario import EPOCH_NS, Call, Capture, Clock, Host, PnioSession
+from .pnio_session import PnioSession
+from .rpc_session import Call
+from .sim_capture import EPOCH_NS, Capture, Clock, Host
 
 MS = 1_000_000  # ns
 
