@@ -16,7 +16,8 @@ from pathlib import Path
 import pytest
 
 import pd_analyze
-from devtools import fuzz, hostile
+from devtools import hostile
+from devtools.fuzz import corpus
 from devtools.synth import fixtures
 from devtools.synth.pd_encode import ParamAddress, change_ok, change_request, value_block
 from devtools.synth.sim_capture import Capture
@@ -30,7 +31,7 @@ from pd_analyze.protocol.dissector import MAX_HELD_FIELDS, MAX_LOOSE_FINDINGS, D
 from tests.test_capture import FRAME_A, block, epb, idb, shb
 
 REPO = Path(__file__).resolve().parents[1]
-SEEDS = fuzz.seed_paths()
+SEEDS = corpus.seed_paths()
 
 
 # --- the accounting invariant on every capture ----------------------------------------------------------------
