@@ -14,8 +14,8 @@ The imports flow one way, each module from those above it:
     expect                        Intent: what a capture is built to contain, rendered to JSON
     fixtures                      shared hosts, sessions, background traffic, standard exchanges
     catalog                       the registries: SAMPLES, INTENTS, STATIC_EXPECTED, EXPECTED
-    basic_samples                 samples 1-9 of sample_pcaps/README.md: record services
-    format_samples                samples 10-15: file formats, link types, RPC control PDUs
+    basic_samples                 samples 1-9 (worked_example ... other_port_response): record services
+    format_samples                samples 10-15 (two_interfaces ... truncated_snaplen): formats, link types
     trace_samples                 fault_trace and crafted_strings (notebook, HTML report)
     pd_samples                    PROFIdrive: commissioning, negative responses, B5 and PNIO errors
     pd_range_samples              PROFIdrive: one injected range violation per transaction

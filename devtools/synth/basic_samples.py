@@ -1,4 +1,4 @@
-"""Samples 1-9 of sample_pcaps/README.md: PNIO record services over Ethernet, one builder each.
+"""Samples 1-9 (worked_example.pcap to other_port_response.pcap): PNIO record services over Ethernet.
 
 The worked example of protocol.md 9, record read/write with background traffic (both DREPs, and
 gzipped), VLAN tags, IP fragments, CL fragments with FACKs, an implicit read, a Write-Multiple, and

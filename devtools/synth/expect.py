@@ -13,7 +13,7 @@ The result is written to sample_pcaps/expected/<file>.json:
      "loose": [[frame, rule], ...]}
 
 "profiles" holds the frame-level rules of protocol.md 6.1-6.4 (rule names of
-pd_analyze/rules.py), per vendor profile; "transactions" the transaction
+pd_analyze/model/rules.py), per vendor profile; "transactions" the transaction
 model (7.3, 7.4, 7.6) for each PROFIdrive transaction, in the order of the
 write requests: first/last frame, reference, verdict, read calls, B5
 answers, duplicate request PDUs, the PNIOStatus that ended it (or DE80B500

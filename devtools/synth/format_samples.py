@@ -1,4 +1,4 @@
-"""Samples 10-15 of sample_pcaps/README.md: file formats, link types and RPC control PDUs.
+"""Samples 10-15 (two_interfaces.pcapng to truncated_snaplen.pcap): file formats, link types, RPC control PDUs.
 
 pcapng with two interfaces (and an SPB and an unknown block), a gzipped pcapng named .pcap, Linux
 SLL/SLL2 and raw IPv4 link types, a big-endian nanosecond pcap, the RPC control PDUs a decoder must
