@@ -1,6 +1,6 @@
 """Every sample against its expected findings (sample_pcaps/expected/<file>.json).
 
-The expectations are the generator's intent (pd_analyze/synth: each injected violation is declared
+The expectations are the generator's intent (devtools/synth: each injected violation is declared
 where it is injected; the older files' intent is their README description), never a copy of the
 analyser's output. Per file and profile the multiset of (frame, rule name) the analyser reports,
 frame results and loose findings together, must equal the expected one exactly.

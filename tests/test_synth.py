@@ -705,3 +705,13 @@ def test_generator_imports_nothing_from_the_analyser() -> None:
     for name in synth:
         used = {m for m in _imported(name, modules) if m.split(".")[0] == "pd_analyze"}
         assert not used, f"{name} imports {sorted(used)}"
+
+
+def test_no_devtools_module_shares_a_name_with_a_product_module() -> None:
+    """A test imports both the generator's encoders and the analyser's parsers; equal names would make one of
+    them need an alias (the generator once had link, rpc, pnio, profidrive and writers too)."""
+    product = {p.stem for p in (DEVTOOLS.parent / "pd_analyze").rglob("*.py")} - {"__init__", "__main__"}
+    product |= {p.name for p in (DEVTOOLS.parent / "pd_analyze").rglob("*") if p.is_dir() and p.name != "__pycache__"}
+    ours = {name.rpartition(".")[2] for name in _devtools_modules()} - {"__init__", "__main__", "devtools"}
+    assert {"link", "rpc", "writers", "capture"} <= product and "net_encode" in ours
+    assert not ours & product, sorted(ours & product)
