@@ -38,7 +38,8 @@ from pathlib import Path
 
 import pcapfiles  # beside this script, whose directory Python puts first on sys.path
 
-from devtools.synth.mixed import make_capture
+sys.path.insert(1, str(Path(__file__).resolve().parent.parent))  # the repository root: devtools/ is not installed
+from devtools.synth.mixed_capture import make_capture
 
 TSHARK_FIELDS = ("frame.number", "pn_io.profidrive.parameter.request_reference",
                  "pn_io.profidrive.parameter.request_id", "pn_io.profidrive.parameter.response_id",

@@ -43,10 +43,10 @@ _EPOCH = 1_767_225_600.0
 
 def _templates() -> dict[str, bytes]:
     """One frame per kind, from the sample generator (Ethernet, no VLAN: IPv4 at 14, RPC at 42)."""
-    from devtools.synth import link as slink
-    from devtools.synth import rpc as srpc
-    from devtools.synth.profidrive import ParamAddress, change_request, value_block
-    from devtools.synth.scenario import Capture, PnioSession, host
+    from devtools.synth import net_encode, rpc_encode
+    from devtools.synth.pd_encode import ParamAddress, change_request, value_block
+    from devtools.synth.pnio_session import PnioSession
+    from devtools.synth.sim_capture import Capture, host
 
     cap = Capture()
     ctrl, dev = host("02:00:00:00:01:01", "192.168.1.11"), host("02:00:00:00:02:01", "192.168.1.21")
@@ -56,14 +56,14 @@ def _templates() -> dict[str, bytes]:
     read_req, _, _ = s.read_stubs(0xB02E)
     big_req, _ = s.write_stubs(0x1000, bytes(4000))
     out = {}
-    s.send(s.pdu(srpc.REQUEST, write_req, seq=1, opnum=3, from_client=True), from_client=True)
+    s.send(s.pdu(rpc_encode.REQUEST, write_req, seq=1, opnum=3, from_client=True), from_client=True)
     out["write"] = cap.frames[-1].data
-    s.send(s.pdu(srpc.REQUEST, read_req, seq=2, opnum=2, from_client=True), from_client=True)
+    s.send(s.pdu(rpc_encode.REQUEST, read_req, seq=2, opnum=2, from_client=True), from_client=True)
     out["read"] = cap.frames[-1].data
-    first = s.pdus(srpc.REQUEST, big_req, seq=3, opnum=3, from_client=True)[0]  # Flags1 0x24: not the last
+    first = s.pdus(rpc_encode.REQUEST, big_req, seq=3, opnum=3, from_client=True)[0]  # Flags1 0x24: not the last
     s.send(first, from_client=True)
     out["cl"] = cap.frames[-1].data
-    payload = slink.udp(49152, 34964, bytes(2900), src_ip=ctrl.ip, dst_ip=dev.ip)
+    payload = net_encode.udp(49152, 34964, bytes(2900), src_ip=ctrl.ip, dst_ip=dev.ip)
     out["ip"] = cap.send_ip(ctrl, dev, payload)[0].data  # the first IP fragment: MF set, offset 0
     return out
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from devtools import fuzz
+from devtools.fuzz import campaign, corpus, harness, mutators
 from pd_analyze import capture
 from pd_analyze.output import dump
 from pd_analyze.protocol import profidrive, rpc
@@ -22,12 +22,12 @@ QUICK_SEED = 20_260_101
 
 
 @pytest.fixture(scope="module")
-def seeds() -> list[fuzz.Seed]:
-    return fuzz.load_seeds(fuzz.seed_paths())
+def seeds() -> list[corpus.Seed]:
+    return corpus.load_seeds(corpus.seed_paths())
 
 
-def test_every_capture_is_a_seed(seeds: list[fuzz.Seed]) -> None:
-    paths = fuzz.seed_paths()
+def test_every_capture_is_a_seed(seeds: list[corpus.Seed]) -> None:
+    paths = corpus.seed_paths()
     assert any(p.endswith("worked_example.pcap") for p in paths)
     assert {s.path for s in seeds} == {p for p in paths if list(capture.frames(p))}
     assert sum(1 for s in seeds for f in s.frames if f.rpc >= 0) > 100  # frames with a DCE/RPC header
@@ -35,32 +35,32 @@ def test_every_capture_is_a_seed(seeds: list[fuzz.Seed]) -> None:
 
 
 def test_quick_run_no_crash_no_hang_invariant_holds() -> None:
-    stats = fuzz.fuzz(QUICK_FRAMES, base_seed=QUICK_SEED, jobs=2)
-    text = fuzz.report_text(stats, QUICK_FRAMES, QUICK_SEED, 2)
+    stats = campaign.fuzz(QUICK_FRAMES, base_seed=QUICK_SEED, jobs=2)
+    text = campaign.report_text(stats, QUICK_FRAMES, QUICK_SEED, 2)
     assert stats.mutated >= QUICK_FRAMES, text
     assert stats.ok, text  # no crash, no hang, accounting and field bounds held, output inert
     assert stats.files > 500 and stats.file_frames > 10_000 and stats.transactions > 1000, text
 
 
-def test_cases_replay_exactly(seeds: list[fuzz.Seed]) -> None:
+def test_cases_replay_exactly(seeds: list[corpus.Seed]) -> None:
     for number in (0, 1, 4711):
-        a, b = fuzz.make_case(seeds, number, 3), fuzz.make_case(seeds, number, 3)
+        a, b = mutators.make_case(seeds, number, 3), mutators.make_case(seeds, number, 3)
         assert a.frames == b.frames and a.seed == b.seed
-    assert fuzz.make_case(seeds, 5, 3).frames != fuzz.make_case(seeds, 5, 4).frames
-    mutated = [fuzz.make_case(seeds, n, 3) for n in range(200)]
+    assert mutators.make_case(seeds, 5, 3).frames != mutators.make_case(seeds, 5, 4).frames
+    mutated = [mutators.make_case(seeds, n, 3) for n in range(200)]
     assert sum(c.mutated for c in mutated) > 0.8 * sum(len(c.frames) for c in mutated)
 
 
-def test_file_mutations_cover_lengths_and_truncation(seeds: list[fuzz.Seed]) -> None:
+def test_file_mutations_cover_lengths_and_truncation(seeds: list[corpus.Seed]) -> None:
     import random
 
     seed = next(s for s in seeds if s.name == "worked_example.pcap")
-    records = fuzz._records(seed.data)
+    records = mutators._records(seed.data)
     assert [r[0] for r in records][:2] == [24, 24 + 16 + len(seed.frames[0].raw.data)]
     outcomes = set()
     for n in range(300):
-        mutated = fuzz.mutate_file(random.Random(n), seed.data)
-        path = Path(fuzz._tmp_root() or "/tmp") / f"pd-fuzz-test-{n}.pcap"
+        mutated = mutators.mutate_file(random.Random(n), seed.data)
+        path = Path(harness._tmp_root() or "/tmp") / f"pd-fuzz-test-{n}.pcap"
         path.write_bytes(mutated)
         try:
             list(capture.frames(str(path)))
@@ -72,16 +72,16 @@ def test_file_mutations_cover_lengths_and_truncation(seeds: list[fuzz.Seed]) -> 
     assert "read" in outcomes and len(outcomes) >= 4, outcomes  # damaged in several distinct ways
 
 
-def test_a_crash_is_reported(seeds: list[fuzz.Seed], monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_crash_is_reported(seeds: list[corpus.Seed], monkeypatch: pytest.MonkeyPatch) -> None:
     def broken(*args: object, **kwargs: object) -> None:
         raise ValueError("planted bug")
 
     monkeypatch.setattr(profidrive, "parse_response", broken)
-    stats = fuzz.Runner(seeds, 1).run(0, 64)
+    stats = harness.Runner(seeds, 1).run(0, 64)
     assert stats.crashes and "ValueError: planted bug" in stats.crashes[0] and not stats.ok
 
 
-def test_a_hang_is_reported(seeds: list[fuzz.Seed], monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_hang_is_reported(seeds: list[corpus.Seed], monkeypatch: pytest.MonkeyPatch) -> None:
     real = rpc.header
 
     def slow(payload: bytes) -> rpc.Header:
@@ -90,20 +90,20 @@ def test_a_hang_is_reported(seeds: list[fuzz.Seed], monkeypatch: pytest.MonkeyPa
 
     monkeypatch.setattr(rpc, "header", slow)
     started = time.perf_counter()
-    stats = fuzz.Runner(seeds, 1, frame_limit=0.05).run(0, 3)
+    stats = harness.Runner(seeds, 1, frame_limit=0.05).run(0, 3)
     assert stats.hangs and "more than 0.05 s" in stats.hangs[0]
     assert time.perf_counter() - started < 10  # interrupted, not waited for
 
 
-def test_a_broken_invariant_is_reported(seeds: list[fuzz.Seed], monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_broken_invariant_is_reported(seeds: list[corpus.Seed], monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(Accounting, "balanced", lambda self: False)
-    stats = fuzz.Runner(seeds, 1).run(0, 8)
+    stats = harness.Runner(seeds, 1).run(0, 8)
     assert stats.violations and "accounting" in stats.violations[0]
 
 
-def test_raw_terminal_output_is_reported(seeds: list[fuzz.Seed], monkeypatch: pytest.MonkeyPatch) -> None:
+def test_raw_terminal_output_is_reported(seeds: list[corpus.Seed], monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(dump, "safe", lambda text: text)  # as if the dump forgot to escape
     crafted = [s for s in seeds if s.name == "crafted_strings.pcap"]
     assert crafted, "sample_pcaps/crafted_strings.pcap missing"
-    stats = fuzz.Runner(crafted, 1).run(0, 40)
+    stats = harness.Runner(crafted, 1).run(0, 40)
     assert any("text dump emits" in v for v in stats.violations)

@@ -24,9 +24,9 @@ import pandas as pd
 import pytest
 
 import pd_analyze
-from devtools.synth import samples
-from devtools.synth.profidrive import ParamAddress, error_block, pd_response, read_request, value_block
-from devtools.synth.scenario import Capture
+from devtools.synth import fixtures
+from devtools.synth.pd_encode import ParamAddress, error_block, pd_response, read_request, value_block
+from devtools.synth.sim_capture import Capture
 from pd_analyze.output import html_report
 
 REPO = Path(__file__).resolve().parents[1]
@@ -156,11 +156,11 @@ def test_250000_transactions_are_capped(big_report: tuple[Path, float]) -> None:
 def hostile_capture(path: Path) -> None:
     """A NAK whose VisibleString value tries to end the data script and start another."""
     cap = Capture()
-    s = samples.session(cap, 1)
+    s = fixtures.session(cap, 1)
     req = read_request(1, 1, [ParamAddress(975), ParamAddress(9999)])
     res = pd_response(1, 0x81, 1, [value_block(0x09, HOSTILE), error_block(0x00)])
     s.parameter_access(req, res)
-    path.write_bytes(samples.pcap_of(cap))
+    path.write_bytes(fixtures.pcap_of(cap))
 
 
 @pytest.fixture(scope="session")

@@ -5,7 +5,7 @@ import struct
 
 import pytest
 
-from devtools.synth.profidrive import (
+from devtools.synth.pd_encode import (
     ParamAddress,
     change_request,
     error_block,

@@ -15,7 +15,7 @@ import tempfile
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from devtools.fuzz import check_result
+from devtools.fuzz.harness import check_result
 from pd_analyze import capture
 from pd_analyze.analysis.transactions import TransactionEngine
 from pd_analyze.model.values import LINKTYPE_ETHERNET, LINKTYPE_RAW, LINKTYPE_SLL, LINKTYPE_SLL2

@@ -16,10 +16,11 @@ from pathlib import Path
 import pytest
 
 import pd_analyze
-from devtools import fuzz, hostile
-from devtools.synth import samples
-from devtools.synth.profidrive import ParamAddress, change_ok, change_request, value_block
-from devtools.synth.scenario import Capture
+from devtools import hostile
+from devtools.fuzz import corpus
+from devtools.synth import fixtures
+from devtools.synth.pd_encode import ParamAddress, change_ok, change_request, value_block
+from devtools.synth.sim_capture import Capture
 from pd_analyze import capture
 from pd_analyze.analysis import transactions
 from pd_analyze.analysis.rows import Rows
@@ -34,7 +35,7 @@ from pd_analyze.protocol.hold import MAX_HELD_FIELDS
 from tests.test_capture import FRAME_A, block, epb, idb, shb
 
 REPO = Path(__file__).resolve().parents[1]
-SEEDS = fuzz.seed_paths()
+SEEDS = corpus.seed_paths()
 
 
 # --- the accounting invariant on every capture ----------------------------------------------------------------
@@ -299,7 +300,7 @@ def test_transaction_engine_state_is_bounded() -> None:
 def test_long_b5_polling_is_linear_and_bounded() -> None:
     """Before: every frame of a transaction was checked against all its frames (quadratic), without limit."""
     cap = Capture()
-    s = samples.session(cap, 1, rtt_us=1, gap_us=1)
+    s = fixtures.session(cap, 1, rtt_us=1, gap_us=1)
     req = change_request(1, 1, [(ParamAddress(1120), value_block(0x08, [1.0]))])
     s.parameter_access(req, change_ok(1, 1, 1), b5_retries=6000)
     d, engine = Dissector(), TransactionEngine()
@@ -364,7 +365,7 @@ def test_hostile_command_line() -> None:
 
 def test_skipped_runs_give_the_same_results_and_accounting(tmp_path):
     """The reader's runs of non-IP frames (ip_only) change nothing but the speed."""
-    from devtools.synth.mixed import make_capture
+    from devtools.synth.mixed_capture import make_capture
     from pd_analyze.protocol.dissector import dissect_frames
 
     path = tmp_path / "mixed.pcap"

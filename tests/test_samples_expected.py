@@ -1,6 +1,6 @@
 """Every sample against its expected findings (sample_pcaps/expected/<file>.json).
 
-The expectations are the generator's intent (pd_analyze/synth: each injected violation is declared
+The expectations are the generator's intent (devtools/synth: each injected violation is declared
 where it is injected; the older files' intent is their README description), never a copy of the
 analyser's output. Per file and profile the multiset of (frame, rule name) the analyser reports,
 frame results and loose findings together, must equal the expected one exactly.
@@ -186,7 +186,7 @@ def test_transactions_exactly_as_intended(name: str) -> None:
 
 def test_date_seven_bytes_with_pad_is_not_taken_for_padded_dates() -> None:
     """pd_commissioning ref 3: a 7-byte Date list with odd count carries the 3.2 pad byte; 8 only when 7 fails."""
-    from devtools.synth.profidrive import date_value, pd_response, value_block
+    from devtools.synth.pd_encode import date_value, pd_response, value_block
     from pd_analyze.protocol import profidrive as pd
 
     day = date_value(2026, 1, 1, 12, 0, 0)
@@ -207,8 +207,8 @@ def test_date_seven_bytes_with_pad_is_not_taken_for_padded_dates() -> None:
 
 def test_plausible_index_47_both_directions() -> None:
     """pd_global_and_dpv1_index frames 22 and 28: positive responses over 0x002F are PROFIdrive too."""
-    from devtools.synth.profidrive import ParamAddress, change_ok, change_request, pd_response, read_request
-    from devtools.synth.profidrive import value_block as vb
+    from devtools.synth.pd_encode import ParamAddress, change_ok, change_request, pd_response, read_request
+    from devtools.synth.pd_encode import value_block as vb
     from pd_analyze.protocol import profidrive as pd
 
     read_res = pd_response(5, 0x01, 1, [vb(0x42, [0x1234])])

@@ -101,7 +101,7 @@ def test_dask_api_on_a_local_two_worker_cluster():
 
 
 def test_jobs_splits_one_large_capture_identically(tmp_path, monkeypatch):
-    from devtools.synth.mixed import make_capture
+    from devtools.synth.mixed_capture import make_capture
 
     path = tmp_path / "mixed.pcap"
     count = make_capture(path, 12_000, pnio_share=0.5)
@@ -131,11 +131,11 @@ def test_small_inputs_are_analysed_in_one_process(monkeypatch):
 def test_split_parts_stitch_value_before_from_reads_before_their_lead_in(tmp_path, monkeypatch):
     """A change in the second part whose parameter was last read long before (beyond the lead-in):
     the parent fills in value_before from the earlier part's reads, so the tables equal one process."""
-    from devtools.synth.profidrive import ParamAddress as P
-    from devtools.synth.profidrive import change_ok, change_request, pd_response, read_request, value_block
-    from devtools.synth.samples import session
-    from devtools.synth.scenario import Capture
-    from devtools.synth.writers import pcap_bytes
+    from devtools.synth.capture_files import pcap_bytes
+    from devtools.synth.fixtures import session
+    from devtools.synth.pd_encode import ParamAddress as P
+    from devtools.synth.pd_encode import change_ok, change_request, pd_response, read_request, value_block
+    from devtools.synth.sim_capture import Capture
 
     cap = Capture()
     s = session(cap, 1)
@@ -154,11 +154,11 @@ def test_split_parts_stitch_value_before_from_reads_before_their_lead_in(tmp_pat
 def test_split_parts_stitch_reference_reuse_across_the_split(tmp_path, monkeypatch):
     """T1 on the first write of a channel in the second part: its last transaction lies in the lead-in
     (numbered by the first part) or before it (the channel idle longer); both as in one process."""
-    from devtools.synth.profidrive import ParamAddress as P
-    from devtools.synth.profidrive import pd_response, read_request, value_block
-    from devtools.synth.samples import session
-    from devtools.synth.scenario import Capture
-    from devtools.synth.writers import pcap_bytes
+    from devtools.synth.capture_files import pcap_bytes
+    from devtools.synth.fixtures import session
+    from devtools.synth.pd_encode import ParamAddress as P
+    from devtools.synth.pd_encode import pd_response, read_request, value_block
+    from devtools.synth.sim_capture import Capture
 
     cap = Capture()
     busy, idle = session(cap, 1), session(cap, 2)
@@ -194,7 +194,7 @@ def test_split_parts_read_about_as_much_with_their_lead_in():
 def test_long_captures_split_into_parts_of_bounded_length(tmp_path, monkeypatch):
     """More parts than workers once a capture is longer than PART_LEAD_INS lead-ins: each worker's rows
     stay bounded by a part's length, and the tables still equal one process."""
-    from devtools.synth.mixed import make_capture
+    from devtools.synth.mixed_capture import make_capture
     from pd_analyze.analysis import pipeline
     from pd_analyze.analysis import split as analysis
 

@@ -174,7 +174,7 @@ def test_audit_streams_findings_by_capture_and_frame(samples):
 def test_rows_held_stay_bounded_while_a_long_capture_streams(tmp_path):
     """Not timed: with 64 rows per table allowed in memory, a capture of thousands of transactions is
     written with never more than a small multiple of 64 rows held, and the files are still exact."""
-    from devtools.synth.mixed import make_capture
+    from devtools.synth.mixed_capture import make_capture
 
     path = tmp_path / "mixed.pcap"
     make_capture(path, 40_000, pnio_share=0.5)

@@ -73,18 +73,18 @@ def test_retransmissions_of_an_unanswered_call_count_in_a_timeout(tmp_path):
     """protocol.md 7.6: rpc_retransmissions counts the duplicate request PDUs of the transaction, also of a call
     that is never answered (the CL-RPC client re-sends it before the transaction times out). The engine
     used to add a call's copies only when its response arrived, so this timeout reported 0."""
-    from devtools.synth import pnio, samples
-    from devtools.synth.profidrive import ParamAddress, read_request
-    from devtools.synth.scenario import Capture
+    from devtools.synth import fixtures, pnio_encode
+    from devtools.synth.pd_encode import ParamAddress, read_request
+    from devtools.synth.sim_capture import Capture
 
     cap = Capture()
-    s = samples.session(cap, 1)
+    s = fixtures.session(cap, 1)
     s.parameter_access(read_request(1, 1, [ParamAddress(964)]), None, b5_retries=1)
     s.read(0xB02E, respond=False, retransmit_after_us=[1_000_000, 2_000_000])  # sent three times, never answered
     s.write(0xB02E, read_request(2, 1, [ParamAddress(964)]), retransmit_after_us=[20_000])  # answered after a copy
-    s.read(0xB02E, status=pnio.STATUS_B5, retransmit_after_us=[20_000])
+    s.read(0xB02E, status=pnio_encode.STATUS_B5, retransmit_after_us=[20_000])
     path = tmp_path / "unanswered_retransmitted.pcap"
-    path.write_bytes(samples.pcap_of(cap))
+    path.write_bytes(fixtures.pcap_of(cap))
     t = pd_analyze.analyze(str(path)).transactions
     assert t.verdict.tolist() == ["timeout", "timeout"]  # the first superseded by the second write
     assert t.closed_by.astype(str).tolist() == ["superseded", "capture_end"]

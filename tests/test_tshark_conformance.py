@@ -1085,10 +1085,10 @@ def test_pd_views_compare_exact_values(tshark: None, conformance_cache: dict[str
 def _synthetic_bugs() -> tuple[bytes, dict[int, str]]:
     """A capture with the 8.3 bugs the sample captures do not show (#4, #6, #7, #11), built with
     devtools.synth, and the frame each rule must explain."""
-    from devtools.synth.profidrive import ParamAddress as P
-    from devtools.synth.profidrive import change_request, error_block, pd_response, read_request, value_block
-    from devtools.synth.samples import pcap_of, session
-    from devtools.synth.scenario import Capture
+    from devtools.synth.fixtures import pcap_of, session
+    from devtools.synth.pd_encode import ParamAddress as P
+    from devtools.synth.pd_encode import change_request, error_block, pd_response, read_request, value_block
+    from devtools.synth.sim_capture import Capture
 
     cap = Capture()
     s = session(cap, 1)

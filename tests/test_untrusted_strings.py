@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from devtools.synth import samples
+from devtools.synth import trace_samples
 from pd_analyze.protocol import profiles
 
 REPO = Path(__file__).resolve().parents[1]
@@ -43,7 +43,7 @@ def run(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_the_sample_is_generated_and_carries_every_string() -> None:
-    data = samples.crafted_strings()
+    data = trace_samples.crafted_strings()
     assert CRAFTED.read_bytes() == data
     raw = data.decode("latin-1")
     for text in MARKUP + CONTROL[:5] + FORMULAS:

@@ -1,11 +1,27 @@
 """Deterministic generator of sample PROFINET IO / PROFIdrive captures.
 
-Layers: link/rpc/pnio/profidrive (pure encoders, re-exported by encode),
-writers (pcap, pcapng, gzip), scenario (clock, hosts, PNIO sessions),
-samples (the files in sample_pcaps/). `python -m devtools.synth [OUTDIR]`
-regenerates every sample byte for byte.
-"""
+`python -m devtools.synth [OUTDIR]` regenerates every file of sample_pcaps/ and
+sample_pcaps/expected/ byte for byte. Nothing here imports the analyser (pd_analyze).
+The imports flow one way, each module from those above it:
 
-# The PROFIdrive samples (pd_*.pcap) register themselves in samples.SAMPLES on import.
-from . import pd_samples as pd_samples
-from . import txn_samples as txn_samples
+    net_encode, rpc_encode,       pure encoders: Ethernet/VLAN/SLL/IPv4/UDP, CL DCE/RPC,
+    pnio_encode, pd_encode        PNIO records, PROFIdrive parameter records
+    encode                        one import point re-exporting every encoder
+    capture_files                 frames into pcap, pcapng, gzip bytes
+    sim_capture                   clock, hosts, link media, the capture being built
+    rpc_session                   CL-RPC calls between a controller and a device
+    pnio_session                  PNIO record services and PROFIdrive parameter access over those calls
+    expect                        Intent: what a capture is built to contain, rendered to JSON
+    fixtures                      shared hosts, sessions, background traffic, standard exchanges
+    catalog                       the registries: SAMPLES, INTENTS, STATIC_EXPECTED, EXPECTED
+    basic_samples                 samples 1-9 (worked_example ... other_port_response): record services
+    format_samples                samples 10-15 (two_interfaces ... truncated_snaplen): formats, link types
+    trace_samples                 fault_trace and crafted_strings (notebook, HTML report)
+    pd_samples                    PROFIdrive: commissioning, negative responses, B5 and PNIO errors
+    pd_range_samples              PROFIdrive: one injected range violation per transaction
+    pd_vendor_samples             PROFIdrive: global/DPV1 index, AKD-like and Yaskawa-like drives
+    txn_samples                   transactions: interleaved channels, retries and duplicates, timeouts
+    build                         imports every sample module; build_all(), build_expected()
+    __main__                      the command line
+    mixed_capture                 a large mixed capture for benchmarks and scale tests
+"""

@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from .samples import build_all, build_expected
+from .build import build_all, build_expected
 
 
 def main(argv: list[str]) -> int:

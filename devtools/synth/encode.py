@@ -2,13 +2,14 @@
 
     from devtools.synth.encode import ethernet, ipv4, udp, rpc_pdu, ...
 
-The functions live in link.py, rpc.py, pnio.py and profidrive.py; this
-module only re-exports them so callers need not know the split.
+The functions live in net_encode.py, rpc_encode.py, pnio_encode.py and
+pd_encode.py; this module only re-exports them so callers need not know
+the split.
 """
 
 from __future__ import annotations
 
-from .link import (
+from .net_encode import (
     ETH_ARP,
     ETH_IPV4,
     ETH_PNRT,
@@ -31,7 +32,19 @@ from .link import (
     sll2,
     udp,
 )
-from .pnio import (
+from .pd_encode import (
+    ParamAddress,
+    change_ok,
+    change_request,
+    encode_values,
+    error_block,
+    pd_request,
+    pd_response,
+    read_request,
+    value_block,
+    zero_block,
+)
+from .pnio_encode import (
     API_PROFIDRIVE,
     INDEX_WRITE_MULTIPLE,
     READ_REQ,
@@ -59,19 +72,7 @@ from .pnio import (
     write_multiple_req,
     write_multiple_res,
 )
-from .profidrive import (
-    ParamAddress,
-    change_ok,
-    change_request,
-    encode_values,
-    error_block,
-    pd_request,
-    pd_response,
-    read_request,
-    value_block,
-    zero_block,
-)
-from .rpc import (
+from .rpc_encode import (
     DREP_BE,
     DREP_LE,
     EPM_IF,

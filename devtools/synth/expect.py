@@ -13,7 +13,7 @@ The result is written to sample_pcaps/expected/<file>.json:
      "loose": [[frame, rule], ...]}
 
 "profiles" holds the frame-level rules of protocol.md 6.1-6.4 (rule names of
-pd_analyze/rules.py), per vendor profile; "transactions" the transaction
+pd_analyze/model/rules.py), per vendor profile; "transactions" the transaction
 model (7.3, 7.4, 7.6) for each PROFIdrive transaction, in the order of the
 write requests: first/last frame, reference, verdict, read calls, B5
 answers, duplicate request PDUs, the PNIOStatus that ended it (or DE80B500
@@ -33,9 +33,10 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from .pnio import STATUS_B5, STATUS_OK
-from .scenario import Call, Capture
-from .writers import Frame
+from .capture_files import Frame
+from .pnio_encode import STATUS_B5, STATUS_OK
+from .rpc_session import Call
+from .sim_capture import Capture
 
 GENERIC = "generic"
 B5_TEXT = STATUS_B5.hex().upper()

@@ -17,18 +17,16 @@ from __future__ import annotations
 
 from typing import Any
 
-from . import pnio
+from . import pnio_encode
+from .capture_files import Frame
+from .catalog import Built, pd_sample
 from .expect import Intent
-from .pd_samples import Built, pd_sample
-from .profidrive import ParamAddress as P
-from .profidrive import change_ok, change_request, error_block, pd_response, read_request, value_block
-from .samples import fixed_uuid, plant
-from .scenario import EPOCH_NS, Call, Capture, Clock, Host, PnioSession
-from .writers import Frame
-
-DF_B1 = pnio.pnio_status(0xDF, 0x80, 0xB1, 0x00)  # write: write length error (buffer too small)
-DF_B5 = pnio.pnio_status(0xDF, 0x80, 0xB5, 0x00)  # write: state conflict (the channel is busy)
-DE_B2 = pnio.pnio_status(0xDE, 0x80, 0xB2, 0x00)  # read: invalid slot/subslot
+from .fixtures import DE_B2, DF_B1, DF_B5, fixed_uuid, plant
+from .pd_encode import ParamAddress as P
+from .pd_encode import change_ok, change_request, error_block, pd_response, read_request, value_block
+from .pnio_session import PnioSession
+from .rpc_session import Call
+from .sim_capture import EPOCH_NS, Capture, Clock, Host
 
 MS = 1_000_000  # ns
 
@@ -205,7 +203,7 @@ def pd_retries_and_duplicates_capture() -> Built:
 
     # --- session 2 (.12 -> .22): read without request (T2), fallback pairing (T6) ---
     s = sess(2)
-    c = s.read(0xB02E, status=pnio.STATUS_B5)  # nothing written on this AR: the idle drive answers B5
+    c = s.read(0xB02E, status=pnio_encode.STATUS_B5)  # nothing written on this AR: the idle drive answers B5
     x.loose(c.request[0], "read_without_request")
     calls = s.parameter_access(read_request(1, 1, [P(964)]), _word(1), b5_retries=1, read_kw={"slot": 2})
     x.txn(

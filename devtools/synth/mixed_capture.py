@@ -10,11 +10,12 @@ import random
 import struct
 from pathlib import Path
 
-from . import link
-from .profidrive import ParamAddress as P
-from .profidrive import change_ok, change_request, error_block, pd_response, read_request, value_block
-from .samples import pn_rt, session
-from .scenario import Capture, PnioSession
+from . import net_encode
+from .fixtures import pn_rt, session
+from .pd_encode import ParamAddress as P
+from .pd_encode import change_ok, change_request, error_block, pd_response, read_request, value_block
+from .pnio_session import PnioSession
+from .sim_capture import Capture
 
 
 def make_capture(path: Path, frames: int, seed: int = 1, pnio_share: float = 0.1) -> int:
@@ -42,7 +43,7 @@ def make_capture(path: Path, frames: int, seed: int = 1, pnio_share: float = 0.1
                 src, dst = (other.device, other.controller) if k & 1 else (other.controller, other.device)
                 pn_rt(cap, src, dst, (written + k) & 0xFFFF)
             if rng.random() < 0.1:
-                cap.send_ip(s.controller, s.device, link.udp(50010, 50020, bytes(64)))
+                cap.send_ip(s.controller, s.device, net_encode.udp(50010, 50020, bytes(64)))
             for f in cap.frames:
                 sec, ns = divmod(f.ts_ns, 1_000_000_000)
                 out.write(struct.pack("<IIII", sec, ns // 1000, len(f.data), len(f.data)) + f.data)

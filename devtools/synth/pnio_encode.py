@@ -12,7 +12,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from .rpc import UuidLike, as_uuid, u32
+from .rpc_encode import UuidLike, as_uuid, u32
 
 # Block types (2.6)
 WRITE_REQ: Final = 0x0008
