@@ -22,7 +22,7 @@ from devtools.synth import fixtures
 from devtools.synth.pd_encode import ParamAddress, change_ok, change_request, value_block
 from devtools.synth.sim_capture import Capture
 from pd_analyze import capture
-from pd_analyze.analysis import transactions
+from pd_analyze.analysis import transaction
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.schema import frame_of
 from pd_analyze.analysis.transactions import TransactionEngine
@@ -294,7 +294,7 @@ def test_transaction_engine_state_is_bounded() -> None:
     pending = {t.txn for t in engine._pending.values()}
     referenced = {t.txn for c in engine._calls.values() for t in c.txns if t is not None}
     assert referenced <= pending  # no closed transaction is kept alive by its calls
-    assert all(isinstance(v, transactions.LastDone) for v in engine._last_done.values())
+    assert all(isinstance(v, transaction.LastDone) for v in engine._last_done.values())
 
 
 def test_long_b5_polling_is_linear_and_bounded() -> None:
@@ -305,7 +305,7 @@ def test_long_b5_polling_is_linear_and_bounded() -> None:
     s.parameter_access(req, change_ok(1, 1, 1), b5_retries=6000)
     d, engine = Dissector(), TransactionEngine()
     started = time.perf_counter()
-    closed: list[transactions.Transaction] = []
+    closed: list[transaction.Transaction] = []
     for number, f in enumerate(cap.frames, 1):
         for res in d.feed(capture.RawFrame(number, f.ts_ns / 1e9, 1, f.data)):
             closed += engine.feed(res)

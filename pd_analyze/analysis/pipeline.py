@@ -15,7 +15,8 @@ from dataclasses import dataclass
 
 from pd_analyze import capture
 from pd_analyze.analysis.rows import Rows
-from pd_analyze.analysis.transactions import DEFAULT_TXN_TIMEOUT, Transaction, TransactionEngine, iter_closed
+from pd_analyze.analysis.transaction import Transaction
+from pd_analyze.analysis.transactions import DEFAULT_TXN_TIMEOUT, TransactionEngine, iter_closed
 from pd_analyze.capture import CaptureError
 from pd_analyze.protocol import profiles
 from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT, Dissector, dissect_frames

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from pd_analyze.analysis.schema import ChangeRow, FindingRow, ParameterRow, TransactionRow
-from pd_analyze.analysis.transactions import Transaction, param_label
+from pd_analyze.analysis.transaction import Transaction, param_label
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.verdicts import ANSWERED

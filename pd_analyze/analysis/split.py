@@ -22,7 +22,8 @@ from itertools import chain
 from pd_analyze import capture
 from pd_analyze.analysis.pipeline import CaptureResult, Settings, difference, run_frames, snapshot
 from pd_analyze.analysis.rows import ElementKey, Rows, finding_row
-from pd_analyze.analysis.transactions import LastDone, Transaction, TransactionEngine, reuse_finding
+from pd_analyze.analysis.transaction import LastDone, Transaction, reuse_finding
+from pd_analyze.analysis.transactions import TransactionEngine
 from pd_analyze.protocol.frames import Accounting
 
 LEAD_IN = 20.0  # seconds of capture time a split part replays before its range (> txn + rpc timeouts)

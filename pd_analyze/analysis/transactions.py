@@ -8,9 +8,16 @@ State is kept only for open channels and open RPC calls; a closed transaction is
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass, field
-from typing import NamedTuple
+from dataclasses import dataclass
 
+from pd_analyze.analysis.transaction import (
+    UNANSWERED_ENDS,
+    Channel,
+    LastDone,
+    Transaction,
+    reuse_finding,
+    verdict_of,
+)
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.capped import CHANNEL_HISTORY, PENDING_TRANSACTIONS, TXN_CALLS, TXN_FRAMES, CappedTable
 from pd_analyze.model.rules import Finding, finding
@@ -25,7 +32,6 @@ from pd_analyze.model.values import (
     PTYPE_RESPONSE,
     RECORD_SERVICES,
 )
-from pd_analyze.model.verdicts import ANSWERED, FAILED_UNANSWERED, PRECEDENCE
 from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol.frames import FrameResult, Pdu
 from pd_analyze.protocol.pnio import Status
@@ -34,91 +40,6 @@ from pd_analyze.protocol.profidrive import Parsed, footprint
 DEFAULT_TXN_TIMEOUT = 10.0
 DEFAULT_B5_THRESHOLD = 50
 FRAME_COST = 1024  # bytes a transaction keeps per frame (frame lists, its RPC calls)
-
-# How a transaction that got no final answer ended (its verdict is then timeout, protocol.md 7.4).
-UNANSWERED_ENDS = frozenset({"deadline", "superseded", "capture_end", "evicted"})
-
-Channel = tuple  # device, controller, AR, API, slot, subslot, index (protocol.md 7.2)
-
-
-@dataclass(slots=True)
-class Transaction:
-    """One parameter access: the write of a request, its reads, and how it ended."""
-
-    txn: int
-    channel: Channel
-    request: Parsed | None
-    write_req_frame: int
-    t_start: float
-    ref: int = -1
-    req_id: int = -1
-    do: int = -1
-    n_params: int = -1
-    response: Parsed | None = None
-    write_res_frame: int = 0
-    t_write_res: float | None = None
-    read_req_frames: list[int] = field(default_factory=list)
-    t_read_reqs: list[float] = field(default_factory=list)
-    read_res_frame: int = 0
-    t_read_res: float | None = None
-    b5_retries: int = 0
-    last_b5_res: float | None = None
-    rpc_retransmissions: int = 0
-    rpc_calls: list = field(default_factory=list)  # the RPC calls of its requests: their copies are its retransmissions
-    pnio_status: str = ""
-    malformed: bool = False
-    mismatch: bool = False
-    closed_by: str = ""  # "response", "pnio_error", "deadline", "superseded", "capture_end"
-    capture_ended: bool = False
-    fallback: bool = False
-    frames: list[int] = field(default_factory=list)
-    findings: list[Finding] = field(default_factory=list)
-    verdict: str = ""
-
-    @property
-    def device(self) -> bytes:
-        return self.channel[0]
-
-    @property
-    def controller(self) -> bytes:
-        return self.channel[1]
-
-    def figures(self) -> dict[str, float | None]:
-        """Timing figures of protocol.md 7.6 (seconds; None where the capture has no such frame)."""
-        res = self.t_write_res
-        final_req = self.t_read_reqs[-1] if self.t_read_reqs else None
-        done = self.t_read_res if self.closed_by == "response" else None
-        return {
-            "t_write_rtt": None if res is None else res - self.t_start,
-            "t_total": None if done is None else done - self.t_start,
-            "t_final_read_rtt": None if done is None or final_req is None else done - final_req,
-            "t_first_read_gap": None if res is None or not self.t_read_reqs else self.t_read_reqs[0] - res,
-            "t_ready_after": None if res is None or done is None else (
-                0.0 if self.last_b5_res is None else self.last_b5_res - res),
-            "t_ready_by": None if res is None or done is None or final_req is None else final_req - res,
-        }
-
-
-class LastDone(NamedTuple):
-    """What T1/T4 need of the last closed transaction of a channel."""
-
-    frame: int  # its write request frame: messages name a transaction by it, the same in every split part
-    ref: int
-    verdict: str
-
-
-def reuse_finding(last: LastDone, ref: int, frame: int) -> Finding | None:
-    """T1: a write with the Request Reference of the channel's last transaction (a retry after a failure)."""
-    if last.ref != ref:
-        return None
-    if last.verdict in ANSWERED:
-        return finding("reference_reused", frame, "pd.ref", ref, f"a reference other than {last.ref}",
-                       f"Request Reference {ref} reused from the transaction of frame {last.frame}")
-    if last.verdict in FAILED_UNANSWERED:
-        return finding("retry", frame, "pd.ref", ref, "",
-                       f"retry of the transaction of frame {last.frame} ({last.verdict}) with the same reference")
-    return None
-
 
 def _cost(txn: Transaction) -> int:
     """Bytes a pending transaction keeps alive beyond its frames: the parsed request, findings."""
@@ -397,7 +318,7 @@ class TransactionEngine:
                 del self._by_ar[channel[:3]]
             self._forget_calls(txn)
         txn.closed_by = why
-        txn.verdict = _verdict(txn)
+        txn.verdict = verdict_of(txn)
         # copies seen so far, of answered and unanswered calls alike (protocol.md 7.6)
         txn.rpc_retransmissions = sum(c.copies for c in txn.rpc_calls if c is not None)
         if why in UNANSWERED_ENDS and not txn.pnio_status and txn.b5_retries:
@@ -419,19 +340,6 @@ class TransactionEngine:
         self._calls.make_room(frame)  # the oldest are forgotten
 
 
-def _verdict(txn: Transaction) -> str:
-    """protocol.md 7.4: the first verdict, in PRECEDENCE order, whose condition holds."""
-    holds = {
-        "malformed": txn.malformed,
-        "pnio_error": txn.closed_by == "pnio_error",
-        "timeout": txn.closed_by in UNANSWERED_ENDS,
-        "reference_mismatch": txn.mismatch,
-        "nak": txn.response is not None and bool(txn.response.ident & 0x80),
-        "ok": True,
-    }
-    return next(verdict for verdict in PRECEDENCE if holds[verdict])
-
-
 def _write_statuses(pdu: Pdu, count: int) -> list[Status | None]:
     """The status per PROFIdrive write of the call: the inner block status in a Write-Multiple."""
     stub = pdu.stub
@@ -445,13 +353,6 @@ def _write_statuses(pdu: Pdu, count: int) -> list[Status | None]:
     status = stub.status if stub.status is not None and not stub.status.ok else (
         stub.blocks[0].status if stub.blocks else stub.status)
     return [status] * count
-
-
-def param_label(txn: Transaction) -> str:
-    """P964[0] P2000[0..2]: the parameters of a transaction."""
-    if txn.request is None:
-        return ""
-    return " ".join(a.label() for a in txn.request.addresses)
 
 
 def iter_closed(engine: TransactionEngine, results: Iterator[FrameResult], last: list[float]) -> Iterator[Transaction]:
