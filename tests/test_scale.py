@@ -21,10 +21,11 @@ def assert_same_tables(one: pd_analyze.Analysis, two: pd_analyze.Analysis) -> No
 def split_and_whole(path: Path, monkeypatch: pytest.MonkeyPatch, jobs: int) -> tuple:
     """One process, and `jobs` processes over parts with a 0.5 s lead-in (short timeouts to match):
     the parts really start mid-stream with calls and channels open. Their tables must be equal."""
-    from pd_analyze.analysis import pipeline, split
+    from pd_analyze.analysis import jobs as job_ways
+    from pd_analyze.analysis import split
 
     monkeypatch.setattr(split, "LEAD_IN", 0.5)
-    monkeypatch.setattr(pipeline, "PARALLEL_MIN_BYTES", 0)
+    monkeypatch.setattr(job_ways, "PARALLEL_MIN_BYTES", 0)
     one = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2)
     two = pd_analyze.analyze(str(path), timeout=0.3, rpc_timeout=0.2, jobs=jobs)
     assert_same_tables(one, two)
@@ -44,9 +45,9 @@ def split_pcap(src: Path, cut: int, a: Path, b: Path) -> None:
 
 
 def test_jobs_gives_identical_tables(monkeypatch):
-    from pd_analyze.analysis import pipeline
+    from pd_analyze.analysis import jobs as job_ways
 
-    monkeypatch.setattr(pipeline, "PARALLEL_MIN_BYTES", 0)  # the samples are small: force the processes
+    monkeypatch.setattr(job_ways, "PARALLEL_MIN_BYTES", 0)  # the samples are small: force the processes
     files = sorted(str(p) for p in SAMPLES.glob("*.pcap*"))[:8]
     one = pd_analyze.analyze(files)
     two = pd_analyze.analyze(files, jobs=2)
@@ -115,7 +116,7 @@ def test_small_inputs_are_analysed_in_one_process(monkeypatch):
     """Process start-up would cost more than a few small captures take: --jobs runs them in-process."""
     import concurrent.futures
 
-    from pd_analyze.analysis import pipeline as analysis
+    from pd_analyze.analysis import jobs as analysis
 
     def no_pool(*args, **kwargs):
         raise AssertionError("a process pool was started")
@@ -195,14 +196,14 @@ def test_long_captures_split_into_parts_of_bounded_length(tmp_path, monkeypatch)
     """More parts than workers once a capture is longer than PART_LEAD_INS lead-ins: each worker's rows
     stay bounded by a part's length, and the tables still equal one process."""
     from devtools.synth.mixed_capture import make_capture
-    from pd_analyze.analysis import pipeline
+    from pd_analyze.analysis import jobs as job_ways
     from pd_analyze.analysis import split as analysis
 
     path = tmp_path / "long.pcap"
     make_capture(path, 12_000, pnio_share=0.5)
     monkeypatch.setattr(analysis, "LEAD_IN", 0.05)
     monkeypatch.setattr(analysis, "PART_LEAD_INS", 4)
-    monkeypatch.setattr(pipeline, "PARALLEL_MIN_BYTES", 0)
+    monkeypatch.setattr(job_ways, "PARALLEL_MIN_BYTES", 0)
     tasks = []
     real = analysis._analyze_range
     monkeypatch.setattr(analysis, "_analyze_range", lambda task: (tasks.append(task), real(task))[1])

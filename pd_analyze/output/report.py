@@ -106,7 +106,7 @@ def stream(files: list[str], out_dir: str, fmt: str, settings: Settings,
            chunk_rows: int = CHUNK_ROWS) -> Streamed:
     """The report of `files` written to `out_dir` as csv / json / parquet without holding the tables:
     the files equal `write_tables(analyze(files))`, and the summary equals `summary(analyze(files))`."""
-    from pd_analyze.analysis.pipeline import run
+    from pd_analyze.analysis.jobs import run
 
     os.makedirs(out_dir, exist_ok=True)
     spill = tempfile.mkdtemp(prefix=".pd-analyze-", dir=out_dir)  # beside the output: room for big files
@@ -151,7 +151,7 @@ def stream_findings(files: list[str], settings: Settings, jobs: int = 1, chain: 
     """Findings of `files` sorted by capture and frame (ties as found), streamed: for `audit`.
 
     The rows are read lazily; the spill files go once the iterator is exhausted or closed."""
-    from pd_analyze.analysis.pipeline import run
+    from pd_analyze.analysis.jobs import run
 
     spool = Spool(sort_key("findings", by_capture=True), chunk_rows)
     sink = _FindingsOnly(findings=spool)  # type: ignore[arg-type]

@@ -8,6 +8,10 @@ bounded in time (rpc_timeout of capture time) and count. Without annotation (rep
 field objects are built and nothing is held.
 """
 
+# Longer than 450 lines: the frame loop reads one frame through every layer in order (link, RPC, NDR,
+# IOD, record); the layers' parsing, checks and views live in their own modules, what stays is that one
+# reading and the state it keeps per capture.
+
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator

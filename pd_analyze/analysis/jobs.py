@@ -1,0 +1,62 @@
+"""Which way a set of captures goes: one process, files in parallel processes, one large file split
+(`analysis.split`), or a chain of files read as one capture.
+
+`run` is the one way in for `analyze()` and the streamed report alike (lists or spools as `Rows`), so
+their tables cannot differ.
+"""
+
+from __future__ import annotations
+
+import os
+
+from pd_analyze.analysis.pipeline import CaptureResult, Progress, Settings, analyze_chain, analyze_file
+from pd_analyze.analysis.rows import Rows
+from pd_analyze.analysis.split import analyze_split
+
+PARALLEL_MIN_BYTES = 8 * 1024 * 1024  # captures smaller than this in all are analysed in one process
+
+
+def run(files: list[str], rows: Rows, settings: Settings, progress: Progress | None = None, jobs: int = 1,
+        chain: bool = False) -> list[CaptureResult]:
+    """The pipeline over capture files, every row handed to `rows` (lists for `analyze()`, spools for
+    the streaming report).
+
+    One process streams frame by frame; the parallel paths (`jobs` > 1) get each file's or part's rows
+    from the workers and hand them on in order."""
+    if chain:
+        return analyze_chain(files, settings, progress, rows)
+    if jobs > 1 and ("-" in files or _input_bytes(files) < PARALLEL_MIN_BYTES):
+        jobs = 1  # standard input is one stream; for small files, process start-up and shipping the rows
+        # back would cost more than the files take
+    if jobs > 1 and len(files) == 1:
+        split = analyze_split(files[0], settings, jobs, rows)
+        if split is not None:
+            return [split]
+    results: list[CaptureResult] = []
+    if jobs > 1 and len(files) > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=min(jobs, len(files))) as pool:
+            # merged in file order as results arrive: numbering does not depend on scheduling
+            for part_rows, result in pool.map(analyze_file, files, [settings] * len(files)):
+                rows.extend(part_rows, sum(r.transactions for r in results))
+                results.append(result)
+        return results
+    for path in files:
+        rows.new_capture()
+        _, result = analyze_file(path, settings, progress, rows, sum(r.transactions for r in results))
+        results.append(result)
+    return results
+
+
+def _input_bytes(files: list[str]) -> int:
+    """Capture bytes to analyse (a gzip file counted as its typical decompressed size)."""
+    total = 0
+    for path in files:
+        try:
+            total += os.path.getsize(path) * (5 if path.endswith(".gz") else 1)
+        except OSError:
+            total += PARALLEL_MIN_BYTES  # unreadable: its error is reported where it is read
+    return total
+
+

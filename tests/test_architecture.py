@@ -1,0 +1,147 @@
+"""The house: layers importing one way, no circles, small modules, one home per fact, a wheel of the
+product only. Read from the source with `ast`, deferred imports included."""
+
+from __future__ import annotations
+
+import ast
+import re
+import subprocess
+import sys
+import tokenize
+import zipfile
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGE = REPO / "pd_analyze"
+LAYERS = ("model", "capture", "protocol", "analysis", "output", "cli")  # each imports only those before it
+MAX_LINES = 450
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = path.relative_to(REPO).with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        out[name] = path
+    return out
+
+
+MODULES = _modules()
+
+
+def _imports(name: str, path: Path) -> set[str]:
+    """Modules of the project `name` imports anywhere in its file (top level or inside functions)."""
+    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")[:len(package.split(".")) - node.level + 1]
+                base = ".".join([*parts, base] if base else parts)
+            for alias in node.names:
+                full = f"{base}.{alias.name}"
+                found.add(full if full in MODULES else base)
+    return found
+
+
+GRAPH = {name: _imports(name, path) for name, path in MODULES.items()}
+
+
+def _layer(name: str) -> int | None:
+    parts = name.split(".")
+    return LAYERS.index(parts[1]) if len(parts) > 1 and parts[1] in LAYERS else None
+
+
+def test_imports_flow_down_the_layers() -> None:
+    upward = [(name, dep) for name, deps in GRAPH.items() for dep in deps
+              if _layer(name) is not None and _layer(dep) is not None and _layer(dep) > _layer(name)]
+    assert upward == []
+
+
+def test_no_import_circle_deferred_imports_included() -> None:
+    done: set[str] = set()
+    cycles = []
+
+    def visit(name: str, stack: list[str]) -> None:
+        stack.append(name)
+        for dep in sorted(GRAPH[name] & set(MODULES)):
+            if dep in stack:
+                cycles.append([*stack[stack.index(dep):], dep])
+            elif dep not in done:
+                visit(dep, stack)
+        stack.pop()
+        done.add(name)
+
+    for name in MODULES:
+        if name not in done:
+            visit(name, [])
+    assert cycles == []
+
+
+def test_the_product_never_imports_the_development_tools() -> None:
+    assert [name for name, deps in GRAPH.items() if any(d.split(".")[0] in ("devtools", "tests") for d in deps)] == []
+
+
+def test_modules_are_small_or_say_why() -> None:
+    """A module past MAX_LINES names why in a comment among its first lines ('# Longer than ...')."""
+    big = []
+    for name, path in MODULES.items():
+        lines = path.read_text().splitlines()
+        if len(lines) > MAX_LINES and not any(line.startswith("# Longer than") for line in lines[:30]):
+            big.append((name, len(lines)))
+    assert big == []
+
+
+def _decimal_numbers(path: Path) -> set[str]:
+    """Decimal integer literals of a module's code (hex masks such as 0xF0 are not a restated limit)."""
+    with path.open("rb") as f:
+        return {tok.string for tok in tokenize.tokenize(f.readline) if tok.type == tokenize.NUMBER
+                and tok.string.isdigit()}
+
+
+def test_the_record_limit_has_one_home() -> None:
+    """240, and the 234 elements and 39 x 6 + 4 = 238 bytes that follow from it, are the profile data's."""
+    stated = {str(p.relative_to(REPO)): sorted(_decimal_numbers(p) & {"240", "234", "238"})
+              for p in MODULES.values()}
+    assert {k: v for k, v in stated.items() if v} == {}
+
+
+def _code_of(path: Path) -> str:
+    """The module's code without comments and docstrings: where a fact would be restated."""
+    tree = ast.parse(path.read_text())
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if isinstance(body, list) and body and isinstance(body[0], ast.Expr) \
+                and isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str):
+            body[0].value.value = ""
+    return ast.unparse(tree)
+
+
+@pytest.mark.parametrize(("pattern", "home", "what"), [
+    (r"0x8100|0x88A8|0x9100|\\x81\\x00|\\x88\\xa8|\\x91\\x00", "pd_analyze/model/values.py", "the VLAN TPIDs"),
+    (r"'malformed', 'pnio_error'|'ok', 'nak'", "pd_analyze/model/verdicts.py", "the verdict list"),
+    (r"\bChecker\(", "pd_analyze/protocol/profidrive_checks.py", "how a Checker is built"),
+    (r"del self\.\w+\[next\(iter|popitem\(last=False\)", "pd_analyze/model/capped.py", "evicting the oldest"),
+])
+def test_each_fact_has_one_home(pattern: str, home: str, what: str) -> None:
+    elsewhere = [str(path.relative_to(REPO)) for path in MODULES.values()
+                 if str(path.relative_to(REPO)) != home and re.search(pattern, _code_of(path))]
+    assert elsewhere == [], f"{what} is stated outside {home}"
+
+
+def test_built_wheel_holds_only_the_product(tmp_path: Path) -> None:
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", str(REPO), "--no-deps", "-q", "-w", str(tmp_path)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    (wheel,) = tmp_path.glob("pd_analyze-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    assert {n.split("/")[0] for n in names} == {"pd_analyze", f"{wheel.name.split('-py3')[0]}.dist-info"}
+    shipped = {n for n in names if n.startswith("pd_analyze/")}
+    assert shipped == {str(p.relative_to(REPO)) for p in PACKAGE.rglob("*")
+                       if p.is_file() and p.suffix in (".py", ".toml", ".css", ".js") and "__pycache__" not in p.parts}
+    assert not [n for n in names if re.search(r"synth|fuzz|hostile|devtools|tests/", n)]
