@@ -102,18 +102,18 @@ class Rows:
                 errors.append(f"{label}:{_hex(err)}")
             fmt = written if written is not None else res_block
             read_values = values_of(res_block) if res_block is not None and not res_block.is_error else None
-            append(ParameterRow(
+            append(ParameterRow._make((  # _make: a tuple is built in C, a named tuple's __new__ in Python
                 number, capture, device, txn.do, label, addr.pnu, addr.subindex, addr.n_elems,
                 pt.ATTRIBUTE.get(addr.attr) or _hex(addr.attr),  # (a default argument is built every time)
                 (pt.FORMAT_NAME.get(fmt.format) or _hex(fmt.format)) if fmt is not None and not fmt.is_error else "",
                 block_values(written), block_values(res_block, read_values), _hex(err),
-                pt.error_text(err) if err >= 0 else ""))
+                pt.error_text(err) if err >= 0 else "")))
             self._trail(capture, txn, number, addr, label, written, res_block, device, read_values)
         if response is not None and len(blocks) == 1 and blocks[0].is_error and len(addresses) > 1:
             errors = [f"*:{_hex(blocks[0].error)}"]  # header-level error: the whole request refused
         fig = txn.figures()
         v = txn.channel
-        self.transactions.append(TransactionRow(
+        self.transactions.append(TransactionRow._make((
             number, capture, device, controller, ar, index, v[3], v[4], v[5],
             _int(txn.ref), _hex(txn.req_id), _int(txn.do), _int(txn.n_params), param_label(txn),
             _hex(response.ident) if response is not None else "", txn.verdict, " ".join(errors), txn.pnio_status,
@@ -121,7 +121,7 @@ class Rows:
             txn.write_res_frame or None, " ".join(map(str, txn.read_req_frames)), txn.read_res_frame or None,
             " ".join(map(str, sorted(txn.frames))),
             txn.t_start, fig["t_write_rtt"], fig["t_total"], fig["t_final_read_rtt"], fig["t_first_read_gap"],
-            txn.capture_ended, txn.closed_by))
+            txn.capture_ended, txn.closed_by)))
         self._added(capture, txn, number)
         for f in txn.findings:
             self.add_finding(capture, f, number)
@@ -153,9 +153,9 @@ class Rows:
             result = f"error {_hex(res_block.error)}: {pt.error_text(res_block.error)}"
         else:
             result = "ok" if txn.verdict in ANSWERED else txn.verdict
-        self.changes.append(ChangeRow(capture, device, txn.do, number, txn.write_req_frame, txn.t_start, label,
-                                      addr.pnu, addr.subindex, block_values(written), result,
-                                      " ".join(b for b in before if b is not None) if all(before) else ""))
+        self.changes.append(ChangeRow._make((
+            capture, device, txn.do, number, txn.write_req_frame, txn.t_start, label, addr.pnu, addr.subindex,
+            block_values(written), result, " ".join(b for b in before if b is not None) if all(before) else "")))
 
     # What a part of a split capture must remember for its parent (analysis.split.PartRows); nothing here.
     def _added(self, capture: str, txn: Transaction, number: int) -> None:
@@ -169,8 +169,8 @@ class Rows:
 
 
 def finding_row(capture: str, f: Finding, txn: int | None) -> FindingRow:
-    return FindingRow(capture, f.frame, txn, f.severity, f.rule, f.name, f.field, f.value, f.expected, f.source,
-                      f.message)
+    return FindingRow._make((capture, f.frame, txn, f.severity, f.rule, f.name, f.field, f.value, f.expected,
+                             f.source, f.message))
 
 
 def _shifted(rows: list[Any], offset: int) -> list[Any]:

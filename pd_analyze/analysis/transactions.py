@@ -324,8 +324,7 @@ class TransactionEngine:
         if why in UNANSWERED_ENDS and not txn.pnio_status and txn.b5_retries:
             txn.pnio_status = f"DE80{PNIORW_STATE_CONFLICT:02X}00"  # last answer was B5 (txn.last_status)
         # not the transaction itself: it is handed on
-        self._last_done.put(channel, LastDone(txn.write_req_frame, txn.ref, txn.verdict))
-        self._last_done.make_room(txn.write_req_frame)  # the oldest channels are forgotten
+        self._last_done.remember(channel, LastDone(txn.write_req_frame, txn.ref, txn.verdict))
         return txn
 
     def _forget_calls(self, txn: Transaction) -> None:
@@ -336,8 +335,7 @@ class TransactionEngine:
                 self._calls.pop(frame)
 
     def _remember(self, frame: int, call: _Call) -> None:
-        self._calls.put(frame, call)
-        self._calls.make_room(frame)  # the oldest are forgotten
+        self._calls.remember(frame, call)  # the oldest are forgotten
 
 
 def _write_statuses(pdu: Pdu, count: int) -> list[Status | None]:

@@ -12,9 +12,8 @@ floods of tiny pieces are bounded too.
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Generic, TypeVar
+from typing import TypeVar
 
 MAX_LISTED = 100  # evictions of one table reported one by one; the rest in one finding at the end
 MIB = 1024 * 1024
@@ -51,83 +50,109 @@ TXN_FRAMES = 10_000  # frames of one transaction (10 s of B5 polling every milli
 TXN_CALLS = Cap("transaction calls awaiting their answer", 65_536)
 CHANNEL_HISTORY = Cap("channels' last closed transactions", 65_536)
 
+_pop = OrderedDict.pop  # the dict's own, under CappedTable.pop (faster than super() on every call)
+_ROOM: list = []  # make_room's answer when nothing had to go (never appended to)
+
 K = TypeVar("K")
 V = TypeVar("V")
 
 
-class CappedTable(Generic[K, V]):
-    """An insertion-ordered table under a Cap. Eviction takes the oldest entry in O(1)."""
+class CappedTable(OrderedDict[K, V]):
+    """An insertion-ordered table under a Cap; reads are the OrderedDict's own (`in`, get, [], items).
 
-    __slots__ = ("_costs", "_entries", "bytes", "cap", "evicted", "last_eviction")
+    Eviction takes the oldest entry in O(1): an OrderedDict pops its front in O(1), where a dict's
+    iterator walks every slot freed before it. Write with `put` and `pop` (they keep the byte count)."""
 
     def __init__(self, cap: Cap) -> None:
+        super().__init__()
         self.cap = cap
-        # an OrderedDict pops its front in O(1); a dict's iterator walks every slot freed before it
-        self._entries: OrderedDict[K, V] = OrderedDict()
-        self._costs: dict[K, int] = {}
+        self._count, self._max_bytes = cap.count, cap.bytes  # read on every put: kept at hand
+        self._costs: dict[K, int] = {}  # only for a table with a byte cap
         self.bytes = 0
         self.evicted = 0
         self.last_eviction = 0  # frame of the last eviction
 
-    def __len__(self) -> int:
-        return len(self._entries)
-
-    def __contains__(self, key: object) -> bool:
-        return key in self._entries
-
-    def __iter__(self) -> Iterator[K]:
-        return iter(self._entries)
-
-    def __getitem__(self, key: K) -> V:
-        return self._entries[key]
-
-    def get(self, key: K, default: V | None = None) -> V | None:
-        return self._entries.get(key, default)
-
-    def items(self) -> Iterator[tuple[K, V]]:
-        return iter(self._entries.items())
-
-    def values(self) -> Iterator[V]:
-        return iter(self._entries.values())
-
     def oldest(self) -> V | None:
-        return next(iter(self._entries.values()), None)
+        return next(iter(self.values()), None) if self else None
 
     def put(self, key: K, value: V, cost: int = 0) -> None:
         """Add an entry as the newest (a key already there is replaced and becomes the newest)."""
-        if key in self._entries:
+        if key in self:
             self.pop(key)
-        self._entries[key] = value
-        self._costs[key] = cost
-        self.bytes += cost
+        self[key] = value
+        if self._max_bytes:
+            self._costs[key] = cost
+            self.bytes += cost
+
+    def add(self, key: K, value: V, frame: int, cost: int = 0) -> list[tuple[K, V, bool]]:
+        """`put`, then make room around it: the evicted entries, as make_room gives them."""
+        if key in self:
+            self.pop(key)
+        self[key] = value
+        if self._max_bytes:
+            self._costs[key] = cost
+            self.bytes += cost
+            if self.bytes > self._max_bytes:
+                return self.make_room(frame, keep=key)
+        if len(self) <= self._count:
+            return _ROOM
+        return self.make_room(frame, keep=key)
+
+    def remember(self, key: K, value: V, cost: int = 0) -> None:
+        """`put` for a memory of things past (a Cap without a rule): the oldest others are forgotten,
+        counted but not reported; the fast way of a table that is full most of the time."""
+        self[key] = value
+        self.move_to_end(key)  # a key already there becomes the newest
+        count, max_bytes = self._count, self._max_bytes
+        if max_bytes:
+            costs = self._costs
+            self.bytes += cost - costs.get(key, 0)
+            costs[key] = cost
+        while len(self) > count or (max_bytes and self.bytes > max_bytes and len(self) > 1):
+            victim, _ = self.popitem(last=False)  # the oldest, in O(1)
+            if max_bytes:
+                self.bytes -= self._costs.pop(victim)
+            self.evicted += 1
 
     def charge(self, key: K, extra: int) -> None:
         """An entry grew (or shrank) by `extra` bytes."""
-        self._costs[key] += extra
-        self.bytes += extra
+        if self._max_bytes:
+            self._costs[key] += extra
+            self.bytes += extra
 
-    def pop(self, key: K, *default: V | None) -> V | None:
+    def pop(self, key: K, *default: V | None) -> V | None:  # type: ignore[override]
         """Take an entry out (KeyError, or `default` when given, if it is not there)."""
-        if default and key not in self._entries:
+        if default and key not in self:
             return default[0]
-        self.bytes -= self._costs.pop(key)
-        return self._entries.pop(key)
+        if self._max_bytes:
+            self.bytes -= self._costs.pop(key)
+        return _pop(self, key)
 
     def full(self, incoming: int = 0, adding: bool = False) -> bool:
         """Over a cap once `incoming` bytes (and, `adding`, one more entry) come in."""
-        cap = self.cap
-        return len(self._entries) + adding > cap.count or (cap.bytes > 0 and self.bytes + incoming > cap.bytes)
+        return len(self) + adding > self._count or (self._max_bytes > 0 and self.bytes + incoming > self._max_bytes)
 
     def make_room(self, frame: int, incoming: int = 0, adding: bool = False,
                   keep: K | None = None) -> list[tuple[K, V, bool]]:
         """Evict the oldest entries (never `keep`, the one growing) until `incoming` bytes and, `adding`,
         one more entry fit; each evicted (key, value, listed): listed for the first MAX_LISTED."""
+        if len(self) + adding <= self._count and (not self._max_bytes or self.bytes + incoming <= self._max_bytes):
+            return _ROOM  # the common case, on every put: room enough
         out = []
-        while self._entries and self.full(incoming, adding):
-            victim = self._oldest_but(keep)
-            if victim is None:
-                break
-            out.append((victim, *self.evict(victim, frame)))
+        count, max_bytes = self._count, self._max_bytes
+        while self and (len(self) + adding > count or (max_bytes and self.bytes + incoming > max_bytes)):
+            if next(iter(self)) != keep:
+                victim, value = self.popitem(last=False)  # the oldest, in O(1)
+            else:  # never the one growing: the next oldest
+                victim = next(key for key in self if key != keep) if len(self) > 1 else None
+                if victim is None:
+                    break
+                value = super().pop(victim)
+            if max_bytes:
+                self.bytes -= self._costs.pop(victim)
+            self.evicted += 1
+            self.last_eviction = frame
+            out.append((victim, value, self.evicted <= MAX_LISTED))
         return out
 
     def evict(self, key: K, frame: int) -> tuple[V, bool]:
@@ -142,12 +167,6 @@ class CappedTable(Generic[K, V]):
         return max(0, self.evicted - MAX_LISTED)
 
     def clear(self) -> None:
-        self._entries.clear()
+        super().clear()
         self._costs.clear()
         self.bytes = 0
-
-    def _oldest_but(self, keep: K | None) -> K | None:
-        for key in self._entries:  # at most two steps: the oldest, or the one after `keep`
-            if key != keep:
-                return key
-        return None

@@ -95,8 +95,7 @@ class Dissector:
             self.loose_findings += self.link.findings
             self.link.findings = []
         if dgram is link.SKIP_FRAGMENT:
-            self._fragment_times.put(number, ts)  # for timing the reassembled PDU from its first piece
-            self._fragment_times.make_room(number)
+            self._fragment_times.remember(number, ts)  # for timing the reassembled PDU from its first piece
         if isinstance(dgram, str):
             (self.accounting.malformed if dgram in link.MALFORMED else self.accounting.skipped)[dgram] += 1
         else:
@@ -195,8 +194,7 @@ class Dissector:
 
     def _remember(self, activity: bytes) -> None:
         if activity not in self._activities:
-            self._activities.put(activity, None)
-            self._activities.make_room(0)
+            self._activities.remember(activity, None)
 
     def _bare_pdu(self, number: int, ts: float, dgram: link.Datagram, hdr: rpc.Header,
                   malformed: bool = False) -> Pdu:
@@ -401,8 +399,7 @@ class Dissector:
 
     def _remember_request(self, key: tuple, parsed: profidrive.Parsed, number: int) -> None:
         """The channel's last parameter request, within the CHANNEL_REQUESTS caps (the oldest go)."""
-        self._pd_requests.put(key, (parsed, number), profidrive.footprint(parsed))
-        self._pd_requests.make_room(number, keep=key)
+        self._pd_requests.remember(key, (parsed, number), profidrive.footprint(parsed))
 
     # --- findings discovered later, unanswered calls -----------------------------------------
     def _attach(self, f: Finding, out: list[FrameResult]) -> None:

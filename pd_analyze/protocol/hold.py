@@ -43,8 +43,7 @@ class HeldFrames:
         frames = self._fragments.get(fkey)
         if frames is None:
             frames = []
-            self._fragments.put(fkey, frames)
-            self._fragments.make_room(number, keep=fkey)  # sets evicted or never completed
+            self._fragments.remember(fkey, frames)  # the oldest: sets evicted or never completed
         if len(frames) < MAX_HELD_FRAMES:  # beyond that, the frames have left the hold anyway
             frames.append(number)
 

@@ -126,9 +126,13 @@ class LinkDecoder:
 
     def datagram(self, number: int, linktype: int, data: bytes) -> Datagram | str:
         """The frame's UDP datagram, or the reason it has none (a skip reason)."""
-        if linktype == LINKTYPE_ETHERNET and data[12:14] not in IP_ETHERTYPES:
+        etype = data[12:14] if linktype == LINKTYPE_ETHERNET else b""
+        if etype == IPV4_ETHERTYPE_BYTES:
+            off = 14  # untagged Ethernet, most frames: the chain is one header long
+        elif linktype == LINKTYPE_ETHERNET and etype not in IP_ETHERTYPES:
             return SKIP_NOT_IPV4
-        off = headers(linktype, data).l3
+        else:
+            off = headers(linktype, data).l3
         if off < 0:
             if linktype not in (LINKTYPE_ETHERNET, LINKTYPE_SLL, LINKTYPE_SLL2, LINKTYPE_RAW,
                                 LINKTYPE_IPV4):

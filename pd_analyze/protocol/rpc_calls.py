@@ -60,8 +60,7 @@ class CallTable:
                     f"activity/sequence number of frame {known.frame} reused with a different body"))
             return known
         call.cost = CALL_OVERHEAD + len(call.body)
-        self.open.put(key, call, call.cost)
-        self._evict(key, call.frame, findings)
+        self._evicted(self.open.add(key, call, call.frame, call.cost), call.frame, findings)
         return call
 
     def charge(self, key: tuple[bytes, int], call: Call, extra: int, findings: list[Finding]) -> None:
@@ -69,11 +68,12 @@ class CallTable:
         if self.open.get(key) is call:
             call.cost += extra
             self.open.charge(key, extra)
-            self._evict(key, call.frame, findings)
+            self._evicted(self.open.make_room(call.frame, keep=key), call.frame, findings)
 
-    def _evict(self, keep: tuple[bytes, int], number: int, findings: list[Finding]) -> None:
-        """Drop the oldest open calls (never `keep`) while the table is above its caps."""
-        for old_key, old, listed in self.open.make_room(number, keep=keep):
+    @staticmethod
+    def _evicted(evicted: list[tuple[tuple[bytes, int], Call, bool]], number: int, findings: list[Finding]) -> None:
+        """Open calls the caps dropped (the oldest; never the one just added or grown)."""
+        for old_key, old, listed in evicted:
             if listed:
                 findings.append(rules.finding(
                     OPEN_CALLS.rule, number, "rpc.seq", old_key[1], OPEN_CALLS.text(),
@@ -86,8 +86,7 @@ class CallTable:
     def close(self, key: tuple[bytes, int]) -> Call | None:
         call = self.open.pop(key, None)
         if call is not None:
-            self.closed.put(key, call, call.cost)
-            self.closed.make_room(call.frame)  # the oldest are forgotten
+            self.closed.remember(key, call, call.cost)  # the oldest are forgotten
         return call
 
     def finish(self) -> list[Finding]:

@@ -136,9 +136,8 @@ class FragmentTable:
         return done is not None and done.digests.get(num) == _digest(body)
 
     def _remember(self, key: tuple, number: int, entry: _FragSet) -> None:
-        self._done.put(key, _Done(number, {n: _digest(b) for n, b in entry.bodies.items()}),
-                       DIGEST_SIZE * len(entry.bodies))
-        self._done.make_room(number)  # the oldest are forgotten
+        self._done.remember(key, _Done(number, {n: _digest(b) for n, b in entry.bodies.items()}),
+                            DIGEST_SIZE * len(entry.bodies))  # the oldest are forgotten
 
     def _pop(self, key: tuple) -> _FragSet:
         """Take a set out of the table (complete, missing pieces or dropped)."""
