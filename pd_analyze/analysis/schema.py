@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import TYPE_CHECKING
 
-from pd_analyze.model.rules import SEVERITIES
+from pd_analyze.model.rules import RULES, SEVERITIES
 from pd_analyze.model.verdicts import VERDICTS
 
 if TYPE_CHECKING:
@@ -114,17 +114,26 @@ ROW_TYPES: Mapping[str, type] = MappingProxyType({
     "transactions": TransactionRow, "parameters": ParameterRow, "findings": FindingRow, "changes": ChangeRow})
 
 
-# The order of each table: by this column, ties in the order the rows were added (a stable sort).
+# The order of each table: by this column, ties in the order the rows were added (a stable sort); the
+# findings of one frame by their rule's place in the registry (link, RPC, NDR, IOD, request, response,
+# transaction), whichever part of the analysis found them first.
 SORT_COLUMN: Mapping[str, str] = MappingProxyType({
     "transactions": "txn", "parameters": "txn", "findings": "frame", "changes": "txn"})
+RULE_RANK: Mapping[str, int] = MappingProxyType({name: i for i, name in enumerate(RULES)})
 _LAST = float("inf")  # a missing key sorts last, as pandas puts NA last
 
 
 def sort_key(name: str, by_capture: bool = False) -> Callable[[tuple], object]:
     """The sort key of a table's rows; `by_capture` groups findings by capture first (audit, Parquet)."""
-    col = ROW_TYPES[name]._fields.index(SORT_COLUMN[name])  # rows may come back from disk as plain lists
+    fields = ROW_TYPES[name]._fields  # rows may come back from disk as plain lists: by position
+    col = fields.index(SORT_COLUMN[name])
+    cap = fields.index("capture")
+    if name == "findings":
+        rule = fields.index("name")
+        if by_capture:
+            return lambda r: (r[cap], _LAST if r[col] is None else r[col], RULE_RANK.get(r[rule], -1))
+        return lambda r: (_LAST if r[col] is None else r[col], RULE_RANK.get(r[rule], -1))
     if by_capture:
-        cap = ROW_TYPES[name]._fields.index("capture")
         return lambda r: (r[cap], _LAST if r[col] is None else r[col])
     return lambda r: _LAST if r[col] is None else r[col]
 
@@ -171,5 +180,10 @@ def frame_of(name: str, rows: Iterable[tuple]) -> pd.DataFrame:
         else:
             df[c.name] = df[c.name].astype(pandas_dtype(c))
     if len(df):
-        df = df.sort_values([SORT_COLUMN[name]], kind="stable").reset_index(drop=True)
+        if name == "findings":
+            rank = df["name"].astype(object).map(RULE_RANK).fillna(-1)
+            order = pd.DataFrame({"frame": df["frame"], "rank": rank}).sort_values(["frame", "rank"], kind="stable")
+            df = df.loc[order.index].reset_index(drop=True)
+        else:
+            df = df.sort_values([SORT_COLUMN[name]], kind="stable").reset_index(drop=True)
     return df
