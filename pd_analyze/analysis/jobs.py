@@ -43,7 +43,6 @@ def run(files: list[str], rows: Rows, settings: Settings, progress: Progress | N
                 results.append(result)
         return results
     for path in files:
-        rows.new_capture()
         _, result = analyze_file(path, settings, progress, rows, sum(r.transactions for r in results))
         results.append(result)
     return results

@@ -12,15 +12,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from pd_analyze.analysis.schema import ChangeRow, FindingRow, ParameterRow, TransactionRow
-from pd_analyze.analysis.transaction import Transaction, param_label
+from pd_analyze.analysis.transaction import Element, Transaction, elements, param_label
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.verdicts import ANSWERED
 from pd_analyze.protocol.link import ip_text
 from pd_analyze.protocol.profidrive import Address, Block
-from pd_analyze.protocol.profidrive_view import values_of
-
-ElementKey = tuple  # capture, device, DO, PNU, subindex: one array element of one drive's parameter
+from pd_analyze.protocol.profidrive_view import cell_text, values_of
 
 
 def block_values(block: Block | None, values: list | None = None) -> str:
@@ -31,15 +29,7 @@ def block_values(block: Block | None, values: list | None = None) -> str:
     values = values_of(block) if values is None else values
     if pt.FORMATS.get(block.format, pt.FORMATS[0x41]).kind in ("hex", "bits", "nibbles"):
         return " ".join(f"0x{v:0{2 * block.size}x}" for _, _, v, _ in values if isinstance(v, int))
-    return " ".join(_cell(value) for _, _, value, _ in values)
-
-
-def _cell(value: object) -> str:
-    if isinstance(value, str):
-        return repr(value) if not value.isprintable() else value if " " not in value else f'"{value}"'
-    if isinstance(value, float):
-        return f"{value:.7g}"
-    return str(value)
+    return " ".join(cell_text(value) for _, _, value, _ in values)
 
 
 def _hex(value: int) -> str:
@@ -61,12 +51,7 @@ class Rows:
     parameters: list[ParameterRow] = field(default_factory=list)
     findings: list[FindingRow] = field(default_factory=list)
     changes: list[ChangeRow] = field(default_factory=list)
-    _last_read: dict[ElementKey, str] = field(default_factory=dict)
     _channels: dict[tuple, tuple[str, str, str, str]] = field(default_factory=dict)
-
-    def new_capture(self) -> None:
-        """The next rows come from a capture analysed on its own: forget the values read so far."""
-        self._last_read.clear()
 
     def extend(self, other: Rows, offset: int) -> None:
         """Append another capture's rows, its transaction numbers shifted by `offset`."""
@@ -108,7 +93,8 @@ class Rows:
                 (pt.FORMAT_NAME.get(fmt.format) or _hex(fmt.format)) if fmt is not None and not fmt.is_error else "",
                 block_values(written), block_values(res_block, read_values), _hex(err),
                 pt.error_text(err) if err >= 0 else "")))
-            self._trail(capture, txn, number, addr, label, written, res_block, device, read_values)
+            if txn.req_id == pt.REQ_CHANGE and written is not None:
+                self._change(capture, txn, number, i, addr, label, written, res_block, device)
         if response is not None and len(blocks) == 1 and blocks[0].is_error and len(addresses) > 1:
             errors = [f"*:{_hex(blocks[0].error)}"]  # header-level error: the whole request refused
         fig = txn.figures()
@@ -123,31 +109,19 @@ class Rows:
             txn.t_start, fig["t_write_rtt"], fig["t_total"], fig["t_final_read_rtt"], fig["t_first_read_gap"],
             txn.capture_ended, txn.closed_by)))
         self._added(capture, txn, number)
+        if txn.values_read:
+            self._read(txn, txn.values_read)
         for f in txn.findings:
             self.add_finding(capture, f, number)
 
     def add_finding(self, capture: str, f: Finding, txn: int | None = None) -> None:
         self.findings.append(finding_row(capture, f, txn))
 
-    def _trail(self, capture: str, txn: Transaction, number: int, addr: Address, label: str,
-               written: Block | None, res_block: Block | None, device: str, read_values: list | None) -> None:
-        """The change trail, and the last values read per element to show what a change replaced."""
-        change = txn.req_id == pt.REQ_CHANGE and written is not None
-        read = txn.req_id == pt.REQ_READ and txn.verdict in ANSWERED and res_block is not None \
-            and addr.attr == pt.ATTR_VALUE and not res_block.is_error
-        if not (change or read):  # neither remembers nor looks up a value: no keys needed
-            return
-        count = max(addr.n_elems, 1)
-        keys = [(capture, device, txn.do, addr.pnu, addr.subindex + j) for j in range(count)]
-        if read:
-            values = [_cell(v) for _, _, v, _ in (read_values if read_values is not None else values_of(res_block))]
-            pairs = list(zip(keys, values, strict=True)) if len(values) == len(keys) else \
-                [(keys[0], values[0])] if len(values) == 1 else []
-            self._last_read.update(pairs)
-            self._read(txn, pairs)
-        if not change:
-            return
-        before = [self._last_read.get(k) for k in keys]
+    def _change(self, capture: str, txn: Transaction, number: int, i: int, addr: Address, label: str,
+                written: Block, res_block: Block | None, device: str) -> None:
+        """The change trail: what was written, how it ended, and the values it replaced (read before it)."""
+        keys = elements(txn, addr)
+        before = txn.values_before[i] if i < len(txn.values_before) else [None] * len(keys)
         self._before(keys, before)
         if res_block is not None and res_block.is_error:
             result = f"error {_hex(res_block.error)}: {pt.error_text(res_block.error)}"
@@ -161,10 +135,10 @@ class Rows:
     def _added(self, capture: str, txn: Transaction, number: int) -> None:
         """A transaction's row was added, its findings follow."""
 
-    def _read(self, txn: Transaction, pairs: list[tuple[ElementKey, str]]) -> None:
+    def _read(self, txn: Transaction, pairs: list[tuple[Element, str]]) -> None:
         """Values were read back, per element."""
 
-    def _before(self, keys: list[ElementKey], before: list[str | None]) -> None:
+    def _before(self, keys: list[Element], before: list[str | None]) -> None:
         """A change's row comes next; `before` are the values last read of its elements (None: unknown)."""
 
 

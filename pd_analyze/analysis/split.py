@@ -21,8 +21,8 @@ from itertools import chain
 
 from pd_analyze import capture
 from pd_analyze.analysis.pipeline import CaptureResult, Settings, difference, run_frames, snapshot
-from pd_analyze.analysis.rows import ElementKey, Rows, finding_row
-from pd_analyze.analysis.transaction import LastDone, Transaction, reuse_finding
+from pd_analyze.analysis.rows import Rows, finding_row
+from pd_analyze.analysis.transaction import Element, LastDone, Transaction, reuse_finding
 from pd_analyze.analysis.transactions import TransactionEngine
 from pd_analyze.protocol.frames import Accounting
 
@@ -41,8 +41,8 @@ class PartRows(Rows):
 
     split_end: int | None = None
     engine: TransactionEngine | None = None
-    unresolved: list[tuple[int, list[ElementKey], list[str | None]]] = field(default_factory=list)
-    reads: dict[ElementKey, tuple[int, str]] = field(default_factory=dict)
+    unresolved: list[tuple[int, list[Element], list[str | None]]] = field(default_factory=list)
+    reads: dict[Element, tuple[int, str]] = field(default_factory=dict)
     # (index in findings, capture, channel, ref, frame, txn) of each T1 check left to the parent
     reuse_slots: list[tuple[int, str, tuple, int, int, int]] = field(default_factory=list)
     channel_last: dict[tuple, LastDone] = field(default_factory=dict)
@@ -58,11 +58,11 @@ class PartRows(Rows):
         if txn.txn and self._in_range(txn.write_req_frame):
             self.channel_last[txn.channel] = LastDone(txn.write_req_frame, txn.ref, txn.verdict)
 
-    def _read(self, txn: Transaction, pairs: list[tuple[ElementKey, str]]) -> None:
+    def _read(self, txn: Transaction, pairs: list[tuple[Element, str]]) -> None:
         if self._in_range(txn.read_res_frame):
             self.reads.update((k, (txn.read_res_frame, v)) for k, v in pairs)
 
-    def _before(self, keys: list[ElementKey], before: list[str | None]) -> None:
+    def _before(self, keys: list[Element], before: list[str | None]) -> None:
         if not all(before):
             self.unresolved.append((len(self.changes), keys, before))
 
@@ -78,7 +78,7 @@ def stitch_part(part: PartRows, channels: dict[tuple, LastDone]) -> None:
     channels.update(part.channel_last)
 
 
-def stitch_values_before(part: PartRows, known: dict[ElementKey, tuple[int, str]]) -> None:
+def stitch_values_before(part: PartRows, known: dict[Element, tuple[int, str]]) -> None:
     """Fill in a split part's unknown `value_before` from `known` (the reads of the parts before it,
     each closed before this part's range began), then add the part's own reads to `known`."""
     for index, keys, before in part.unresolved:
@@ -110,7 +110,7 @@ def analyze_split(path: str, settings: Settings, jobs: int, rows: Rows) -> Captu
     from concurrent.futures import ProcessPoolExecutor
 
     total = CaptureResult(path, Accounting())
-    reads: dict[ElementKey, tuple[int, str]] = {}  # the values read before the part at hand, per element
+    reads: dict[Element, tuple[int, str]] = {}  # the values read before the part at hand, per element
     channels: dict[tuple, LastDone] = {}  # the last transaction per channel before it
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         for part_rows, result in pool.map(_analyze_range, tasks):  # in frame order, as they arrive

@@ -6,14 +6,17 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
+from pd_analyze.model import pd_values as pt
 from pd_analyze.model.rules import Finding, finding
 from pd_analyze.model.verdicts import ANSWERED, FAILED_UNANSWERED, PRECEDENCE
-from pd_analyze.protocol.profidrive import Parsed
+from pd_analyze.protocol.profidrive import Address, Parsed
+from pd_analyze.protocol.profidrive_view import cell_text, values_of
 
 # How a transaction that got no final answer ended (its verdict is then timeout, protocol.md 7.4).
 UNANSWERED_ENDS = frozenset({"deadline", "superseded", "capture_end", "evicted"})
 
 Channel = tuple  # device, controller, AR, API, slot, subslot, index (protocol.md 7.2)
+Element = tuple  # device, DO, PNU, subindex: one array element of one drive's parameter
 
 
 
@@ -50,6 +53,10 @@ class Transaction:
     frames: list[int] = field(default_factory=list)
     findings: list[Finding] = field(default_factory=list)
     verdict: str = ""
+    # A change: per address, the values of its elements last read back before its write request (None:
+    # not read in the capture). A read answered (ok, nak): the values it read, per element.
+    values_before: list[list[str | None]] = field(default_factory=list)
+    values_read: list[tuple[Element, str]] = field(default_factory=list)
 
     @property
     def device(self) -> bytes:
@@ -107,6 +114,29 @@ def verdict_of(txn: Transaction) -> str:
         "ok": True,
     }
     return next(verdict for verdict in PRECEDENCE if holds[verdict])
+
+
+def elements(txn: Transaction, addr: Address) -> list[Element]:
+    """The array elements an address names (one for a single value)."""
+    return [(txn.channel[0], txn.do, addr.pnu, addr.subindex + j) for j in range(max(addr.n_elems, 1))]
+
+
+def elements_read(txn: Transaction) -> list[tuple[Element, str]]:
+    """What an answered read transaction read back: (element, value as a table cell) per element of
+    each Value address answered with values (all elements, or the first when the drive gave one value)."""
+    if txn.req_id != pt.REQ_READ or txn.verdict not in ANSWERED or txn.request is None or txn.response is None:
+        return []
+    out: list[tuple[Element, str]] = []
+    for addr, block in zip(txn.request.addresses, txn.response.blocks, strict=False):
+        if addr.attr != pt.ATTR_VALUE or block.is_error:
+            continue
+        keys = elements(txn, addr)
+        values = [cell_text(v) for _, _, v, _ in values_of(block)]
+        if len(values) == len(keys):
+            out += zip(keys, values, strict=True)
+        elif len(values) == 1:
+            out.append((keys[0], values[0]))
+    return out
 
 
 def param_label(txn: Transaction) -> str:

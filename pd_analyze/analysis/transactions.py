@@ -13,13 +13,23 @@ from dataclasses import dataclass
 from pd_analyze.analysis.transaction import (
     UNANSWERED_ENDS,
     Channel,
+    Element,
     LastDone,
     Transaction,
+    elements,
+    elements_read,
     reuse_finding,
     verdict_of,
 )
 from pd_analyze.model import pd_values as pt
-from pd_analyze.model.capped import CHANNEL_HISTORY, PENDING_TRANSACTIONS, TXN_CALLS, TXN_FRAMES, CappedTable
+from pd_analyze.model.capped import (
+    CHANNEL_HISTORY,
+    PENDING_TRANSACTIONS,
+    READ_VALUES,
+    TXN_CALLS,
+    TXN_FRAMES,
+    CappedTable,
+)
 from pd_analyze.model.rules import Finding, finding
 from pd_analyze.model.values import (
     INDEX_WRITE_MULTIPLE,
@@ -72,6 +82,7 @@ class TransactionEngine:
         self._by_ar: dict[tuple, dict[Channel, Transaction]] = {}  # the same by device, controller, AR
         self._last_done: CappedTable[Channel, LastDone] = CappedTable(CHANNEL_HISTORY)  # for T1, T4
         self._calls: CappedTable[int, _Call] = CappedTable(TXN_CALLS)  # by request frame number
+        self.read_values: CappedTable[Element, str] = CappedTable(READ_VALUES)  # the last read back, per element
         self._now = float("-inf")
 
     # --- the frame loop ---------------------------------------------------------------------
@@ -162,6 +173,8 @@ class TransactionEngine:
         if len(record) >= 4:
             txn.ref, txn.req_id, txn.do, txn.n_params = record[0], record[1], record[2], record[3]
         txn.malformed = pdu.malformed or parsed is None or not parsed.complete
+        if txn.req_id == pt.REQ_CHANGE and parsed is not None:  # what the change replaces, known before it
+            txn.values_before = [[self.read_values.get(k) for k in elements(txn, addr)] for addr in parsed.addresses]
         old = self._pending.get(channel)
         if old is not None:
             txn.findings.append(finding("write_while_pending", pdu.frame, "pd.ref", txn.ref,
@@ -325,6 +338,9 @@ class TransactionEngine:
             txn.pnio_status = f"DE80{PNIORW_STATE_CONFLICT:02X}00"  # last answer was B5 (txn.last_status)
         # not the transaction itself: it is handed on
         self._last_done.remember(channel, LastDone(txn.write_req_frame, txn.ref, txn.verdict))
+        txn.values_read = elements_read(txn)
+        for key, value in txn.values_read:
+            self.read_values.remember(key, value)
         return txn
 
     def _forget_calls(self, txn: Transaction) -> None:

@@ -48,6 +48,7 @@ CHANNEL_REQUESTS = Cap("channels' last parameter requests", 16_384, 16 * MIB)
 PENDING_TRANSACTIONS = Cap("pending transactions", 16_384, 32 * MIB, "txn_evicted")
 TXN_FRAMES = 10_000  # frames of one transaction (10 s of B5 polling every millisecond)
 TXN_CALLS = Cap("transaction calls awaiting their answer", 65_536)
+READ_VALUES = Cap("values last read back, per parameter element", 262_144)
 CHANNEL_HISTORY = Cap("channels' last closed transactions", 65_536)
 
 _pop = OrderedDict.pop  # the dict's own, under CappedTable.pop (faster than super() on every call)

@@ -39,6 +39,15 @@ def values_of(block: Block) -> list[tuple[int, int, object, str]]:
     return out
 
 
+def cell_text(value: object) -> str:
+    """One value as a table cell shows it: text quoted when it has spaces, escaped when not printable."""
+    if isinstance(value, str):
+        return repr(value) if not value.isprintable() else value if " " not in value else f'"{value}"'
+    if isinstance(value, float):
+        return f"{value:.7g}"
+    return str(value)
+
+
 def value_of(fmt: int, raw: bytes) -> tuple[object, str]:
     """One value as an engineer reads it: signed/unsigned/float/scaled, with the scaling stated."""
     spec = pt.FORMATS[fmt]
