@@ -294,7 +294,7 @@ class Dissector:
     def _response(self, res: FrameResult, hdr: rpc.Header, dgram: link.Datagram, key: tuple,
                   body: bytes, pdu: Pdu) -> None:
         self.frags.drop_call(key, res.frame, res.findings)
-        call = self.calls.close(key)
+        call = self.calls.close(key, res.ts)
         if call is None:
             dup = self.calls.closed.get(key)
             if dup is not None:
@@ -324,7 +324,7 @@ class Dissector:
         res.pdu = pdu
         status = layout.unpack(body)[0] if len(body) >= 4 else None
         pdu.fault_status = status
-        call = self.calls.close(key)
+        call = self.calls.close(key, res.ts)
         pdu.request = call
         name = RPC_PTYPE[hdr.ptype]
         text = f"{status:#010x} {NCA_STATUS.get(status, '')}".strip() if status is not None else "no status"

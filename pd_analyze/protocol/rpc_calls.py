@@ -1,11 +1,13 @@
 """CL-RPC calls (protocol.md 2.4): requests paired with their responses by activity UUID + sequence number,
-never by ports; retransmissions and reused keys told apart; answered calls remembered a while to spot
-duplicates; open calls expire after rpc_timeout of capture time; both tables capped (model.capped)."""
+never by ports; retransmissions and reused keys told apart by a digest of the body; open calls expire
+after rpc_timeout of capture time, and answered calls are remembered as long to spot duplicates (a copy
+that comes later is a new call, or an orphan); both tables capped (model.capped)."""
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import InitVar, dataclass
 
 from pd_analyze.model import rules
 from pd_analyze.model.capped import ANSWERED_CALLS, MAX_LISTED, OPEN_CALLS, CappedTable
@@ -24,13 +26,23 @@ class Call:
     dst: bytes
     interface: bytes
     opnum: int
-    body: bytes
+    body: InitVar[bytes]  # the request's body: its size and digest are kept, not the bytes
+    size: int = 0
+    digest: int = 0  # CRC-32 of the body: an identical copy is a retransmission, another body a reused key
     info: object = None  # what the record layer keeps for checking the response
     copies: int = 0
     working: int = 0
     pings: int = 0
     response_frame: int = 0
-    cost: int = 0  # bytes it keeps alive (body, what was decoded from it), counted against the caps
+    answered: float = float("-inf")  # capture time of the answer
+    cost: int = 0  # bytes it keeps alive (what was decoded from it), counted against the caps
+
+    def __post_init__(self, body: bytes) -> None:
+        self.size = len(body)
+        self.digest = zlib.crc32(body)
+
+    def same_body(self, other: Call) -> bool:
+        return self.digest == other.digest and self.size == other.size
 
 
 class CallTable:
@@ -49,7 +61,7 @@ class CallTable:
         """Register a request; returns the call it belongs to (the first copy on retransmission)."""
         known = self.open.get(key) or self.closed.get(key)
         if known is not None:
-            if known.body == call.body:
+            if known.same_body(call):
                 known.copies += 1
                 findings.append(rules.finding(
                     "rpc_retransmission", call.frame, "rpc.seq", key[1], "a new sequence number",
@@ -59,7 +71,7 @@ class CallTable:
                     "rpc_key_reused", call.frame, "rpc.seq", key[1], "a new sequence number",
                     f"activity/sequence number of frame {known.frame} reused with a different body"))
             return known
-        call.cost = CALL_OVERHEAD + len(call.body)
+        call.cost = CALL_OVERHEAD + call.size
         self._evicted(self.open.add(key, call, call.frame, call.cost), call.frame, findings)
         return call
 
@@ -83,10 +95,12 @@ class CallTable:
         """Request frame of every unanswered call."""
         return (call.frame for call in self.open.values())
 
-    def close(self, key: tuple[bytes, int]) -> Call | None:
+    def close(self, key: tuple[bytes, int], ts: float = float("-inf")) -> Call | None:
+        """The open call of `key`, answered at capture time `ts`: remembered until rpc_timeout after."""
         call = self.open.pop(key, None)
         if call is not None:
-            self.closed.remember(key, call, call.cost)  # the oldest are forgotten
+            call.answered = ts
+            self.closed.remember(key, call)  # the oldest are forgotten when the table is full
         return call
 
     def finish(self) -> list[Finding]:
@@ -100,7 +114,14 @@ class CallTable:
             f"({self.evicted} in all; only the first {MAX_LISTED} are listed one by one)")]
 
     def expire(self, now: float, timeout: float) -> list[tuple[tuple[bytes, int], Call]]:
-        """Calls opened more than `timeout` seconds of capture time before `now`."""
+        """Calls opened more than `timeout` seconds of capture time before `now`; answered calls are
+        forgotten as long after their answer."""
+        closed = self.closed
+        while closed:  # in the order answered: stop at the first still remembered
+            key = next(iter(closed))
+            if closed[key].answered + timeout >= now:
+                break
+            closed.pop(key)
         first = self.open.oldest()
         if first is None or first.ts + timeout >= now:
             return []  # the common case, checked for every frame: nothing is due
