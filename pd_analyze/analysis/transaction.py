@@ -103,6 +103,47 @@ def reuse_finding(last: LastDone, ref: int, frame: int) -> Finding | None:
     return None
 
 
+def superseded_finding(ref: int, old_frame: int, old_ref: int, frame: int) -> Finding:
+    """T3: a write (reference `ref`, at `frame`) while the transaction of `old_frame` is pending."""
+    return finding("write_while_pending", frame, "pd.ref", ref, f"none pending (the transaction of frame {old_frame})",
+                   f"write while the transaction of frame {old_frame} (ref {old_ref}) is pending: it ends as a timeout")
+
+
+def b5_finding(retries: int, threshold: int, frame: int) -> Finding:
+    """T5: the read answer that took a transaction's B5 answers above the threshold."""
+    return finding("b5_polling", frame, "ndr.status.code1", retries, f"<= {threshold}",
+                   f"more than {threshold} B5 (not ready) answers")
+
+
+def mirroring_findings(ref: int, req_id: int, do: int, n_params: int, r: Parsed,
+                       frame: int) -> tuple[list[Finding], bool]:
+    """Q2-Q5: a response mirrors the request's reference, Request ID, DO and No. of parameters (protocol.md
+    6.4); (findings, whether Q2 or Q3 failed: the verdict is then reference_mismatch). A request field it
+    does not know is -1 and not compared."""
+    out = []
+    mismatch = False
+    if ref >= 0 and r.ref != ref:
+        out.append(finding("reference_mismatch", frame, "pd.ref", r.ref, ref,
+                           f"response reference {r.ref} does not mirror the request's {ref}"))
+        mismatch = True
+    expected = _ANSWERS.get(req_id, (pt.RES_NOT_SUPPORTED,))
+    if r.ident not in expected:
+        out.append(finding("response_id_mismatch", frame, "pd.resp_id", f"{r.ident:#04x}",
+                           "/".join(f"{e:#04x}" for e in expected),
+                           f"Response ID {r.ident:#04x} does not answer Request ID {req_id:#04x}"))
+        mismatch = True
+    if do >= 0 and r.do != do:
+        out.append(finding("do_not_mirrored", frame, "pd.do", r.do, do, "DO-ID not mirrored"))
+    header_level = r.ident & 0x80 and len(r.blocks) == 1 and r.blocks[0].is_error
+    if n_params >= 0 and r.n != n_params and not header_level:
+        out.append(finding("n_params_not_mirrored", frame, "pd.n_params", r.n, n_params,
+                           "No. of parameters not mirrored"))
+    return out, mismatch
+
+
+_ANSWERS = {pt.REQ_READ: (pt.RES_READ, pt.RES_READ_NAK), pt.REQ_CHANGE: (pt.RES_CHANGE, pt.RES_CHANGE_NAK)}
+
+
 def verdict_of(txn: Transaction) -> str:
     """protocol.md 7.4: the first verdict, in PRECEDENCE order, whose condition holds."""
     holds = {

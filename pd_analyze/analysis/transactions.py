@@ -7,7 +7,7 @@ State is kept only for open channels and open RPC calls; a closed transaction is
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 from pd_analyze.analysis.transaction import (
@@ -16,9 +16,12 @@ from pd_analyze.analysis.transaction import (
     Element,
     LastDone,
     Transaction,
+    b5_finding,
     elements,
     elements_read,
+    mirroring_findings,
     reuse_finding,
+    superseded_finding,
     verdict_of,
 )
 from pd_analyze.model import pd_values as pt
@@ -45,7 +48,7 @@ from pd_analyze.model.values import (
 from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol.frames import FrameResult, Pdu
 from pd_analyze.protocol.pnio import Status
-from pd_analyze.protocol.profidrive import Parsed, footprint
+from pd_analyze.protocol.profidrive import footprint
 
 DEFAULT_TXN_TIMEOUT = 10.0
 DEFAULT_B5_THRESHOLD = 50
@@ -84,6 +87,9 @@ class TransactionEngine:
         self._calls: CappedTable[int, _Call] = CappedTable(TXN_CALLS)  # by request frame number
         self.read_values: CappedTable[Element, str] = CappedTable(READ_VALUES)  # the last read back, per element
         self._now = float("-inf")
+        # The number of the transaction a write request opens, by (frame, position among the records of
+        # the request): the columnar path numbers transactions across both of its engines; None: 1, 2, ...
+        self.number_of: Callable[[int, int], int] | None = None
 
     # --- the frame loop ---------------------------------------------------------------------
     def feed(self, res: FrameResult) -> list[Transaction]:
@@ -101,6 +107,13 @@ class TransactionEngine:
         else:
             self.loose += res.findings
         return closed
+
+    def advance(self, now: float) -> list[Transaction]:
+        """Capture time reached `now` on frames this engine did not see: the transactions due close."""
+        if now <= self._now:
+            return []
+        self._now = now
+        return self._expire()
 
     def open_frames(self) -> Iterator[int]:
         """Write request frame of every pending transaction."""
@@ -153,22 +166,27 @@ class TransactionEngine:
             if block.index not in PROFIDRIVE_INDICES or (block.pd is None and len(block.record) == block.record_len):
                 opened.append(None)  # not PROFIdrive (or index 0x002F that is not): no transaction
                 continue
-            opened.append(self._open(pdu, block, res, closed))
+            opened.append(self._open(pdu, block, res, closed, len(opened)))
         if not any(opened):
             return None
         self._remember(pdu.frame, _Call("write", opened))
         return next(t for t in opened if t is not None)
 
-    def _open(self, pdu: Pdu, block: rec.Block, res: FrameResult, closed: list[Transaction]) -> Transaction:
+    def _open(self, pdu: Pdu, block: rec.Block, res: FrameResult, closed: list[Transaction],
+              position: int = 0) -> Transaction:
         v = block.values
         channel = (pdu.dst, pdu.src, v[rec.B_AR], v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], v[rec.B_INDEX])
         parsed = block.pd[0] if isinstance(block.pd, tuple) else None
         first = pdu.fragments[0] if pdu.fragments else pdu.frame  # timed at its first frame (7.6)
         start = pdu.first_ts if pdu.first_ts is not None else pdu.ts
-        txn = Transaction(self._next if first >= self.number_from else 0, channel, parsed, first, start)
+        if self.number_of is not None:
+            number = self.number_of(pdu.frame, position)
+        else:
+            number = self._next if first >= self.number_from else 0
+            self._next += 1 if number else 0
+        txn = Transaction(number, channel, parsed, first, start)
         txn.frames.extend(pdu.fragments)
         txn.rpc_calls.append(pdu.request)
-        self._next += 1 if txn.txn else 0
         record = block.record
         if len(record) >= 4:
             txn.ref, txn.req_id, txn.do, txn.n_params = record[0], record[1], record[2], record[3]
@@ -177,10 +195,7 @@ class TransactionEngine:
             txn.values_before = [[self.read_values.get(k) for k in elements(txn, addr)] for addr in parsed.addresses]
         old = self._pending.get(channel)
         if old is not None:
-            txn.findings.append(finding("write_while_pending", pdu.frame, "pd.ref", txn.ref,
-                                        f"none pending (the transaction of frame {old.write_req_frame})",
-                                        f"write while the transaction of frame {old.write_req_frame} (ref "
-                                        f"{old.ref}) is pending: it ends as a timeout"))
+            txn.findings.append(superseded_finding(txn.ref, old.write_req_frame, old.ref, pdu.frame))
             closed.append(self._close(old, "superseded"))
         last = self._last_done.get(channel)
         if last is None and self.number_from and txn.txn:
@@ -264,9 +279,7 @@ class TransactionEngine:
                 txn.b5_retries += 1
                 txn.last_b5_res = pdu.ts
                 if txn.b5_retries == self.b5_threshold + 1:
-                    txn.findings.append(finding("b5_polling", pdu.frame, "ndr.status.code1", txn.b5_retries,
-                                                f"<= {self.b5_threshold}", f"more than {self.b5_threshold} "
-                                                "B5 (not ready) answers"))
+                    txn.findings.append(b5_finding(txn.b5_retries, self.b5_threshold, pdu.frame))
                 return txn
             txn.pnio_status = status.text()
             txn.read_res_frame, txn.t_read_res = pdu.frame, pdu.ts
@@ -279,31 +292,11 @@ class TransactionEngine:
         if parsed is None or not parsed.complete:
             txn.malformed = True
         else:
-            txn.findings += self._mirroring(txn, parsed, pdu.frame)
+            found, mismatch = mirroring_findings(txn.ref, txn.req_id, txn.do, txn.n_params, parsed, pdu.frame)
+            txn.findings += found
+            txn.mismatch |= mismatch
         closed.append(self._close(txn, "response"))
         return txn
-
-    def _mirroring(self, txn: Transaction, r: Parsed, frame: int) -> list[Finding]:
-        """Q2-Q5: the response mirrors the request (protocol.md 6.4)."""
-        out = []
-        if txn.ref >= 0 and r.ref != txn.ref:
-            out.append(finding("reference_mismatch", frame, "pd.ref", r.ref, txn.ref,
-                               f"response reference {r.ref} does not mirror the request's {txn.ref}"))
-            txn.mismatch = True
-        want = {pt.REQ_READ: (pt.RES_READ, pt.RES_READ_NAK), pt.REQ_CHANGE: (pt.RES_CHANGE, pt.RES_CHANGE_NAK)}
-        expected = want.get(txn.req_id, (pt.RES_NOT_SUPPORTED,))
-        if r.ident not in expected:
-            out.append(finding("response_id_mismatch", frame, "pd.resp_id", f"{r.ident:#04x}",
-                               "/".join(f"{e:#04x}" for e in expected),
-                               f"Response ID {r.ident:#04x} does not answer Request ID {txn.req_id:#04x}"))
-            txn.mismatch = True
-        if txn.do >= 0 and r.do != txn.do:
-            out.append(finding("do_not_mirrored", frame, "pd.do", r.do, txn.do, "DO-ID not mirrored"))
-        header_level = r.ident & 0x80 and len(r.blocks) == 1 and r.blocks[0].is_error
-        if txn.n_params >= 0 and r.n != txn.n_params and not header_level:
-            out.append(finding("n_params_not_mirrored", frame, "pd.n_params", r.n, txn.n_params,
-                               "No. of parameters not mirrored"))
-        return out
 
     def _retransmitted(self, pdu: Pdu) -> Transaction | None:
         call = self._calls.get(pdu.request.frame) if pdu.request is not None else None

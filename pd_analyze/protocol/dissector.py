@@ -107,6 +107,14 @@ class Dissector:
             del self.loose_findings[MAX_LOOSE_FINDINGS:]
         return self._marked(self.hold.release(out, self._now)) if self.hold is not None else out
 
+    def advance(self, now: float) -> None:
+        """Capture time reached `now` on frames this dissector did not see (the report path): the calls
+        due expire (their findings go with the loose ones)."""
+        if now > self._now:
+            self._now = now
+            out: list[FrameResult] = []
+            self._expire(out)
+
     def open_frames(self) -> Iterator[int]:
         """Frames whose outcome is still open: unanswered calls, unfinished IP or CL reassemblies."""
         yield from self.calls.open_frames()
