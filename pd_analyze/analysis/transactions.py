@@ -7,6 +7,7 @@ State is kept only for open channels and open RPC calls; a closed transaction is
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
@@ -82,7 +83,7 @@ class TransactionEngine:
         self._next = 1
         # open transactions by channel, in opening order; the oldest ends as a timeout when the table is full
         self._pending: CappedTable[Channel, Transaction] = CappedTable(PENDING_TRANSACTIONS)
-        self._by_ar: dict[tuple, dict[Channel, Transaction]] = {}  # the same by device, controller, AR
+        self._by_ar: dict[tuple, OrderedDict[Channel, Transaction]] = {}  # the same by device, controller, AR
         self._last_done: CappedTable[Channel, LastDone] = CappedTable(CHANNEL_HISTORY)  # for T1, T4
         self._calls: CappedTable[int, _Call] = CappedTable(TXN_CALLS)  # by request frame number
         self.read_values: CappedTable[Element, str] = CappedTable(READ_VALUES)  # the last read back, per element
@@ -114,6 +115,26 @@ class TransactionEngine:
             return []
         self._now = now
         return self._expire()
+
+    def adopt(self, txn: Transaction, waiting: list[tuple[int, str]]) -> None:
+        """Take over a pending transaction followed elsewhere (the columnar path), with the calls it waits
+        on: (request frame, "write" or "read"). `reorder` puts the pending ones back in time order after."""
+        self._pending.put(txn.channel, txn, _cost(txn) + FRAME_COST * len(txn.frames))
+        self._by_ar.setdefault(txn.channel[:3], OrderedDict())[txn.channel] = txn
+        for frame, kind in waiting:
+            self._remember(frame, _Call(kind, [txn], txn.channel if kind == "read" else None))
+
+    def adopt_last(self, channel: Channel, last: LastDone) -> None:
+        """The channel's last closed transaction, learnt elsewhere (for T1, T4)."""
+        self._last_done.remember(channel, last)
+
+    def reorder(self) -> None:
+        """Pending transactions back in the order they opened (adopted ones came in late): expiry walks
+        them oldest first."""
+        for table in (self._pending, *self._by_ar.values()):
+            ordered = sorted(table.items(), key=lambda item: (item[1].t_start, item[1].write_req_frame))
+            for channel, _txn in ordered:
+                table.move_to_end(channel)
 
     def open_frames(self) -> Iterator[int]:
         """Write request frame of every pending transaction."""
@@ -205,7 +226,7 @@ class TransactionEngine:
             if reuse is not None:
                 txn.findings.append(reuse)
         self._pending.put(channel, txn, _cost(txn))
-        self._by_ar.setdefault(channel[:3], {})[channel] = txn
+        self._by_ar.setdefault(channel[:3], OrderedDict())[channel] = txn
         while len(self._pending) > 1 and self._pending.full():
             oldest = self._pending.oldest()
             closed.append(self._evict(oldest, pdu.frame, "transaction table full"))

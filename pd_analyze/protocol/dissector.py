@@ -115,6 +115,30 @@ class Dissector:
             out: list[FrameResult] = []
             self._expire(out)
 
+    def adopt_request(self, frame: capture.RawFrame) -> rpc_calls.Call | None:
+        """Open the call of a request frame counted elsewhere (the columnar path hands its group over):
+        the frame is dissected as usual, its accounting left as it was; `reorder` restores time order."""
+        acc = self.accounting
+        read, decoded = acc.read, acc.decoded
+        self.feed(frame)
+        acc.read, acc.decoded = read, decoded
+        return next((c for c in self.calls.open.values() if c.frame == frame.number), None)
+
+    def adopt_answered(self, key: tuple[bytes, int], call: rpc_calls.Call) -> None:
+        """An answered call learnt elsewhere, remembered as the dissector's own (to spot late copies)."""
+        self.calls.closed.remember(key, call)
+
+    def adopt_channel_request(self, channel: tuple, parsed: profidrive.Parsed, frame: int) -> None:
+        """A channel's last parameter request learnt elsewhere (to label and check a later response)."""
+        self._pd_requests.remember(channel, (parsed, frame), profidrive.footprint(parsed))
+
+    def reorder(self) -> None:
+        """Open and answered calls back in time order (adopted ones came in late): expiry walks them oldest
+        first."""
+        for table, when in ((self.calls.open, lambda c: c.ts), (self.calls.closed, lambda c: c.answered)):
+            for key, _call in sorted(table.items(), key=lambda item: when(item[1])):
+                table.move_to_end(key)
+
     def open_frames(self) -> Iterator[int]:
         """Frames whose outcome is still open: unanswered calls, unfinished IP or CL reassemblies."""
         yield from self.calls.open_frames()
@@ -147,7 +171,7 @@ class Dissector:
             self._skip_udp(number, dgram, rpc.SKIP_NOT_PNIO)
             return None
         if hdr.activity not in self._activities:
-            self._remember(hdr.activity)
+            self.remember_activity(hdr.activity)
         res = FrameResult(number, ts, dgram.src, dgram.dst, "", hdr.ptype)
         base = dgram.payload_offset if dgram.payload_offset >= 0 else 0
         if self.annotate:
@@ -200,7 +224,9 @@ class Dissector:
             return key in self.calls.open or key in self.calls.closed
         return hdr.ptype != PTYPE_REQUEST and hdr.activity in self._activities
 
-    def _remember(self, activity: bytes) -> None:
+    def remember_activity(self, activity: bytes) -> None:
+        """An activity of a PNIO call (also one seen elsewhere, by the columnar path): a later ping or
+        acknowledgement of it is PNIO too."""
         if activity not in self._activities:
             self._activities.remember(activity, None)
 

@@ -1,0 +1,109 @@
+"""What the columnar path carries from one batch to the next, for the groups it keeps: calls still
+open (with a copy of their request frame), calls answered lately (their keys and request bodies),
+pending transactions (their parameter request parsed: the batch's buffer goes), each channel's last
+transaction and last parameter request."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pd_analyze.analysis.columnar.batch_view import BatchView
+from pd_analyze.analysis.columnar.call_view import request_of
+from pd_analyze.analysis.columnar.calls import Calls
+from pd_analyze.analysis.columnar.channels import CallView, ChannelMachine, Outcome
+from pd_analyze.analysis.columnar.handover import group_of
+from pd_analyze.analysis.columnar.state import KIND_WRITE, Answered, ColumnarState, OpenCall
+from pd_analyze.model.capped import ANSWERED_CALLS, CHANNEL_HISTORY, CHANNEL_REQUESTS, OPEN_CALLS, PENDING_TRANSACTIONS
+
+
+def carry_over(view: BatchView, cv: CallView, calls: Calls, out: Outcome, machine: ChannelMachine, bad: set[int],
+               state: ColumnarState, rpc_timeout: float) -> None:
+    p = view.p
+    good = [g not in bad for g in cv.group]
+    # open calls: the carried ones answered now are done; new unanswered ones are kept
+    for k, carried in enumerate(calls.carried):
+        if carried is None or not good[k]:
+            continue
+        if cv.res_frame[k] >= 0:
+            state.open_calls.pop(carried.key, None)
+        elif carried.txn is not None:
+            carried.txn = machine.copies.get(id(carried.txn), carried.txn)
+    for k in np.flatnonzero((calls.req >= 0) & (calls.res < 0)).tolist():
+        if not good[k]:
+            continue
+        i = int(calls.req[k])
+        key = (int(p.act_hi[i]), int(p.act_lo[i]), int(p.seq[i]))
+        state.open_calls[key] = OpenCall(request_of(view, i), float(view.ts[i]), out.unanswered.get(k), key)
+    _answered_log(view, calls, good, state, rpc_timeout)
+    # pending transactions (their request parsed), the channels' last transactions and requests
+    state.pending = {ch: t for ch, t in out.pending.items() if t.group not in bad}
+    for t in state.pending.values():
+        if isinstance(t.request, int):
+            t.request = view.parsed_record(t.request)
+    state.last_done.update((ch, last) for ch, last in out.done.items() if group_of(ch) not in bad)
+    last: dict = {}
+    for k in range(len(cv.kind)):
+        if cv.kind[k] == KIND_WRITE and good[k] and cv.record[k] >= 0:
+            last[cv.channel[k]] = k
+    for ch, k in last.items():
+        i = int(calls.req[k])
+        state.last_request[ch] = (view.parsed_record(cv.record[k]), cv.frame[k], view.batch.raw_frame(int(p.pos[i])))
+
+
+def _answered_log(view: BatchView, calls: Calls, good: list[bool], state: ColumnarState, rpc_timeout: float) -> None:
+    """The calls answered in this batch, as a log kept rpc_timeout after its last answer, all logs
+    together no longer than the dissector's ANSWERED_CALLS cap."""
+    p = view.p
+    k = np.flatnonzero((calls.res >= 0) & np.array(good, bool)) if len(good) else np.empty(0, np.int64)
+    if len(k):
+        req, res = calls.req[k], calls.res[k]
+        inb = req >= 0
+        r = np.where(inb, req, 0)
+        act_hi, act_lo, seq = p.act_hi[r].copy(), p.act_lo[r].copy(), p.seq[r].copy()
+        group = view.group[r].copy()
+        starts, lengths = p.body_start[r].astype(np.int64), p.body_len[r].astype(np.int64)
+        pieces: list[bytes] = []
+        buf = view.batch.buf
+        b = np.frombuffer(buf, np.uint8)
+        if inb.all():
+            idx = _ranges(starts, lengths)
+            pieces.append(b[idx].tobytes())
+            sizes = lengths
+        else:
+            sizes = np.zeros(len(k), np.int64)
+            for j in range(len(k)):
+                if inb[j]:
+                    s, n = int(starts[j]), int(lengths[j])
+                    pieces.append(buf[s:s + n])
+                else:
+                    carried = calls.carried[int(k[j])]
+                    q = carried.request
+                    act_hi[j], act_lo[j], seq[j] = carried.key
+                    group[j] = q.group
+                    pieces.append(q.frame.data[q.body_at:q.body_at + q.body_len])
+                sizes[j] = len(pieces[-1])
+        off = np.zeros(len(k) + 1, np.int64)
+        np.cumsum(sizes, out=off[1:])
+        answered = view.ts[res]
+        state.answered.append(Answered(act_hi, act_lo, seq, group, calls.frame[k], calls.ts[k], answered, off,
+                                       b"".join(pieces), float(answered.max())))
+    now = view.last_ts
+    logs = [log for log in state.answered if log.last + rpc_timeout >= now]
+    while len(logs) > 1 and sum(len(log.seq) for log in logs[1:]) >= ANSWERED_CALLS.count:
+        logs.pop(0)
+    state.answered = logs
+
+
+def _ranges(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """The byte indices of every range, concatenated."""
+    total = int(lengths.sum())
+    offsets = np.zeros(len(lengths), np.int64)
+    np.cumsum(lengths[:-1], out=offsets[1:])
+    return np.repeat(starts - offsets, lengths) + np.arange(total)
+
+
+def near_caps(state: ColumnarState) -> bool:
+    """The columnar memory has grown to half a cap of the per-frame path: from here on everything goes
+    there, whose caps and evictions are the reference's."""
+    return (len(state.open_calls) > OPEN_CALLS.count // 2 or len(state.pending) > PENDING_TRANSACTIONS.count // 2
+            or len(state.last_request) > CHANNEL_REQUESTS.count // 2 or len(state.last_done) > CHANNEL_HISTORY.count // 2)

@@ -1,0 +1,230 @@
+"""Transactions of the ordinary groups (protocol.md 7.3): a small state machine over their calls.
+
+Calls come in request order with their answers. A write of a parameter request opens a transaction on
+its channel (superseding a pending one: T3; reusing the last one's reference: T1/T4); its answer closes
+it when refused; reads answered B5 count; the final read's answer closes it (Q2-Q5 on the mirroring);
+a deadline passed closes it as a timeout. What the per-frame engine would treat differently (a read with
+no pending write, a read paired by fallback, calls overlapping on one channel, an answer that cannot be
+decoded here) marks the group for the per-frame path instead.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+
+from pd_analyze.analysis.columnar.state import KIND_READ, KIND_WRITE, ChannelKey, Txn
+from pd_analyze.analysis.transaction import (
+    UNANSWERED_ENDS,
+    LastDone,
+    b5_finding,
+    mirroring_findings,
+    reuse_finding,
+    superseded_finding,
+)
+from pd_analyze.model.capped import TXN_FRAMES
+from pd_analyze.model.values import PNIORW_STATE_CONFLICT
+from pd_analyze.model.verdicts import ANSWERED, PRECEDENCE
+
+
+@dataclass(slots=True)
+class CallView:
+    """The calls of a batch's ordinary groups, in request order, as Python lists (one entry per call)."""
+
+    frame: list[int]  # request frame
+    ts: list[float]
+    group: list[int]
+    kind: list[int]  # KIND_*
+    channel: list[ChannelKey | None]
+    record: list[int]  # the write's request record (index into the batch's records), -1 otherwise
+    head: list[tuple[int, int, int, int] | None]  # the write's request header: ref, Request ID, DO, n
+    carried_txn: list[Txn | None]  # the transaction of a call carried over from the last batch
+    # the answer in this batch (res_frame -1: none yet)
+    res_frame: list[int]
+    res_ts: list[float]
+    res_status: list[int]  # PNIOStatus (a write's: per block)
+    res_record: list[int]  # a read's response record, -1 when none (status not OK, or no record)
+    res_head: list[SimpleNamespace | None]  # its ref, ident, do, n, blocks ([error] when header-level)
+
+
+@dataclass(slots=True)
+class Outcome:
+    """What the calls of a batch did to the transactions."""
+
+    opened: list[Txn] = field(default_factory=list)  # in frame order, opened by a write of this batch
+    closed: list[Txn] = field(default_factory=list)
+    owner: dict[int, Txn] = field(default_factory=dict)  # frame -> the transaction it belongs to
+    unanswered: dict[int, Txn | None] = field(default_factory=dict)  # call index -> its transaction
+    reads: list[tuple[int, Txn]] = field(default_factory=list)  # (final response frame, read answered ok/nak)
+    pending: dict[ChannelKey, Txn] = field(default_factory=dict)
+    done: dict[ChannelKey, LastDone] = field(default_factory=dict)  # each channel's last transaction closed
+
+
+class ChannelMachine:
+    """The state machine of one batch over the calls of its ordinary groups."""
+
+    def __init__(self, pending: dict[ChannelKey, Txn], last_done: dict[ChannelKey, LastDone], txn_timeout: float,
+                 b5_threshold: int, bad: set[int]) -> None:
+        self.timeout = txn_timeout
+        self.threshold = b5_threshold
+        self.bad = bad
+        self.last_done = last_done
+        self.out = Outcome(pending=dict(pending))
+        self.pending = self.out.pending
+        # Transactions carried over are copied before this batch changes them: should their group go to the
+        # per-frame path after all, it takes them as they were before the batch (columnar.handover)
+        self._carried = {id(t): t for t in pending.values()}
+        self.copies: dict[int, Txn] = {}  # id of a carried transaction -> its copy
+
+    def run(self, v: CallView) -> Outcome:
+        """Every call in order (`close_due` then closes what the rest of the batch's time let pass)."""
+        answered_in: dict[ChannelKey, int] = {}  # the frame that answered the channel's last call (-1: none yet)
+        for k in range(len(v.frame)):
+            group = v.group[k]
+            if group in self.bad:
+                continue
+            t = v.ts[k]
+            ch = v.channel[k]
+            res_frame = v.res_frame[k]
+            if ch is not None:
+                last = answered_in.get(ch, 0)
+                if last < 0 or last > v.frame[k]:  # the channel's last call is not answered before this one
+                    self.bad.add(group)
+                    continue
+                answered_in[ch] = res_frame
+            kind = v.kind[k]
+            txn = None
+            if kind == KIND_WRITE:
+                txn = self._write(v, k, t)
+            elif kind == KIND_READ:
+                carried = self._own(v.carried_txn[k])
+                txn = carried if carried is not None else self._read(v, k, t)
+                if txn is not None and res_frame >= 0 and carried is not None:
+                    self._read_answer(v, k, txn)
+            if res_frame < 0:
+                self.out.unanswered[k] = txn
+        return self.out
+
+    def close_due(self, now: float) -> None:
+        """The deadlines that passed by `now`, the last PNIO frame's time in the batch (on any path)."""
+        for txn in list(self.pending.values()):
+            if txn.group not in self.bad and txn.t_start + self.timeout < now:
+                self._close(self._own(txn), "deadline")
+
+    def _own(self, txn: Txn | None) -> Txn | None:
+        """The transaction this batch may change: a carried one's copy (made on first use)."""
+        if txn is None or id(txn) not in self._carried:
+            return txn
+        copy = self.copies.get(id(txn))
+        if copy is None:
+            copy = self.copies[id(txn)] = txn.copy()
+            if self.pending.get(txn.channel) is txn:
+                self.pending[txn.channel] = copy
+        return copy
+
+    # --- one call -------------------------------------------------------------------------------
+    def _due(self, ch: ChannelKey, t: float) -> Txn | None:
+        """The channel's pending transaction, after closing it if its deadline passed before time t."""
+        txn = self._own(self.pending.get(ch))
+        if txn is not None and txn.t_start + self.timeout < t:
+            self._close(txn, "deadline")
+            return None
+        return txn
+
+    def _write(self, v: CallView, k: int, t: float) -> Txn:
+        ch, frame = v.channel[k], v.frame[k]
+        assert ch is not None
+        carried = self._own(v.carried_txn[k])
+        if carried is not None:  # opened in the last batch; its answer comes in this one
+            txn = carried
+        else:
+            old = self._due(ch, t)
+            txn = Txn(ch, v.group[k], frame, t)
+            txn.request = v.record[k]
+            head = v.head[k]
+            assert head is not None
+            txn.ref, txn.req_id, txn.do, txn.n_params = head
+            if old is not None:
+                txn.findings.append(superseded_finding(txn.ref, old.write_frame, old.ref, frame))
+                self._close(old, "superseded")
+            last = self.out.done.get(ch) or self.last_done.get(ch)
+            if last is not None:
+                reuse = reuse_finding(last, txn.ref, frame)
+                if reuse is not None:
+                    txn.findings.append(reuse)
+            self.pending[ch] = txn
+            self.out.opened.append(txn)
+            self.out.owner[frame] = txn
+        if v.res_frame[k] >= 0:
+            res_frame, res_ts = v.res_frame[k], v.res_ts[k]
+            if self._due(ch, res_ts) is None:  # the deadline passed before the answer: it belongs to none
+                return txn
+            txn.write_res_frame, txn.t_write_res = res_frame, res_ts
+            self._owns(txn, res_frame)
+            if v.res_status[k]:
+                txn.pnio_status = f"{v.res_status[k]:08X}"
+                self._close(txn, "pnio_error")
+        return txn
+
+    def _read(self, v: CallView, k: int, t: float) -> Txn | None:
+        ch = v.channel[k]
+        assert ch is not None
+        txn = self._due(ch, t)
+        if txn is None:  # no pending write on the channel: T2, or a fallback pairing: the per-frame path's
+            self.bad.add(v.group[k])
+            return None
+        frame = v.frame[k]
+        txn.read_frames.append(frame)
+        txn.t_reads.append(t)
+        self._owns(txn, frame)
+        if v.res_frame[k] >= 0:
+            self._read_answer(v, k, txn)
+        return txn
+
+    def _read_answer(self, v: CallView, k: int, txn: Txn) -> None:
+        res_frame, res_ts = v.res_frame[k], v.res_ts[k]
+        if txn.closed_by or self._due(txn.channel, res_ts) is None:
+            return
+        self._owns(txn, res_frame)
+        status = v.res_status[k]
+        if status:
+            if (status >> 16) & 0xFF == 0x80 and (status >> 8) & 0xFF == PNIORW_STATE_CONFLICT:
+                txn.b5 += 1
+                txn.last_b5 = res_ts
+                if txn.b5 == self.threshold + 1:
+                    txn.findings.append(b5_finding(txn.b5, self.threshold, res_frame))
+                return
+            txn.pnio_status = f"{status:08X}"
+            txn.read_res_frame, txn.t_read_res = res_frame, res_ts
+            self._close(txn, "pnio_error")
+            return
+        head = v.res_head[k]
+        if head is None:  # an answer without a PROFIdrive record: decoded by the per-frame path
+            self.bad.add(v.group[k])
+            return
+        txn.read_res_frame, txn.t_read_res = res_frame, res_ts
+        txn.response = v.res_record[k]
+        found, txn.mismatch = mirroring_findings(txn.ref, txn.req_id, txn.do, txn.n_params, head, res_frame)
+        txn.findings += found
+        self._close(txn, "response", head.ident)
+        if txn.req_id == 0x01 and txn.verdict in ANSWERED:
+            self.out.reads.append((res_frame, txn))
+
+    def _owns(self, txn: Txn, frame: int) -> None:
+        """A frame of the transaction (more than TXN_FRAMES: the per-frame engine evicts it)."""
+        txn.frames.append(frame)
+        self.out.owner[frame] = txn
+        if len(txn.frames) > TXN_FRAMES:
+            self.bad.add(txn.group)
+
+    def _close(self, txn: Txn, why: str, ident: int = -1) -> None:
+        if self.pending.get(txn.channel) is txn:
+            del self.pending[txn.channel]
+        txn.closed_by = why
+        holds = {"malformed": False, "pnio_error": why == "pnio_error", "timeout": why in UNANSWERED_ENDS,
+                 "reference_mismatch": txn.mismatch, "nak": ident >= 0 and bool(ident & 0x80), "ok": True}
+        txn.verdict = next(verdict for verdict in PRECEDENCE if holds[verdict])
+        if why in UNANSWERED_ENDS and not txn.pnio_status and txn.b5:
+            txn.pnio_status = f"DE80{PNIORW_STATE_CONFLICT:02X}00"  # the last answer was B5
+        self.out.done[txn.channel] = LastDone(txn.write_frame, txn.ref, txn.verdict)
+        self.out.closed.append(txn)

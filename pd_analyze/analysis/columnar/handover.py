@@ -1,0 +1,93 @@
+"""A group handed from the columnar path to the per-frame one: what the columns had learnt of it becomes
+the per-frame dissector's and engine's state, as if they had seen the group's frames themselves.
+
+Open calls are opened by the dissector from their request frames; calls answered lately, pending
+transactions, each channel's last transaction and last parameter request are made from what the
+columns kept. The tables whose order decides expiry (open calls, answered calls, pending transactions)
+are put back in time order afterwards, as they would be had the frames come in order.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pd_analyze.analysis.columnar.state import Answered, ChannelKey, ColumnarState, Txn
+from pd_analyze.analysis.transaction import Transaction
+from pd_analyze.analysis.transactions import TransactionEngine
+from pd_analyze.protocol import rpc_calls
+from pd_analyze.protocol.dissector import Dissector
+from pd_analyze.protocol.profidrive import Parsed
+
+
+def uuid_bytes(hi: int, lo: int) -> bytes:
+    return hi.to_bytes(8, "big") + lo.to_bytes(8, "big")
+
+
+def channel_bytes(ch: ChannelKey) -> tuple:
+    """A columnar channel key as the per-frame engine writes it."""
+    device, controller, ar_hi, ar_lo, api, slot, subslot, index = ch
+    return (device.to_bytes(4, "big"), controller.to_bytes(4, "big"), uuid_bytes(ar_hi, ar_lo), api, slot, subslot,
+            index)
+
+
+def group_of(ch: ChannelKey) -> int:
+    """The IP address pair of a channel, as the columns key groups."""
+    a, b = ch[0], ch[1]
+    return min(a, b) << 32 | max(a, b)
+
+
+def hand_over(groups: set[int], state: ColumnarState, d: Dissector, engine: TransactionEngine, now: float,
+              rpc_timeout: float) -> None:
+    """Move the columnar state of `groups` to the per-frame dissector `d` and `engine`; `now` is the
+    capture time reached (calls answered longer than rpc_timeout before it are forgotten)."""
+    if not groups:
+        return
+    calls: dict[int, rpc_calls.Call] = {}  # request frame -> its call, for the transactions' rpc_calls
+    for key, open_call in [(k, c) for k, c in state.open_calls.items() if c.request.group in groups]:
+        del state.open_calls[key]
+        call = d.adopt_request(open_call.request.frame)
+        if call is not None:
+            calls[call.frame] = call
+    for log in state.answered:
+        calls.update(_answered(d, log, groups, now, rpc_timeout))
+    for ch, txn in [(c, t) for c, t in state.pending.items() if t.group in groups]:
+        del state.pending[ch]
+        _pending(engine, txn, channel_bytes(ch), calls)
+    for ch in [c for c in state.last_done if group_of(c) in groups]:
+        engine.adopt_last(channel_bytes(ch), state.last_done.pop(ch))
+    for ch in [c for c in state.last_request if group_of(c) in groups]:
+        parsed, frame, _raw = state.last_request.pop(ch)
+        d.adopt_channel_request(channel_bytes(ch), parsed, frame)
+    d.reorder()
+    engine.reorder()
+
+
+def _answered(d: Dissector, log: Answered, groups: set[int], now: float,
+              rpc_timeout: float) -> dict[int, rpc_calls.Call]:
+    """The calls of `groups` answered lately, as the dissector remembers them (by the digest of their body)."""
+    out = {}
+    keep = np.isin(log.group, np.fromiter(groups, np.uint64, len(groups))) & (log.answered + rpc_timeout >= now)
+    for i in np.flatnonzero(keep):
+        body = log.bodies[int(log.body_off[i]):int(log.body_off[i + 1])]
+        call = rpc_calls.Call(int(log.frame[i]), float(log.req_ts[i]), b"", b"", b"", 0, body)
+        call.answered = float(log.answered[i])
+        d.adopt_answered((uuid_bytes(int(log.act_hi[i]), int(log.act_lo[i])), int(log.seq[i])), call)
+        out[call.frame] = call
+    return out
+
+
+def _pending(engine: TransactionEngine, t: Txn, channel: tuple, calls: dict[int, rpc_calls.Call]) -> None:
+    """A pending columnar transaction as the engine's Transaction, with the calls it waits on."""
+    request = t.request if isinstance(t.request, Parsed) else None
+    txn = Transaction(t.number, channel, request, t.write_frame, t.t_start, t.ref, t.req_id, t.do, t.n_params)
+    txn.write_res_frame, txn.t_write_res = t.write_res_frame, t.t_write_res
+    txn.read_req_frames, txn.t_read_reqs = list(t.read_frames), list(t.t_reads)
+    txn.b5_retries, txn.last_b5_res = t.b5, t.last_b5
+    txn.frames = list(t.frames)
+    txn.findings = list(t.findings)
+    txn.values_before = t.values_before
+    own = [t.write_frame, *t.read_frames]
+    txn.rpc_calls = [calls[f] for f in own if f in calls]
+    waiting = [(f, "write" if f == t.write_frame else "read") for f in own
+               if f in calls and calls[f].answered == float("-inf")]
+    engine.adopt(txn, waiting)
