@@ -3,18 +3,33 @@
 `batches(path)` yields the same frames as `capture.frames(path)` (same numbers, times, link types, bytes,
 the same CaptureError after every good frame), a batch at a time: frame i of a batch is
 `batch.buf[batch.start[i] : batch.start[i] + batch.caplen[i]]`.
+
+Classic pcap (gzip-compressed or not) is read in chunks of a few MB, each the `buf` of its batches: a
+tight loop walks the 16-byte record headers, numpy reads the times from them. pcapng comes from the
+per-frame reader, its frames joined into one buffer per batch.
 """
 
 from __future__ import annotations
 
+import struct
+import zlib
+from array import array
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import BinaryIO
 
 import numpy as np
 
-from pd_analyze.capture.raw import CaptureInfo, RawFrame
+from pd_analyze.capture import pcap
+from pd_analyze.capture.gzip_stream import read_failure
+from pd_analyze.capture.pcap import PCAP_MAGICS, pcap_header
+from pd_analyze.capture.pcapng import pcapng_frames
+from pd_analyze.capture.raw import MAX_CAPLEN, CaptureError, CaptureInfo, RawFrame
+from pd_analyze.capture.reader import in_decompressed, open_capture
 
 BATCH_FRAMES = 65_536  # frames per batch by default (a batch of full-size frames: about 100 MB)
+_PIECES = 8  # a chunk is this many of pcap_frames' reads (8 MiB): per-chunk costs vanish, memory stays small
+_MARKS = 1 << 16  # split_offsets notes at most about this many records while it counts them
 
 
 @dataclass(slots=True)
@@ -43,4 +58,259 @@ def batches(path: str, size: int = BATCH_FRAMES, info: CaptureInfo | None = None
     """The frames of a capture (`-`: standard input) in batches of at most `size` frames.
 
     A damaged file: every good frame is yielded (the last batch may be short), then CaptureError."""
-    raise NotImplementedError
+    if size < 1:
+        raise ValueError(f"batch size {size}: must be at least 1")
+    info = info or CaptureInfo(path)
+    stream, fmt = open_capture(path, info)
+    try:
+        try:
+            if fmt == "pcap":
+                for _base, batch in _pcap_batches(path, stream, info, size, stream.read(24), 24, 1):
+                    yield batch
+            else:
+                yield from _joined_batches(pcapng_frames(path, stream, info), size)
+        except CaptureError as exc:
+            if not info.compressed or exc.offset is None:
+                raise
+            raise in_decompressed(exc) from None
+    finally:
+        stream.close()
+
+
+def batches_from(path: str, offset: int, first_number: int, size: int = BATCH_FRAMES) -> Iterator[FrameBatch]:
+    """The frames of a classic pcap from the record at byte `offset`, numbered from `first_number`, in
+    batches (as `capture.pcap_frames_from` yields them one at a time)."""
+    if size < 1:
+        raise ValueError(f"batch size {size}: must be at least 1")
+    with open(path, "rb") as f:
+        head = f.read(24)
+        f.seek(offset)
+        for _base, batch in _pcap_batches(path, f, CaptureInfo(path), size, head, offset, first_number):
+            yield batch
+
+
+def split_offsets(path: str, parts: int) -> list[tuple[int, int]] | None:
+    """(byte offset, frame number) of about `parts` record boundaries of an uncompressed classic pcap,
+    evenly spaced by frame count, the first at frame 1: `batches_from` reads each part from its point to
+    the next one's frame. None for any other file, and for a damaged one (read whole, it reports the damage).
+    Reads the whole file (the records have no index), at the speed of `batches`."""
+    if parts < 1:
+        raise ValueError(f"{parts} parts: must be at least 1")
+    # (offset, number) of frames 1, 1 + step, 1 + 2 * step, ...: every frame's while there are few, every
+    # other one's when there are more than _MARKS, and so on (memory bounded, points exact on small files)
+    marks: list[tuple[int, int]] = []
+    step = 1
+    count = 0
+    try:
+        with open(path, "rb") as f:
+            head = f.read(24)
+            if len(head) < 24 or head[:4] not in PCAP_MAGICS:
+                return None
+            for base, batch in _pcap_batches(path, f, CaptureInfo(path), BATCH_FRAMES, head, 24, 1):
+                first = -(int(batch.number[0]) - 1) % step  # index of the batch's first marked frame
+                offsets = batch.start[first::step] - 16 + base
+                marks += zip(offsets.tolist(), batch.number[first::step].tolist(), strict=True)
+                while len(marks) > _MARKS:
+                    marks, step = marks[::2], step * 2
+                count = int(batch.number[-1])
+    except (OSError, CaptureError):
+        return None
+    if not count:
+        return [(24, 1)]
+    points = [marks[(i * count // parts) // step] for i in range(parts)]
+    return sorted(set(points), key=lambda point: point[1])
+
+
+def _pcap_batches(path: str, stream: BinaryIO, info: CaptureInfo, size: int, head: bytes, origin: int,
+                  number: int) -> Iterator[tuple[int, FrameBatch]]:
+    """Batches of a classic pcap whose records begin at byte `origin` (where `stream` stands), each with
+    the file offset of its buf.
+
+    A chunk's records are found by a loop of one unpack and one append each, its complete records
+    yielded, the incomplete rest carried into the next chunk. Damage is told exactly as pcap_frames tells
+    it: chunks are whole numbers of its reads (`_Reads`), and at the end of the data `_ends_unread`
+    knows which of its reads would have come next."""
+    little, divisor, linktype = pcap_header(path, head)
+    info.linktypes = [linktype]
+    caplen_at = struct.Struct("<8xI" if little else ">8xI").unpack_from
+    word = np.dtype("<u4" if little else ">u4")
+    reads = _Reads(path, stream, origin)
+    buf, base = b"", origin  # base: the file offset of buf[0], always a record's start
+    while True:
+        starts = _record_starts(buf, caplen_at)
+        complete = int(np.searchsorted(starts, len(buf), "right")) - 1  # records whose end is in buf
+        caplen = np.diff(starts[:complete + 1]) - 16
+        too_long = np.flatnonzero(caplen > MAX_CAPLEN)
+        good = int(too_long[0]) if too_long.size else complete
+        if good:
+            chunk = _columns(buf, starts[:good], caplen[:good], word, divisor, linktype, number)
+            number += good
+            for i in range(0, good, size):
+                yield base, _rows(chunk, i, i + size)
+        if too_long.size:
+            raise _too_long(path, int(caplen[good]), base + int(starts[good]))
+        pos = int(starts[complete])  # the first record not complete in buf, or its end
+        rest, at = len(buf) - pos, base + pos
+        claimed = 0
+        if rest >= 16:  # pcap_frames refuses a record longer than the limit before reading its data
+            claimed = caplen_at(buf, pos)[0]
+            if claimed > MAX_CAPLEN:
+                raise _too_long(path, claimed, at)
+        if rest and reads.short and _ends_unread(origin, at, base + len(buf), rest):
+            raise _truncated(path, rest, claimed, at)
+        buf, base = reads.chunk(at, buf[pos:]), at
+        if len(buf) == rest:  # nothing more came
+            if rest:
+                raise _truncated(path, rest, claimed, at)
+            return
+
+
+class _Reads:
+    """pcap_frames' reads of pcap._CHUNK bytes, each from where the last one ended, _PIECES at a time, so
+    that both readers see the same reads succeed, come up short or fail. A failure after some good reads
+    is held back until the data before it is used up: pcap_frames meets it only then.
+
+    A seekable file is read again from the record that waits for more data, in one read up to a read
+    boundary of pcap_frames: no copy of the chunk to join its pieces and that record's first bytes (two
+    copies cost as much as the walk). Only when such a read fails are the pieces read one by one."""
+
+    def __init__(self, path: str, stream: BinaryIO, origin: int) -> None:
+        self.path = path
+        self.stream = stream
+        self.short = False  # the last read returned less than asked: the data ends (or fails) after it
+        self.failure: BaseException | None = None
+        self.shift: int | None = None  # stream position minus data offset; None: not seekable
+        try:
+            if stream.seekable():
+                self.shift = stream.tell() - origin
+        except (OSError, ValueError):
+            pass
+
+    def chunk(self, at: int, rest: bytes) -> bytes:
+        """The data from `at`, the start of the record waiting for more: `rest`, its bytes at hand, and
+        what the next reads bring (nothing more at the end of the data)."""
+        if self.failure is not None:
+            raise self._failed(self.failure, at)
+        piece = pcap._CHUNK
+        if self.shift is not None:
+            want = len(rest) + _PIECES * piece
+            try:
+                self.stream.seek(at + self.shift)
+                data = self.stream.read(want)
+            except (OSError, EOFError, zlib.error):
+                self.stream.seek(at + len(rest) + self.shift)  # where the pieces go on
+            else:
+                self.short = len(data) < want
+                return data
+        parts = [rest]
+        self.short = False
+        for _ in range(_PIECES):
+            try:
+                data = self.stream.read(piece)
+            except (OSError, EOFError, zlib.error) as exc:
+                if len(parts) == 1:
+                    raise self._failed(exc, at) from None
+                self.failure = exc
+                break
+            parts.append(data)
+            if len(data) < piece:
+                self.short = True
+                break
+        return b"".join(parts)
+
+    def _failed(self, exc: BaseException, at: int) -> CaptureError:
+        self.failure = None
+        return CaptureError(self.path, f"read failed ({read_failure(exc)})", at)
+
+
+def _ends_unread(origin: int, at: int, end: int, rest: int) -> bool:
+    """Whether pcap_frames stops at the record at `at`, cut by the end of the data at `end`, without
+    reading again (its error is then the cut record, not a failure of that read; on a gzip stream the two
+    differ). Its reads start at origin + k * pcap._CHUNK; `first` is the first of those at or after `at`.
+    Before `first` it holds the record's first bytes; if those are not a header it reads at `first` for
+    one (when `first` is before the end, that read brings all that is left); with a header it reads the
+    record's data, once (pcap._CHUNK exceeds any record) and gives up if that is not enough."""
+    piece = pcap._CHUNK
+    first = origin + -(-(at - origin) // piece) * piece
+    return first < end and (rest < 16 or first - at >= 16)
+
+
+def _record_starts(buf: bytes, caplen_at: object) -> np.ndarray:
+    """Offsets of the records that follow each other from buf[0], as far as their lengths can be read;
+    the last is where the walk ended: fewer than 12 bytes (or none) there, or beyond the end of buf.
+
+    About 0.1 us a record: per record one unpack and one append, no check (an exception ends the loop);
+    the caller finds the records that are complete and bounds their lengths, with numpy."""
+    starts = array("q")
+    append = starts.append
+    unpack = caplen_at  # local: the loop looks it up once per record
+    pos = 0
+    try:
+        while True:
+            append(pos)
+            pos += 16 + unpack(buf, pos)[0]  # type: ignore[operator]
+    except struct.error:
+        pass
+    return np.frombuffer(starts, np.int64)
+
+
+def _columns(buf: bytes, starts: np.ndarray, caplen: np.ndarray, word: np.dtype, divisor: float,
+             linktype: int, number: int) -> FrameBatch:
+    """The columns of complete records at `starts` of buf."""
+    count = len(starts)
+    # records start at any byte: their times are gathered byte by byte (8 of each header), then read as
+    # two words; per record this costs less than a uint32 view per alignment and boolean masks
+    stamps = np.take(np.frombuffer(buf, np.uint8), np.add.outer(starts, _STAMP_BYTES)).view(word)
+    sec, frac = stamps[:, 0], stamps[:, 1]
+    ts = sec.astype(np.float64) + frac.astype(np.float64) / divisor  # as pcap_frames: sec + frac / divisor
+    # A pcap link type is 32 bits, FCS flags on top: above 2^31 (hostile files) it is kept as its bit pattern
+    lt = np.full(count, linktype - (1 << 32) if linktype >= 1 << 31 else linktype, np.int32)
+    return FrameBatch(buf, np.arange(number, number + count, dtype=np.int64), ts, lt, starts + 16,
+                      caplen, np.zeros(count, np.int32))
+
+
+_STAMP_BYTES = np.arange(8, dtype=np.int64)  # a record header's seconds and fraction of a second
+
+
+def _rows(batch: FrameBatch, start: int, stop: int) -> FrameBatch:
+    if start == 0 and stop >= len(batch):
+        return batch
+    return FrameBatch(batch.buf, batch.number[start:stop], batch.ts[start:stop], batch.linktype[start:stop],
+                      batch.start[start:stop], batch.caplen[start:stop], batch.iface[start:stop])
+
+
+def _too_long(path: str, caplen: int, at: int) -> CaptureError:
+    return CaptureError(path, f"record length {caplen} exceeds {MAX_CAPLEN} bytes (corrupt record header)", at)
+
+
+def _truncated(path: str, rest: int, caplen: int, at: int) -> CaptureError:
+    if rest < 16:
+        return CaptureError(path, f"record header truncated ({rest} of 16 bytes present)", at)
+    return CaptureError(path, f"record data truncated ({rest - 16} of {caplen} bytes present)", at)
+
+
+def _joined_batches(frames: Iterator[RawFrame], size: int) -> Iterator[FrameBatch]:
+    """Frames of the per-frame reader, `size` at a time joined into a batch; the frames before an error
+    come as a last batch before it."""
+    held: list[RawFrame] = []
+    try:
+        for frame in frames:
+            held.append(frame)
+            if len(held) == size:
+                yield _joined(held)
+                held = []
+    except CaptureError:
+        if held:
+            yield _joined(held)
+        raise
+    if held:
+        yield _joined(held)
+
+
+def _joined(frames: list[RawFrame]) -> FrameBatch:
+    numbers, stamps, linktypes, datas, ifaces, _runs = zip(*frames, strict=True)
+    caplen = np.fromiter(map(len, datas), np.int64, len(datas))
+    start = np.zeros(len(datas), np.int64)
+    np.cumsum(caplen[:-1], out=start[1:])
+    return FrameBatch(b"".join(datas), np.array(numbers, np.int64), np.array(stamps, np.float64),
+                      np.array(linktypes, np.int32), start, caplen, np.array(ifaces, np.int32))
