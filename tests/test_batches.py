@@ -14,7 +14,7 @@ import pytest
 
 from devtools.fuzz import corpus
 from pd_analyze import capture
-from pd_analyze.capture import MAX_CAPLEN, CaptureError, pcap
+from pd_analyze.capture import MAX_CAPLEN, CaptureError, chunks, pcap
 from pd_analyze.capture.batches import BATCH_FRAMES, FrameBatch, batches, batches_from, split_offsets
 from tests.test_capture import FRAME_A, FRAME_B, block, epb, idb, shb, spb
 from tests.test_capture import pcap as pcap_file
@@ -97,13 +97,11 @@ def test_columns_have_the_contract_types_and_frames_lie_in_buf(path: str) -> Non
 
 def test_a_batch_holds_a_chunk_at_most(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Memory: a pcap's buf is one chunk (its records' headers included), whatever the file's size."""
-    from pd_analyze.capture import batches as module
-
     small_reads(monkeypatch, 256)
     path = tmp_path / "many.pcap"
     path.write_bytes(pcap_file([(n, n, bytes([n % 251]) * (14 + n % 40)) for n in range(1, 400)]))
     got = list(batches(str(path), 50))
-    assert max(len(b.buf) for b in got) <= module._PIECES * 256 + 16 + 60
+    assert max(len(b.buf) for b in got) <= chunks.PIECES * 256 + 16 + 60
     same([f for b in got for f in frames_of(b)], list(capture.frames(str(path))))
 
 
@@ -135,7 +133,7 @@ def _records(count: int) -> list[tuple[int, int, bytes]]:
 def test_pcap_cut_at_every_byte(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, magic: int, order: str) -> None:
     """Every length of a pcap, with reads of 64 bytes so that records straddle reads and chunks."""
     small_reads(monkeypatch)
-    data = pcap_file(_records(40), magic, order)
+    data = pcap_file(_records(25), magic, order)
     path = tmp_path / "cut.pcap"
     errors = set()
     for end in range(len(data) + 1):
@@ -222,6 +220,75 @@ def test_pcapng_damage(tmp_path: Path, kind: str, compressed: bool) -> None:
     assert error is not None and ("decompressed data" in error[2]) == compressed
 
 
+def _pcapng_mix() -> bytes:
+    """Two sections (little- then big-endian), interfaces with their own resolutions and offsets, every
+    packet block kind, blocks to skip, times past 2^53 ticks."""
+    def pb(iface: int, ticks: int, data: bytes, order: str = "<") -> bytes:
+        return block(2, struct.pack(order + "HHIIII", iface, 0, ticks >> 32, ticks & 0xFFFFFFFF, len(data),
+                                    len(data)) + data, order)
+
+    def idb_offset(linktype: int, offset: int, order: str) -> bytes:
+        opts = struct.pack(order + "HH", 9, 1) + bytes([0x80 | 20, 0, 0, 0])  # 2^-20 s
+        opts += struct.pack(order + "HHq", 14, 8, offset) + struct.pack(order + "HH", 0, 0)
+        return block(1, struct.pack(order + "HHI", linktype, 0, 0) + opts, order)
+
+    frames = [bytes([n]) * (14 + n % 23) for n in range(1, 40)]
+    out = shb() + idb(1) + block(0x0BAD, b"custom") + idb(113, tsresol=9)
+    for n, frame in enumerate(frames[:20]):
+        out += epb(n % 2, 1_700_000_000_123_456_789 + n * 977, frame) if n % 5 else spb(frame)
+    out += pb(1, 1 << 60, frames[20]) + block(5, bytes(16))  # a packet block, an interface statistics block
+    out += shb(">") + idb_offset(1, -3600, ">") + idb(101, tsresol=6, order=">")
+    for n, frame in enumerate(frames[21:]):
+        out += epb(n % 2, (1 << 40) + n * 12_345, frame, ">")
+    return out
+
+
+@pytest.mark.parametrize("compressed", [False, True])
+def test_pcapng_cut_at_every_byte(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, compressed: bool) -> None:
+    """Every length of a pcapng of every kind of block, read in small pieces so that blocks straddle chunks."""
+    small_reads(monkeypatch)
+    data = _pcapng_mix()
+    assert len(list(capture.frames(_write(tmp_path, data, False)))) == 39
+    reasons = set()
+    for end in range(0, len(data) + 1, 3 if compressed else 1):
+        error = same_outcome(_write(tmp_path, data[:end], compressed), 3)
+        reasons.add(error[2].split(" (")[0] if error else None)
+    assert {None, "block truncated", "section header block truncated"} <= reasons
+
+
+@pytest.mark.parametrize("compressed", [False, True])
+def test_pcapng_corrupted_anywhere(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, compressed: bool) -> None:
+    """A byte flipped anywhere (every third byte: every position in a 32-bit word is hit)."""
+    small_reads(monkeypatch)
+    data = _pcapng_mix()
+    reasons = []
+    for at in range(0, len(data), 3):
+        broken = bytearray(data)
+        broken[at] ^= 0xFF
+        error = same_outcome(_write(tmp_path, bytes(broken), compressed), 4)
+        reasons.append(error[2] if error else "")
+    for told in ("has invalid length", "trailing length differs", "caplen", "names interface", "byte-order magic"):
+        assert any(told in reason for reason in reasons), told
+
+
+def test_gzip_pcapng_cut_in_its_compressed_data(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    small_reads(monkeypatch)
+    packed = gzip.compress(_pcapng_mix(), compresslevel=1, mtime=0)
+    reasons = set()
+    for end in range(10, len(packed) + 1):
+        path = tmp_path / "cut.pcapng.gz"
+        path.write_bytes(packed[:end])
+        error = same_outcome(str(path), 5)
+        reasons.add(error[2].split(" (")[0] if error else None)
+    assert {"block truncated", "read failed"} <= reasons
+
+
+def _write(tmp_path: Path, data: bytes, compressed: bool) -> str:
+    path = tmp_path / ("x.pcapng.gz" if compressed else "x.pcapng")
+    path.write_bytes(gzip.compress(data, compresslevel=1, mtime=0) if compressed else data)
+    return str(path)
+
+
 def test_unreadable_missing_and_permission(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     assert "read failed" in same_outcome("/proc/self/mem")[2]
     assert "no such file" in same_outcome(str(tmp_path / "absent.pcap"))[2]
@@ -249,6 +316,25 @@ def test_a_read_failing_after_good_reads_is_met_where_capture_frames_meets_it(
         monkeypatch.setattr(reader, "open", _failing_from(bad), raising=False)
         error = same_outcome(str(path), 4)
         assert error is not None and "Input/output error" in error[2]
+
+
+def test_a_failing_disk_under_a_pcapng_stops_the_frames_with_a_read_failure(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """pcapng reads block by block, the batch reader in chunks: where a failing disk stops them may differ
+    (it does on a real disk too, with the buffer's reads); the frames before it and the message do not."""
+    small_reads(monkeypatch)
+    path = tmp_path / "disk.pcapng"
+    path.write_bytes(_pcapng_mix())
+
+    from pd_analyze.capture import reader
+
+    for bad in range(100, len(_pcapng_mix()), 53):
+        monkeypatch.setattr(reader, "open", _failing_from(bad), raising=False)
+        want, error = outcome(capture.frames(str(path)))
+        got, got_error = outcome(batches(str(path), 4))
+        same(got, want[:len(got)])
+        assert got_error is not None and error is not None and got_error[1] <= error[1]
+        assert got_error[2] == error[2] and error[2].startswith("read failed") and "Input/output" in error[2]
 
 
 def _failing_from(bad: int):

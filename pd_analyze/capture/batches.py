@@ -4,31 +4,32 @@
 the same CaptureError after every good frame), a batch at a time: frame i of a batch is
 `batch.buf[batch.start[i] : batch.start[i] + batch.caplen[i]]`.
 
-Classic pcap (gzip-compressed or not) is read in chunks of a few MB, each the `buf` of its batches: a
-tight loop walks the 16-byte record headers, numpy reads the times from them. pcapng comes from the
-per-frame reader, its frames joined into one buffer per batch.
+Both formats, gzip-compressed or not, are read in chunks of 8 MiB, each the `buf` of its batches (frames
+located by `start`, no copy of a frame): a tight loop chains the record (pcap) or block (pcapng) headers
+by their lengths, numpy reads the rest of the headers and checks them; pcapng's other blocks, and any
+block a check refuses, go through the per-frame reader's own code (pcapng_chunks). Damage is told as
+capture.frames tells it: the chunks follow its reads (chunks.ChunkReads). Memory: a chunk, its columns
+and what the caller keeps of the batches.
 """
 
 from __future__ import annotations
 
 import struct
-import zlib
 from array import array
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import BinaryIO
 
 import numpy as np
 
 from pd_analyze.capture import pcap
-from pd_analyze.capture.gzip_stream import read_failure
+from pd_analyze.capture.chunks import ChunkReads
 from pd_analyze.capture.pcap import PCAP_MAGICS, pcap_header
-from pd_analyze.capture.pcapng import pcapng_frames
+from pd_analyze.capture.pcapng_chunks import pcapng_columns
 from pd_analyze.capture.raw import MAX_CAPLEN, CaptureError, CaptureInfo, RawFrame
 from pd_analyze.capture.reader import in_decompressed, open_capture
 
 BATCH_FRAMES = 65_536  # frames per batch by default (a batch of full-size frames: about 100 MB)
-_PIECES = 8  # a chunk is this many of pcap_frames' reads (8 MiB): per-chunk costs vanish, memory stays small
 _MARKS = 1 << 16  # split_offsets notes at most about this many records while it counts them
 
 
@@ -68,7 +69,10 @@ def batches(path: str, size: int = BATCH_FRAMES, info: CaptureInfo | None = None
                 for _base, batch in _pcap_batches(path, stream, info, size, stream.read(24), 24, 1):
                     yield batch
             else:
-                yield from _joined_batches(pcapng_frames(path, stream, info), size)
+                for columns in pcapng_columns(path, stream, info):
+                    chunk = FrameBatch(*columns)
+                    for i in range(0, len(chunk), size):
+                        yield _rows(chunk, i, i + size)
         except CaptureError as exc:
             if not info.compressed or exc.offset is None:
                 raise
@@ -128,13 +132,13 @@ def _pcap_batches(path: str, stream: BinaryIO, info: CaptureInfo, size: int, hea
 
     A chunk's records are found by a loop of one unpack and one append each, its complete records
     yielded, the incomplete rest carried into the next chunk. Damage is told exactly as pcap_frames tells
-    it: chunks are whole numbers of its reads (`_Reads`), and at the end of the data `_ends_unread`
+    it: chunks are whole numbers of its reads (`ChunkReads`), and at the end of the data `_ends_unread`
     knows which of its reads would have come next."""
     little, divisor, linktype = pcap_header(path, head)
     info.linktypes = [linktype]
     caplen_at = struct.Struct("<8xI" if little else ">8xI").unpack_from
     word = np.dtype("<u4" if little else ">u4")
-    reads = _Reads(path, stream, origin)
+    reads = ChunkReads(path, stream, origin)
     buf, base = b"", origin  # base: the file offset of buf[0], always a record's start
     while True:
         starts = _record_starts(buf, caplen_at)
@@ -160,67 +164,11 @@ def _pcap_batches(path: str, stream: BinaryIO, info: CaptureInfo, size: int, hea
             raise _truncated(path, rest, claimed, at)
         buf, base = reads.chunk(at, buf[pos:]), at
         if len(buf) == rest:  # nothing more came
+            if reads.failure is not None:
+                raise reads.failed(at)
             if rest:
                 raise _truncated(path, rest, claimed, at)
             return
-
-
-class _Reads:
-    """pcap_frames' reads of pcap._CHUNK bytes, each from where the last one ended, _PIECES at a time, so
-    that both readers see the same reads succeed, come up short or fail. A failure after some good reads
-    is held back until the data before it is used up: pcap_frames meets it only then.
-
-    A seekable file is read again from the record that waits for more data, in one read up to a read
-    boundary of pcap_frames: no copy of the chunk to join its pieces and that record's first bytes (two
-    copies cost as much as the walk). Only when such a read fails are the pieces read one by one."""
-
-    def __init__(self, path: str, stream: BinaryIO, origin: int) -> None:
-        self.path = path
-        self.stream = stream
-        self.short = False  # the last read returned less than asked: the data ends (or fails) after it
-        self.failure: BaseException | None = None
-        self.shift: int | None = None  # stream position minus data offset; None: not seekable
-        try:
-            if stream.seekable():
-                self.shift = stream.tell() - origin
-        except (OSError, ValueError):
-            pass
-
-    def chunk(self, at: int, rest: bytes) -> bytes:
-        """The data from `at`, the start of the record waiting for more: `rest`, its bytes at hand, and
-        what the next reads bring (nothing more at the end of the data)."""
-        if self.failure is not None:
-            raise self._failed(self.failure, at)
-        piece = pcap._CHUNK
-        if self.shift is not None:
-            want = len(rest) + _PIECES * piece
-            try:
-                self.stream.seek(at + self.shift)
-                data = self.stream.read(want)
-            except (OSError, EOFError, zlib.error):
-                self.stream.seek(at + len(rest) + self.shift)  # where the pieces go on
-            else:
-                self.short = len(data) < want
-                return data
-        parts = [rest]
-        self.short = False
-        for _ in range(_PIECES):
-            try:
-                data = self.stream.read(piece)
-            except (OSError, EOFError, zlib.error) as exc:
-                if len(parts) == 1:
-                    raise self._failed(exc, at) from None
-                self.failure = exc
-                break
-            parts.append(data)
-            if len(data) < piece:
-                self.short = True
-                break
-        return b"".join(parts)
-
-    def _failed(self, exc: BaseException, at: int) -> CaptureError:
-        self.failure = None
-        return CaptureError(self.path, f"read failed ({read_failure(exc)})", at)
 
 
 def _ends_unread(origin: int, at: int, end: int, rest: int) -> bool:
@@ -235,7 +183,7 @@ def _ends_unread(origin: int, at: int, end: int, rest: int) -> bool:
     return first < end and (rest < 16 or first - at >= 16)
 
 
-def _record_starts(buf: bytes, caplen_at: object) -> np.ndarray:
+def _record_starts(buf: bytes, caplen_at: Callable[[bytes, int], tuple[int, ...]]) -> np.ndarray:
     """Offsets of the records that follow each other from buf[0], as far as their lengths can be read;
     the last is where the walk ended: fewer than 12 bytes (or none) there, or beyond the end of buf.
 
@@ -248,7 +196,7 @@ def _record_starts(buf: bytes, caplen_at: object) -> np.ndarray:
     try:
         while True:
             append(pos)
-            pos += 16 + unpack(buf, pos)[0]  # type: ignore[operator]
+            pos += 16 + unpack(buf, pos)[0]
     except struct.error:
         pass
     return np.frombuffer(starts, np.int64)
@@ -287,30 +235,3 @@ def _truncated(path: str, rest: int, caplen: int, at: int) -> CaptureError:
     if rest < 16:
         return CaptureError(path, f"record header truncated ({rest} of 16 bytes present)", at)
     return CaptureError(path, f"record data truncated ({rest - 16} of {caplen} bytes present)", at)
-
-
-def _joined_batches(frames: Iterator[RawFrame], size: int) -> Iterator[FrameBatch]:
-    """Frames of the per-frame reader, `size` at a time joined into a batch; the frames before an error
-    come as a last batch before it."""
-    held: list[RawFrame] = []
-    try:
-        for frame in frames:
-            held.append(frame)
-            if len(held) == size:
-                yield _joined(held)
-                held = []
-    except CaptureError:
-        if held:
-            yield _joined(held)
-        raise
-    if held:
-        yield _joined(held)
-
-
-def _joined(frames: list[RawFrame]) -> FrameBatch:
-    numbers, stamps, linktypes, datas, ifaces, _runs = zip(*frames, strict=True)
-    caplen = np.fromiter(map(len, datas), np.int64, len(datas))
-    start = np.zeros(len(datas), np.int64)
-    np.cumsum(caplen[:-1], out=start[1:])
-    return FrameBatch(b"".join(datas), np.array(numbers, np.int64), np.array(stamps, np.float64),
-                      np.array(linktypes, np.int32), start, caplen, np.array(ifaces, np.int32))
