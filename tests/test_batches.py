@@ -289,6 +289,16 @@ def _write(tmp_path: Path, data: bytes, compressed: bool) -> str:
     return str(path)
 
 
+def test_pcapng_sections_changing_byte_order_over_and_over(tmp_path: Path) -> None:
+    """300 sections, little- and big-endian in turn: past a few changes a chunk is read block by block."""
+    data = b"".join(shb(o) + idb(1, order=o) + epb(0, n, bytes([n % 256]) * 60, o) + spb(bytes(61), o)
+                    for n, o in zip(range(300), "<>" * 150, strict=True))
+    for end in (len(data), len(data) - 5, len(data) // 2 + 3):
+        path = _write(tmp_path, data[:end], False)
+        same_outcome(path, 7)
+    assert len(list(capture.frames(_write(tmp_path, data, False)))) == 600
+
+
 def test_unreadable_missing_and_permission(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     assert "read failed" in same_outcome("/proc/self/mem")[2]
     assert "no such file" in same_outcome(str(tmp_path / "absent.pcap"))[2]
