@@ -3,18 +3,34 @@
 `batches(path)` yields the same frames as `capture.frames(path)` (same numbers, times, link types, bytes,
 the same CaptureError after every good frame), a batch at a time: frame i of a batch is
 `batch.buf[batch.start[i] : batch.start[i] + batch.caplen[i]]`.
+
+Both formats, gzip-compressed or not, are read in chunks of 8 MiB, each the `buf` of its batches (frames
+located by `start`, no copy of a frame): a tight loop chains the record (pcap) or block (pcapng) headers
+by their lengths, numpy reads the rest of the headers and checks them; pcapng's other blocks, and any
+block a check refuses, go through the per-frame reader's own code (pcapng_chunks). Damage is told as
+capture.frames tells it: the chunks follow its reads (chunks.ChunkReads). Memory: a chunk, its columns
+and what the caller keeps of the batches.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import struct
+from array import array
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from typing import BinaryIO
 
 import numpy as np
 
-from pd_analyze.capture.raw import CaptureInfo, RawFrame
+from pd_analyze.capture import pcap
+from pd_analyze.capture.chunks import ChunkReads
+from pd_analyze.capture.pcap import PCAP_MAGICS, pcap_header
+from pd_analyze.capture.pcapng_chunks import pcapng_columns
+from pd_analyze.capture.raw import MAX_CAPLEN, CaptureError, CaptureInfo, RawFrame
+from pd_analyze.capture.reader import in_decompressed, open_capture
 
 BATCH_FRAMES = 65_536  # frames per batch by default (a batch of full-size frames: about 100 MB)
+_MARKS = 1 << 16  # split_offsets notes at most about this many records while it counts them
 
 
 @dataclass(slots=True)
@@ -43,4 +59,179 @@ def batches(path: str, size: int = BATCH_FRAMES, info: CaptureInfo | None = None
     """The frames of a capture (`-`: standard input) in batches of at most `size` frames.
 
     A damaged file: every good frame is yielded (the last batch may be short), then CaptureError."""
-    raise NotImplementedError
+    if size < 1:
+        raise ValueError(f"batch size {size}: must be at least 1")
+    info = info or CaptureInfo(path)
+    stream, fmt = open_capture(path, info)
+    try:
+        try:
+            if fmt == "pcap":
+                for _base, batch in _pcap_batches(path, stream, info, size, stream.read(24), 24, 1):
+                    yield batch
+            else:
+                for columns in pcapng_columns(path, stream, info):
+                    chunk = FrameBatch(*columns)
+                    for i in range(0, len(chunk), size):
+                        yield _rows(chunk, i, i + size)
+        except CaptureError as exc:
+            if not info.compressed or exc.offset is None:
+                raise
+            raise in_decompressed(exc) from None
+    finally:
+        stream.close()
+
+
+def batches_from(path: str, offset: int, first_number: int, size: int = BATCH_FRAMES) -> Iterator[FrameBatch]:
+    """The frames of a classic pcap from the record at byte `offset`, numbered from `first_number`, in
+    batches (as `capture.pcap_frames_from` yields them one at a time)."""
+    if size < 1:
+        raise ValueError(f"batch size {size}: must be at least 1")
+    with open(path, "rb") as f:
+        head = f.read(24)
+        f.seek(offset)
+        for _base, batch in _pcap_batches(path, f, CaptureInfo(path), size, head, offset, first_number):
+            yield batch
+
+
+def split_offsets(path: str, parts: int) -> list[tuple[int, int]] | None:
+    """(byte offset, frame number) of about `parts` record boundaries of an uncompressed classic pcap,
+    evenly spaced by frame count, the first at frame 1: `batches_from` reads each part from its point to
+    the next one's frame. None for any other file, and for a damaged one (read whole, it reports the damage).
+    Reads the whole file (the records have no index), at the speed of `batches`."""
+    if parts < 1:
+        raise ValueError(f"{parts} parts: must be at least 1")
+    # (offset, number) of frames 1, 1 + step, 1 + 2 * step, ...: every frame's while there are few, every
+    # other one's when there are more than _MARKS, and so on (memory bounded, points exact on small files)
+    marks: list[tuple[int, int]] = []
+    step = 1
+    count = 0
+    try:
+        with open(path, "rb") as f:
+            head = f.read(24)
+            if len(head) < 24 or head[:4] not in PCAP_MAGICS:
+                return None
+            for base, batch in _pcap_batches(path, f, CaptureInfo(path), BATCH_FRAMES, head, 24, 1):
+                first = -(int(batch.number[0]) - 1) % step  # index of the batch's first marked frame
+                offsets = batch.start[first::step] - 16 + base
+                marks += zip(offsets.tolist(), batch.number[first::step].tolist(), strict=True)
+                while len(marks) > _MARKS:
+                    marks, step = marks[::2], step * 2
+                count = int(batch.number[-1])
+    except (OSError, CaptureError):
+        return None
+    if not count:
+        return [(24, 1)]
+    points = [marks[(i * count // parts) // step] for i in range(parts)]
+    return sorted(set(points), key=lambda point: point[1])
+
+
+def _pcap_batches(path: str, stream: BinaryIO, info: CaptureInfo, size: int, head: bytes, origin: int,
+                  number: int) -> Iterator[tuple[int, FrameBatch]]:
+    """Batches of a classic pcap whose records begin at byte `origin` (where `stream` stands), each with
+    the file offset of its buf.
+
+    A chunk's records are found by a loop of one unpack and one append each, its complete records
+    yielded, the incomplete rest carried into the next chunk. Damage is told exactly as pcap_frames tells
+    it: chunks are whole numbers of its reads (`ChunkReads`), and at the end of the data `_ends_unread`
+    knows which of its reads would have come next."""
+    little, divisor, linktype = pcap_header(path, head)
+    info.linktypes = [linktype]
+    caplen_at = struct.Struct("<8xI" if little else ">8xI").unpack_from
+    word = np.dtype("<u4" if little else ">u4")
+    reads = ChunkReads(path, stream, origin)
+    buf, base = b"", origin  # base: the file offset of buf[0], always a record's start
+    while True:
+        starts = _record_starts(buf, caplen_at)
+        complete = int(np.searchsorted(starts, len(buf), "right")) - 1  # records whose end is in buf
+        caplen = np.diff(starts[:complete + 1]) - 16
+        too_long = np.flatnonzero(caplen > MAX_CAPLEN)
+        good = int(too_long[0]) if too_long.size else complete
+        if good:
+            chunk = _columns(buf, starts[:good], caplen[:good], word, divisor, linktype, number)
+            number += good
+            for i in range(0, good, size):
+                yield base, _rows(chunk, i, i + size)
+        if too_long.size:
+            raise _too_long(path, int(caplen[good]), base + int(starts[good]))
+        pos = int(starts[complete])  # the first record not complete in buf, or its end
+        rest, at = len(buf) - pos, base + pos
+        claimed = 0
+        if rest >= 16:  # pcap_frames refuses a record longer than the limit before reading its data
+            claimed = caplen_at(buf, pos)[0]
+            if claimed > MAX_CAPLEN:
+                raise _too_long(path, claimed, at)
+        if rest and reads.short and _ends_unread(origin, at, base + len(buf), rest):
+            raise _truncated(path, rest, claimed, at)
+        buf, base = reads.chunk(at, buf[pos:]), at
+        if len(buf) == rest:  # nothing more came
+            if reads.failure is not None:
+                raise reads.failed(at)
+            if rest:
+                raise _truncated(path, rest, claimed, at)
+            return
+
+
+def _ends_unread(origin: int, at: int, end: int, rest: int) -> bool:
+    """Whether pcap_frames stops at the record at `at`, cut by the end of the data at `end`, without
+    reading again (its error is then the cut record, not a failure of that read; on a gzip stream the two
+    differ). Its reads start at origin + k * pcap._CHUNK; `first` is the first of those at or after `at`.
+    Before `first` it holds the record's first bytes; if those are not a header it reads at `first` for
+    one (when `first` is before the end, that read brings all that is left); with a header it reads the
+    record's data, once (pcap._CHUNK exceeds any record) and gives up if that is not enough."""
+    piece = pcap._CHUNK
+    first = origin + -(-(at - origin) // piece) * piece
+    return first < end and (rest < 16 or first - at >= 16)
+
+
+def _record_starts(buf: bytes, caplen_at: Callable[[bytes, int], tuple[int, ...]]) -> np.ndarray:
+    """Offsets of the records that follow each other from buf[0], as far as their lengths can be read;
+    the last is where the walk ended: fewer than 12 bytes (or none) there, or beyond the end of buf.
+
+    About 0.1 us a record: per record one unpack and one append, no check (an exception ends the loop);
+    the caller finds the records that are complete and bounds their lengths, with numpy."""
+    starts = array("q")
+    append = starts.append
+    unpack = caplen_at  # local: the loop looks it up once per record
+    pos = 0
+    try:
+        while True:
+            append(pos)
+            pos += 16 + unpack(buf, pos)[0]
+    except struct.error:
+        pass
+    return np.frombuffer(starts, np.int64)
+
+
+def _columns(buf: bytes, starts: np.ndarray, caplen: np.ndarray, word: np.dtype, divisor: float,
+             linktype: int, number: int) -> FrameBatch:
+    """The columns of complete records at `starts` of buf."""
+    count = len(starts)
+    # records start at any byte: their times are gathered byte by byte (8 of each header), then read as
+    # two words; per record this costs less than a uint32 view per alignment and boolean masks
+    stamps = np.take(np.frombuffer(buf, np.uint8), np.add.outer(starts, _STAMP_BYTES)).view(word)
+    sec, frac = stamps[:, 0], stamps[:, 1]
+    ts = sec.astype(np.float64) + frac.astype(np.float64) / divisor  # as pcap_frames: sec + frac / divisor
+    # A pcap link type is 32 bits, FCS flags on top: above 2^31 (hostile files) it is kept as its bit pattern
+    lt = np.full(count, linktype - (1 << 32) if linktype >= 1 << 31 else linktype, np.int32)
+    return FrameBatch(buf, np.arange(number, number + count, dtype=np.int64), ts, lt, starts + 16,
+                      caplen, np.zeros(count, np.int32))
+
+
+_STAMP_BYTES = np.arange(8, dtype=np.int64)  # a record header's seconds and fraction of a second
+
+
+def _rows(batch: FrameBatch, start: int, stop: int) -> FrameBatch:
+    if start == 0 and stop >= len(batch):
+        return batch
+    return FrameBatch(batch.buf, batch.number[start:stop], batch.ts[start:stop], batch.linktype[start:stop],
+                      batch.start[start:stop], batch.caplen[start:stop], batch.iface[start:stop])
+
+
+def _too_long(path: str, caplen: int, at: int) -> CaptureError:
+    return CaptureError(path, f"record length {caplen} exceeds {MAX_CAPLEN} bytes (corrupt record header)", at)
+
+
+def _truncated(path: str, rest: int, caplen: int, at: int) -> CaptureError:
+    if rest < 16:
+        return CaptureError(path, f"record header truncated ({rest} of 16 bytes present)", at)
+    return CaptureError(path, f"record data truncated ({rest - 16} of {caplen} bytes present)", at)

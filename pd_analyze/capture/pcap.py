@@ -52,14 +52,8 @@ def pcap_frames_from(path: str, offset: int, first_number: int, ip_only: bool = 
             yield frame._replace(number=frame.number + first_number - 1)
 
 
-def pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, with_offsets: bool = False,
-                 head: bytes | None = None, base: int = 24, ip_only: bool = False) -> Iterator[RawFrame]:
-    """Classic pcap: dpkt parses the file header; records are cut from large chunks.
-
-    dpkt's record loop builds a header object per frame (about 1.7 us) and reads whatever length a
-    record claims; this loop costs a fraction of that, and bounds every length before reading.
-    """
-    head = head if head is not None else stream.read(24)
+def pcap_header(path: str, head: bytes) -> tuple[bool, float, int]:
+    """(little-endian, the divisor of a record's fraction of a second, link type) of a file header."""
     try:
         fh = dpkt.pcap.FileHdr(head)
         if fh.magic in (dpkt.pcap.PMUDPCT_MAGIC, dpkt.pcap.PMUDPCT_MAGIC_NANO):
@@ -68,7 +62,17 @@ def pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, with_offsets: bo
         raise CaptureError(path, "pcap file header truncated", 0) from None
     little = head[:4] in (b"\xd4\xc3\xb2\xa1", b"\x4d\x3c\xb2\xa1")
     divisor = 1e9 if head[:4] in (b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d") else 1e6
-    linktype = fh.linktype
+    return little, divisor, fh.linktype
+
+
+def pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, with_offsets: bool = False,
+                 head: bytes | None = None, base: int = 24, ip_only: bool = False) -> Iterator[RawFrame]:
+    """Classic pcap: dpkt parses the file header; records are cut from large chunks.
+
+    dpkt's record loop builds a header object per frame (about 1.7 us) and reads whatever length a
+    record claims; this loop costs a fraction of that, and bounds every length before reading.
+    """
+    little, divisor, linktype = pcap_header(path, head if head is not None else stream.read(24))
     info.linktypes = [linktype]
     unpack = struct.Struct("<IIII" if little else ">IIII").unpack_from
     skip_non_ip = ip_only and linktype == LINKTYPE_ETHERNET and not with_offsets

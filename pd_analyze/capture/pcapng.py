@@ -27,65 +27,92 @@ class _Interface(NamedTuple):
     snaplen: int
 
 
+class Section:
+    """What a pcapng reader knows at a block: the section's byte order and interfaces, the frames so far."""
+
+    __slots__ = ("ifaces", "last_ts", "little", "number")
+
+    def __init__(self) -> None:
+        self.little = True
+        self.ifaces: list[_Interface] = []
+        self.number = 0
+        self.last_ts = 0.0
+
+
 def pcapng_frames(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[RawFrame]:
     pos = 0
-    little = True
-    ifaces: list[_Interface] = []
-    number = 0
-    last_ts = 0.0
+    section = Section()
     while True:
         head = _read_exact(path, stream, 8, pos, allow_eof=True)
         if not head:
             return
         if struct.unpack("<I", head[:4])[0] == PCAPNG_SHB:
-            little = _shb_little(path, stream, pos)
-            ifaces = []
-        order = "<" if little else ">"
-        btype, blen = struct.unpack(order + "II", head)
-        if blen < 12 or blen % 4 or blen > _PCAPNG_MAX_BLOCK:
-            raise CaptureError(path, f"pcapng block of type {btype:#x} has invalid length {blen}", pos)
-        body = _read_exact(path, stream, blen - 8, pos)
-        if struct.unpack(order + "I", body[-4:])[0] != blen:
-            raise CaptureError(path, f"pcapng block of type {btype:#x}: trailing length differs "
-                                     f"from {blen}", pos)
-        block = head + body
-        if btype == dpkt.pcapng.PCAPNG_BT_SHB:
-            pass
-        elif btype == dpkt.pcapng.PCAPNG_BT_IDB:
-            ifaces.append(_interface(path, block, little, pos))
-            info.linktypes.append(ifaces[-1].linktype)
-        elif btype in (dpkt.pcapng.PCAPNG_BT_EPB, dpkt.pcapng.PCAPNG_BT_PB):
-            if blen < 32:
-                raise CaptureError(path, f"packet block of {blen} bytes, shorter than its 32-byte header", pos)
-            iface_id, ts_high, ts_low, caplen = _packet_header(order, btype, block)
-            if iface_id >= len(ifaces):
-                raise CaptureError(path, f"packet block names interface {iface_id}, "
-                                         f"only {len(ifaces)} described", pos)
-            if caplen > blen - 28 - 4:
-                raise CaptureError(path, f"packet block caplen {caplen} exceeds its block", pos)
-            if caplen > MAX_CAPLEN:
-                raise CaptureError(path, f"packet block caplen {caplen} exceeds {MAX_CAPLEN} bytes", pos)
-            iface = ifaces[iface_id]
-            number += 1
-            last_ts = iface.offset + ((ts_high << 32) | ts_low) / iface.divisor
-            yield RawFrame(number, last_ts, iface.linktype, block[28:28 + caplen], iface_id)
-        elif btype == dpkt.pcapng.PCAPNG_BT_SPB:
-            if not ifaces:
-                raise CaptureError(path, "simple packet block before any interface", pos)
-            if blen < 16:
-                raise CaptureError(path, f"simple packet block of {blen} bytes, shorter than its 16-byte header",
-                                   pos)
-            orig_len = struct.unpack(order + "I", block[8:12])[0]
-            iface = ifaces[0]
-            caplen = min(orig_len, blen - 16, iface.snaplen or MAX_CAPLEN)
-            if caplen > MAX_CAPLEN:
-                raise CaptureError(path, f"simple packet block of {caplen} bytes exceeds {MAX_CAPLEN} bytes", pos)
-            number += 1
-            # An SPB carries no timestamp: Wireshark shows none; we keep the previous one so
-            # capture-time timeouts stay monotonic.
-            yield RawFrame(number, last_ts, iface.linktype, block[12:12 + caplen], 0)
-        # every other block type (name resolution, statistics, custom, ...) is skipped
+            section.little = _shb_little(path, stream, pos)
+            section.ifaces = []
+        blen = block_length(path, head, 0, section.little, pos)
+        block = head + _read_exact(path, stream, blen - 8, pos)
+        packet = read_block(path, section, info, block, 0, pos)
+        if packet is not None:
+            ts, linktype, start, caplen, iface_id = packet
+            yield RawFrame(section.number, ts, linktype, block[start:start + caplen], iface_id)
         pos += blen
+
+
+def block_length(path: str, buf: bytes, at: int, little: bool, pos: int) -> int:
+    """The length of the block whose first 8 bytes are at buf[at:], checked (the block is at file offset pos)."""
+    btype, blen = struct.unpack_from("<II" if little else ">II", buf, at)
+    if blen < 12 or blen % 4 or blen > _PCAPNG_MAX_BLOCK:
+        raise CaptureError(path, f"pcapng block of type {btype:#x} has invalid length {blen}", pos)
+    return blen
+
+
+def read_block(path: str, section: Section, info: CaptureInfo, buf: bytes, at: int,
+               pos: int) -> tuple[float, int, int, int, int] | None:
+    """The whole block at buf[at:] (its length checked), at file offset pos: a packet's (time, link type,
+    offset of its data in buf, caplen, interface id), counted in `section`; None for any other block (an
+    interface description is learnt)."""
+    order = "<" if section.little else ">"
+    btype, blen = struct.unpack_from(order + "II", buf, at)
+    if struct.unpack_from(order + "I", buf, at + blen - 4)[0] != blen:
+        raise CaptureError(path, f"pcapng block of type {btype:#x}: trailing length differs "
+                                 f"from {blen}", pos)
+    if btype == dpkt.pcapng.PCAPNG_BT_SHB:
+        pass
+    elif btype == dpkt.pcapng.PCAPNG_BT_IDB:
+        section.ifaces.append(_interface(path, buf[at:at + blen], section.little, pos))
+        info.linktypes.append(section.ifaces[-1].linktype)
+    elif btype in (dpkt.pcapng.PCAPNG_BT_EPB, dpkt.pcapng.PCAPNG_BT_PB):
+        if blen < 32:
+            raise CaptureError(path, f"packet block of {blen} bytes, shorter than its 32-byte header", pos)
+        iface_id, ts_high, ts_low, caplen = _packet_header(order, btype, buf, at)
+        if iface_id >= len(section.ifaces):
+            raise CaptureError(path, f"packet block names interface {iface_id}, "
+                                     f"only {len(section.ifaces)} described", pos)
+        if caplen > blen - 28 - 4:
+            raise CaptureError(path, f"packet block caplen {caplen} exceeds its block", pos)
+        if caplen > MAX_CAPLEN:
+            raise CaptureError(path, f"packet block caplen {caplen} exceeds {MAX_CAPLEN} bytes", pos)
+        iface = section.ifaces[iface_id]
+        section.number += 1
+        section.last_ts = iface.offset + ((ts_high << 32) | ts_low) / iface.divisor
+        return section.last_ts, iface.linktype, at + 28, caplen, iface_id
+    elif btype == dpkt.pcapng.PCAPNG_BT_SPB:
+        if not section.ifaces:
+            raise CaptureError(path, "simple packet block before any interface", pos)
+        if blen < 16:
+            raise CaptureError(path, f"simple packet block of {blen} bytes, shorter than its 16-byte header",
+                               pos)
+        orig_len = struct.unpack_from(order + "I", buf, at + 8)[0]
+        iface = section.ifaces[0]
+        caplen = min(orig_len, blen - 16, iface.snaplen or MAX_CAPLEN)
+        if caplen > MAX_CAPLEN:
+            raise CaptureError(path, f"simple packet block of {caplen} bytes exceeds {MAX_CAPLEN} bytes", pos)
+        section.number += 1
+        # An SPB carries no timestamp: Wireshark shows none; we keep the previous one so
+        # capture-time timeouts stay monotonic.
+        return section.last_ts, iface.linktype, at + 12, caplen, 0
+    # every other block type (name resolution, statistics, custom, ...) is skipped
+    return None
 
 
 def _read_exact(path: str, stream: BinaryIO, size: int, pos: int, allow_eof: bool = False) -> bytes:
@@ -105,6 +132,11 @@ def _shb_little(path: str, stream: BinaryIO, pos: int) -> bool:
         bom = peek(stream, 4)
     except (OSError, EOFError, zlib.error) as exc:
         raise CaptureError(path, f"read failed ({read_failure(exc)})", pos) from None
+    return shb_little(path, bom, pos)
+
+
+def shb_little(path: str, bom: bytes, pos: int) -> bool:
+    """The byte order of a section, from the byte-order magic after its header block's first 8 bytes."""
     if len(bom) < 4:
         raise CaptureError(path, "section header block truncated", pos)
     if struct.unpack("<I", bom)[0] == _PCAPNG_BOM:
@@ -130,9 +162,9 @@ def _interface(path: str, block: bytes, little: bool, pos: int) -> _Interface:
     return _Interface(idb.linktype, divisor, offset, idb.snaplen)
 
 
-def _packet_header(order: str, btype: int, block: bytes) -> tuple[int, int, int, int]:
+def _packet_header(order: str, btype: int, buf: bytes, at: int) -> tuple[int, int, int, int]:
     if btype == dpkt.pcapng.PCAPNG_BT_EPB:
-        return struct.unpack_from(order + "IIII", block, 8)
+        return struct.unpack_from(order + "IIII", buf, at + 8)
     # obsolete Packet Block: interface id and drops count are 16-bit each
-    iface_id, _drops, ts_high, ts_low, caplen = struct.unpack_from(order + "HHIII", block, 8)
+    iface_id, _drops, ts_high, ts_low, caplen = struct.unpack_from(order + "HHIII", buf, at + 8)
     return iface_id, ts_high, ts_low, caplen

@@ -30,6 +30,23 @@ def frames(path: str, info: CaptureInfo | None = None, ip_only: bool = False) ->
     LLDP, ARP: most of a PROFINET capture) may come as one `run` record instead of a frame each, so
     the analysis skips them without an object per frame (classic pcap; other formats ignore it)."""
     info = info or CaptureInfo(path)
+    stream, fmt = open_capture(path, info)
+    try:
+        try:
+            yield from pcap_frames(path, stream, info, ip_only=ip_only) if fmt == "pcap" else \
+                pcapng_frames(path, stream, info)
+        except CaptureError as exc:
+            if not info.compressed or exc.offset is None:
+                raise
+            raise in_decompressed(exc) from None
+    finally:
+        stream.close()
+
+
+def open_capture(path: str, info: CaptureInfo) -> tuple[BinaryIO, str]:
+    """The capture's stream, inflated when gzip-compressed, and its format ("pcap" or "pcapng") found by
+    magic; `info` learns both. Nothing is consumed but what a gzip header takes; the caller closes the
+    stream (closed here when the capture cannot be read at all)."""
     stream = _open(path)
     try:
         try:
@@ -43,16 +60,15 @@ def frames(path: str, info: CaptureInfo | None = None, ip_only: bool = False) ->
                 head = peek(stream, 4)
             except (OSError, EOFError, zlib.error) as exc:
                 raise CaptureError(path, f"gzip data unreadable ({exc})", 0) from None
-        reader = _reader_for(path, head, info)
-        try:
-            yield from reader(path, stream, info, ip_only=ip_only) if reader is pcap_frames else \
-                reader(path, stream, info)
-        except CaptureError as exc:
-            if not info.compressed or exc.offset is None:
-                raise
-            raise CaptureError(path, f"{exc.reason} (offset in the decompressed data)", exc.offset) from None
-    finally:
+        return stream, _format(path, head, info)
+    except BaseException:
         stream.close()
+        raise
+
+
+def in_decompressed(exc: CaptureError) -> CaptureError:
+    """The error of a gzip-compressed capture: its offset counts decompressed bytes, and says so."""
+    return CaptureError(exc.path, f"{exc.reason} (offset in the decompressed data)", exc.offset)
 
 
 def _open(path: str) -> BinaryIO:
@@ -70,15 +86,15 @@ def _open(path: str) -> BinaryIO:
         raise CaptureError(path, f"cannot open ({exc.strerror})") from None
 
 
-def _reader_for(path: str, head: bytes, info: CaptureInfo):  # noqa: ANN202
+def _format(path: str, head: bytes, info: CaptureInfo) -> str:
     if len(head) == 0:
         raise CaptureError(path, "empty file: no capture header", 0)
     if len(head) >= 4 and head in PCAP_MAGICS:
         info.format = "pcap"
-        return pcap_frames
+        return "pcap"
     if len(head) >= 4 and struct.unpack("<I", head)[0] == PCAPNG_SHB:
         info.format = "pcapng"
-        return pcapng_frames
+        return "pcapng"
     raise CaptureError(path, f"not a pcap or pcapng file (magic {head.hex()}; "
                              "convert other formats with editcap first)", 0)
 
