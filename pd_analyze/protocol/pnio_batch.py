@@ -29,13 +29,40 @@ from dataclasses import dataclass
 import numpy as np
 
 from pd_analyze.capture.batches import FrameBatch
-from pd_analyze.protocol import link, rpc
+from pd_analyze.model.layout import Layout, be_halves
+from pd_analyze.model.values import (
+    API_PROFIDRIVE,
+    ERROR_CODE_READ,
+    ERROR_CODE_WRITE,
+    ERROR_DECODE_PNIO,
+    ERROR_DECODE_PNIORW,
+    FLAG1_FRAG,
+    INDEX_PD_DPV1,
+    INDEX_WRITE_MULTIPLE,
+    OP_READ_IMPLICIT,
+    OP_WRITE,
+    PNIORW_STATE_CONFLICT,
+    PROFIDRIVE_INDICES,
+    PTYPE_REQUEST,
+    PTYPE_RESPONSE,
+    RECORD_SERVICES,
+)
+from pd_analyze.protocol import link, link_batch, profidrive, rpc, rpc_batch
+from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol.profidrive_checks import Checker
 
 ROUTE_SKIP, ROUTE_FRAMES, ROUTE_DECIDE, ROUTE_PNIO = 0, 1, 2, 3
 # The skip reasons of the per-frame dissector, by code: FrameColumns.skip_reason indexes this tuple
 SKIP_REASONS = (link.SKIP_NOT_IPV4, link.SKIP_LINKTYPE, link.SKIP_SHORT, link.SKIP_NOT_UDP, rpc.SKIP_NOT_RPC,
                 rpc.SKIP_NOT_PNIO)
+_LINK_REASONS = np.array([SKIP_REASONS.index(reason) for reason in link_batch.SKIPS], np.int8)
+_NOT_RPC, _NOT_PNIO = SKIP_REASONS.index(rpc.SKIP_NOT_RPC), SKIP_REASONS.index(rpc.SKIP_NOT_PNIO)
+_RECORD_SERVICES = np.array(sorted(RECORD_SERVICES))
+_PD_INDICES = np.array(sorted(PROFIDRIVE_INDICES))
+_IOD_LIMITS = ("iod.api", "iod.slot", "iod.subslot", "iod.index")  # Checker.iod's keys, also the field names
+PD_HEADER = profidrive.HEADER.size  # H13's least PROFIdrive record length
+BLOCK_LENGTH = rec.IOD_SIZE - 4  # H2: BlockLength counts the bytes after BlockType and itself
+BLOCK_VERSION = (1, 0)  # H3
 
 
 @dataclass(slots=True)
@@ -108,4 +135,191 @@ class DecodedBatch:
 
 def decode(batch: FrameBatch, checker: Checker) -> DecodedBatch:
     """Every frame of the batch routed; the PNIO ones decoded as columns."""
-    raise NotImplementedError
+    data = np.frombuffer(batch.buf, np.uint8)
+    n = len(batch)
+    route = np.full(n, ROUTE_FRAMES, np.int8)
+    reason = np.full(n, -1, np.int8)
+    dg = link_batch.datagrams(data, batch.linktype, batch.start, batch.caplen)
+    skipped = dg.skip >= 0
+    route[skipped], reason[skipped] = ROUTE_SKIP, _LINK_REASONS[dg.skip[skipped]]
+    d = np.flatnonzero(dg.ordinary)
+    plausible, hdr = rpc_batch.decode(data, dg.start[d], dg.length[d])
+    route[d[~plausible]], reason[d[~plausible]] = ROUTE_SKIP, _NOT_RPC
+    r = d[plausible]  # frames of a plausible CL-RPC header; hdr is theirs
+    pnio = hdr.pnio
+    request, response = hdr.ptype == PTYPE_REQUEST, hdr.ptype == PTYPE_RESPONSE
+    route[r[~pnio & request]], reason[r[~pnio & request]] = ROUTE_SKIP, _NOT_PNIO
+    route[r[~pnio & ~request]] = ROUTE_DECIDE  # PNIO only by its call or activity: the caller knows
+    body_start = dg.start[r] + rpc.HEADER_SIZE
+    present = dg.length[r] - rpc.HEADER_SIZE
+    body_len = hdr.frag_len.astype(np.int64)
+    record_service = np.isin(hdr.opnum, _RECORD_SERVICES)
+    # R1, CL fragments, authentication, faults, rejects and control PDUs, other operations: per frame
+    c = np.flatnonzero(pnio & (request | response) & (body_len <= present) & (hdr.flags1 & FLAG1_FRAG == 0)
+                       & (hdr.auth == 0) & record_service)
+    stubs = _stubs(data, body_start[c], body_len[c], response[c], hdr.little[c], hdr.opnum[c], checker)
+    ok = stubs.pop("ok")
+    route[r[c[ok]]] = ROUTE_PNIO
+    frames = FrameColumns(route, reason, dg.group)
+    # the PDU entries: PNIO and DECIDE frames, in frame order (r ascends)
+    mine = np.flatnonzero(route[r] >= ROUTE_DECIDE)
+    flag = (stubs.pop("flag") | rpc_batch.flags(_rows(hdr, c), present[c], record_service[c])) & ok
+    stub_cols = {}
+    for name, col in (*stubs.items(), ("flag", flag)):
+        full = np.zeros(len(r), col.dtype)
+        full[c] = col
+        stub_cols[name] = full[mine]
+    pos = r[mine]
+    h = _rows(hdr, mine)
+    pdus = PduColumns(
+        pos=pos.astype(np.int64), src=dg.src[pos], dst=dg.dst[pos], sport=dg.sport[pos], dport=dg.dport[pos],
+        ptype=h.ptype, flags1=h.flags1, little=h.little, act_hi=h.act_hi, act_lo=h.act_lo, if_hi=h.if_hi,
+        if_lo=h.if_lo, seq=h.seq, opnum=h.opnum, body_start=body_start[mine],
+        body_len=body_len[mine].astype(np.int32), **stub_cols)
+    return DecodedBatch(frames, pdus)
+
+
+def _rows(h: rpc_batch.Headers, rows: np.ndarray) -> rpc_batch.Headers:
+    """The headers of some rows."""
+    return rpc_batch.Headers(*(getattr(h, name)[rows] for name in rpc_batch.Headers.__slots__))
+
+
+# The stub columns of PduColumns, with their dtypes
+_STUB_COLUMNS = (("args_max", np.uint32), ("status", np.uint32), ("args_len", np.uint32), ("max_count", np.uint32),
+                 ("has_block", np.bool_), ("block_type", np.uint16), ("iod_seq", np.uint16), ("ar_hi", np.uint64),
+                 ("ar_lo", np.uint64), ("target_hi", np.uint64), ("target_lo", np.uint64), ("api", np.uint32),
+                 ("slot", np.uint16), ("subslot", np.uint16), ("index", np.uint16), ("record_len", np.uint32),
+                 ("block_status", np.uint32), ("rec_start", np.int64), ("rec_len", np.int32))
+
+
+def _stubs(data: np.ndarray, at: np.ndarray, length: np.ndarray, response: np.ndarray, little: np.ndarray,
+           opnum: np.ndarray, checker: Checker) -> dict[str, np.ndarray]:
+    """pnio.parse_stub for stubs data[at[i] : at[i] + length[i]] of Read, Write and ReadImplicit PDUs.
+
+    The PduColumns stub columns, `ok` (the stub decodes as an ordinary one) and `flag` (a rule of
+    pnio_checks.ndr, pnio_checks.blocks or Checker.iod may report on it)."""
+    f = _fields(data, at, length, response, little, opnum)
+    write = opnum == OP_WRITE
+    status = (f["ndr.status.code"].astype(np.uint32) << 24 | f["ndr.status.decode"].astype(np.uint32) << 16
+              | f["ndr.status.code1"].astype(np.uint32) << 8 | f["ndr.status.code2"])
+    block = length >= rec.NDR_SIZE + rec.IOD_SIZE
+    # a read response without blocks is ordinary when it reports an error (ArgsLength 0, protocol.md 2.7)
+    ok = block | ((length == rec.NDR_SIZE) & response & ~write & (status != 0))
+    index = f["iod.index"]
+    record_len = f["iod.record_len"].astype(np.int64)
+    ok &= ~(block & write & (index == INDEX_WRITE_MULTIPLE))  # Write-Multiple: the per-frame path's
+    carries = block & (write != response)  # write requests and read responses carry a record
+    after = length - rec.NDR_SIZE - rec.IOD_SIZE  # bytes after the IOD header
+    ok &= ~(carries & (record_len > after))  # a record cut short (record_truncated)
+    trailing = block & (np.where(carries, after - record_len, after) > 0)
+    with_record = carries & (~response | (status == 0))
+    block_status = (f["iod.status.code"].astype(np.uint32) << 24 | f["iod.status.decode"].astype(np.uint32) << 16
+                    | f["iod.status.code1"].astype(np.uint32) << 8 | f["iod.status.code2"])
+    out = {"ok": ok, "flag": _flag(f, status, block_status, block, trailing, length, response, opnum, checker),
+           "args_max": f["ndr.args_max"], "status": status, "args_len": f["ndr.args_len"],
+           "max_count": f["ndr.max_count"], "has_block": block, "block_type": f["iod.block_type"],
+           "iod_seq": f["iod.seq"], "ar_hi": f["iod.ar_uuid.hi"], "ar_lo": f["iod.ar_uuid.lo"],
+           "target_hi": f["iod.target_ar_uuid.hi"], "target_lo": f["iod.target_ar_uuid.lo"], "api": f["iod.api"],
+           "slot": f["iod.slot"], "subslot": f["iod.subslot"], "index": index, "record_len": f["iod.record_len"],
+           "block_status": block_status,
+           "rec_start": np.where(with_record, at + rec.NDR_SIZE + rec.IOD_SIZE, 0),
+           "rec_len": np.where(with_record, record_len, 0)}
+    return {name: out[name].astype(dtype, copy=False) for name, dtype in (("ok", np.bool_), ("flag", np.bool_),
+                                                                          *_STUB_COLUMNS)}
+
+
+def _flag(f: dict[str, np.ndarray], status: np.ndarray, block_status: np.ndarray, block: np.ndarray,
+          trailing: np.ndarray, length: np.ndarray, response: np.ndarray, opnum: np.ndarray,
+          checker: Checker) -> np.ndarray:
+    """Stubs on which pnio_checks.ndr or pnio_checks.blocks (without the request) or Checker.iod may report."""
+    request = ~response
+    write = opnum == OP_WRITE
+    read = ~write
+    args_len = f["ndr.args_len"].astype(np.int64)
+    record_len = f["iod.record_len"].astype(np.int64)
+    code = f["ndr.status.code"]
+    failed = status != 0
+    flag = ((args_len != length - rec.NDR_SIZE)  # N1
+            | (f["ndr.actual_count"] != f["ndr.args_len"]) | (f["ndr.offset"] != 0)  # N2
+            | (request & (f["ndr.max_count"] != f["ndr.args_max"]))  # N3
+            | (request & read & block & (f["ndr.args_max"] < rec.IOD_SIZE + record_len))  # N5
+            # N6 (the form), N7 (the service's ErrorCode) as pnio_checks.pnio_status (ErrorCode 0 is not the
+            # service's either, so N6's "ErrorCode 0 with other bytes set" is in the N7 term)
+            | (response & failed & ((code != np.where(write, ERROR_CODE_WRITE, ERROR_CODE_READ))
+                                    | ~np.isin(f["ndr.status.decode"], (ERROR_DECODE_PNIORW, ERROR_DECODE_PNIO))))
+            | (response & read & failed & block & (f["ndr.status.code1"] != PNIORW_STATE_CONFLICT))  # N9
+            | (response & write & block & (block_status != status)))  # N8
+    expected = np.zeros(len(opnum), np.int64)
+    for (op, is_response), block_type in rec.EXPECTED_BLOCK.items():
+        expected[(opnum == op) & (response == is_response)] = block_type
+    nil = (f["iod.ar_uuid.hi"] == 0) & (f["iod.ar_uuid.lo"] == 0)
+    flag |= block & ((f["iod.block_type"] != expected) | (f["iod.block_length"] != BLOCK_LENGTH)  # H1, H2
+                     | (f["iod.version_high"] != BLOCK_VERSION[0]) | (f["iod.version_low"] != BLOCK_VERSION[1])  # H3
+                     | (f["iod.pad"] != 0) | f["iod.rw_pad"]  # H4
+                     | (response & ((f["iod.add_val1"] != 0) | (f["iod.add_val2"] != 0)))  # H12
+                     | (request & (nil != (opnum == OP_READ_IMPLICIT))))  # H9: NIL for ReadImplicit only
+    flag |= trailing  # H5's trailing_stub_bytes
+    index = f["iod.index"]
+    pd = block & np.isin(index, _PD_INDICES)
+    max_record = checker.record.max_length
+    flag |= pd & request & ((index == INDEX_PD_DPV1) | (f["iod.api"] != API_PROFIDRIVE)  # profibus_index, H10
+                            | (write & ((record_len < PD_HEADER) | (record_len > max_record)))  # H13
+                            | (read & (record_len < max_record)))  # H14
+    flag |= pd & response & read & (record_len < PD_HEADER)  # H13 of a read response
+    flag |= pd & request & _outside_limits(f, checker)  # P4 on the IOD fields
+    return flag
+
+
+def _outside_limits(f: dict[str, np.ndarray], checker: Checker) -> np.ndarray:
+    """Checker.iod: a value of API, slot, subslot or index outside a limit of the generic or vendor profile."""
+    out = np.zeros(len(f["iod.index"]), bool)
+    for key in _IOD_LIMITS:
+        values = f[key].astype(np.int64)
+        for lim in checker.limits(key):
+            inside = np.zeros(len(values), bool)
+            for lo, hi in lim.ranges:
+                inside |= (values >= lo) & (values <= hi)
+            out |= ~inside
+    return out
+
+
+def _fields(data: np.ndarray, at: np.ndarray, length: np.ndarray, response: np.ndarray, little: np.ndarray,
+            opnum: np.ndarray) -> dict[str, np.ndarray]:
+    """Every field of the NDR args and of the first IOD header, by registry name, with the layout
+    pnio.parse_stub reads each stub with; 0 where a stub has no such field. 16-byte UUIDs come as `name.hi`
+    and `name.lo`; the RWPadding as `iod.rw_pad` True where any of its bytes is set."""
+    k = len(at)
+    f: dict[str, np.ndarray] = {}
+    ndr = length >= rec.NDR_SIZE
+    for is_response, layouts in ((False, rec.NDR_REQ), (True, rec.NDR_RES)):
+        for is_little, layout in layouts.items():
+            _scatter(f, layout, data, at, np.flatnonzero(ndr & (response == is_response) & (little == is_little)), k)
+    block = length >= rec.NDR_SIZE + rec.IOD_SIZE
+    write = opnum == OP_WRITE
+    iod_at = at + rec.NDR_SIZE
+    read_request = np.flatnonzero(block & ~response & ~write)
+    ar = rec.READ_REQ.columns(data, iod_at[read_request], ("iod.ar_uuid",))["iod.ar_uuid"]
+    implicit = np.zeros(k, bool)
+    implicit[read_request[~ar.any(axis=1)]] = True  # pnio.iod_layout: a NIL ARUUID reads implicitly
+    for layout, rows in ((rec.WRITE_REQ, block & ~response & write), (rec.WRITE_RES, block & response & write),
+                         (rec.READ_RES, block & response & ~write), (rec.READ_REQ_IMPLICIT, implicit),
+                         (rec.READ_REQ, block & ~response & ~write & ~implicit)):
+        _scatter(f, layout, data, iod_at, np.flatnonzero(rows), k)
+    return f
+
+
+def _scatter(f: dict[str, np.ndarray], layout: Layout, data: np.ndarray, at: np.ndarray, rows: np.ndarray,
+             k: int) -> None:
+    """The layout's fields at at[rows] into f's k-long columns (made on first sight)."""
+    for name, col in layout.columns(data, at[rows]).items():
+        if col.ndim == 1:
+            parts: tuple[tuple[str, np.ndarray], ...] = ((name, col),)
+        elif name == "iod.rw_pad":
+            parts = ((name, col.any(axis=1)),)
+        else:
+            hi, lo = be_halves(col)
+            parts = ((f"{name}.hi", hi), (f"{name}.lo", lo))
+        for key, values in parts:
+            if key not in f:
+                f[key] = np.zeros(k, values.dtype)
+            f[key][rows] = values
