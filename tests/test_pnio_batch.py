@@ -26,6 +26,7 @@ from devtools.synth.mixed_capture import make_capture
 from pd_analyze import capture
 from pd_analyze.capture import RawFrame
 from pd_analyze.capture.batches import FrameBatch
+from pd_analyze.model.layout import fields_by_order
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.values import PROFIDRIVE_INDICES, PTYPE_REQUEST, PTYPE_RESPONSE, RECORD_SERVICES
 from pd_analyze.protocol import link, pnio, pnio_batch, rpc
@@ -234,6 +235,40 @@ def test_layout_columns_are_the_struct_unpack(layout) -> None:
         [list(map(bytes, cols[n])) if cols[n].ndim == 2 else cols[n].tolist() for n in part]
     assert {name: c.shape for name, c in layout.columns(np.frombuffer(buf, np.uint8), at[:0]).items()} == \
         {name: (0, *c.shape[1:]) for name, c in cols.items()}
+
+
+@pytest.mark.parametrize("share", [0.1, 0.9, 1.0])
+def test_layout_reads_only_valid_rows(share: float) -> None:
+    """Rows not valid may lie anywhere (even outside the data): they are not read, and their fields are 0."""
+    rng = random.Random(11)
+    buf = rng.randbytes(1000)
+    layout = pnio.WRITE_RES
+    at = np.array([rng.randrange(-500, 1500) for _ in range(300)], np.int64)
+    valid = np.array([rng.random() < share for _ in at]) & (at >= 0) & (at <= len(buf) - layout.size)
+    cols = layout.columns(np.frombuffer(buf, np.uint8), at, valid=valid)
+    raw = layout.records(np.frombuffer(buf, np.uint8), at, valid)
+    for row, off in enumerate(at):
+        want = layout.unpack(buf, int(off)) if valid[row] else layout.unpack(bytes(layout.size))
+        got = [bytes(c[row]) if c.ndim == 2 else int(c[row]) for c in cols.values()]
+        assert got == list(want) == [bytes(c[row]) if c.ndim == 2 else int(c[row])
+                                     for c in layout.fields(raw).values()], row
+
+
+def test_fields_by_order_reads_each_row_in_its_byte_order() -> None:
+    rng = random.Random(12)
+    buf = rng.randbytes(3000)
+    at = np.array(sorted(rng.sample(range(3000 - 20), 100)), np.int64)
+    little = np.array([rng.random() < 0.5 for _ in at])
+    for layouts in (pnio.NDR_REQ, pnio.NDR_RES):
+        raw = layouts[True].records(np.frombuffer(buf, np.uint8), at)
+        cols = fields_by_order(layouts[True], layouts[False], raw, little, layouts[True].names)
+        for row, off in enumerate(at):
+            layout = layouts[bool(little[row])]
+            assert {name: int(cols[name][row]) for name in layout.names} == dict(
+                zip(layout.names, layout.unpack(buf, int(off)), strict=True)), row
+        for same in (True, False):
+            whole = fields_by_order(layouts[True], layouts[False], raw, np.full(len(at), same), layouts[True].names)
+            assert all((whole[name] == layouts[same].fields(raw)[name]).all() for name in layouts[True].names)
 
 
 # --- the differential test --------------------------------------------------------------------------------

@@ -45,9 +45,10 @@ class Datagrams:
     group: np.ndarray  # uint64
     src: np.ndarray  # uint32, big-endian integer of the address (0 without a readable IPv4 header)
     dst: np.ndarray  # uint32
-    sport: np.ndarray  # uint16 (ordinary datagrams only; 0 otherwise)
+    # the UDP datagram: meaningful for `ordinary` frames only
+    sport: np.ndarray  # uint16
     dport: np.ndarray  # uint16
-    start: np.ndarray  # int64: offset of the UDP payload in the batch buffer (ordinary datagrams only)
+    start: np.ndarray  # int64: offset of the UDP payload in the batch buffer
     length: np.ndarray  # int64: its length, udp.len - 8
 
     @property
@@ -58,48 +59,41 @@ class Datagrams:
 
 def datagrams(data: np.ndarray, linktype: np.ndarray, start: np.ndarray, caplen: np.ndarray) -> Datagrams:
     """The frames data[start[i] : start[i] + caplen[i]] (link types per frame) down to their UDP payloads."""
-    n = len(start)
     start = start.astype(np.int64, copy=False)
     caplen = caplen.astype(np.int64, copy=False)
-    out = Datagrams(np.full(n, -1, np.int8), linktype != LINKTYPE_ETHERNET, np.zeros(n, np.uint64),
-                    np.zeros(n, np.uint32), np.zeros(n, np.uint32), np.zeros(n, np.uint16), np.zeros(n, np.uint16),
-                    np.zeros(n, np.int64), np.zeros(n, np.int64))
-    l3 = _ethernet(data, linktype, start, caplen, out)
+    skip = np.full(len(start), -1, np.int8)
+    frames = linktype != LINKTYPE_ETHERNET
+    l3 = _ethernet(data, linktype, start, caplen, skip, frames)
     _other_links(data, linktype, start, caplen, l3)
-    _ipv4_udp(data, linktype, start, caplen, l3, out)
-    return out
+    return _ipv4_udp(data, linktype, start, caplen, l3, skip, frames)
 
 
-def _ethernet(data: np.ndarray, linktype: np.ndarray, start: np.ndarray, caplen: np.ndarray,
-              out: Datagrams) -> np.ndarray:
+def _ethernet(data: np.ndarray, linktype: np.ndarray, start: np.ndarray, caplen: np.ndarray, skip: np.ndarray,
+              frames: np.ndarray) -> np.ndarray:
     """Offset of the IPv4 header in each Ethernet frame (after its VLAN tags), -1 where there is none."""
-    l3 = np.full(len(start), -1, np.int64)
     eth = linktype == LINKTYPE_ETHERNET
-    out.skip[eth & (caplen < ETH.size)] = NOT_IPV4  # no whole EtherType: not IPv4 (data[12:14] compares short)
-    e = np.flatnonzero(eth & (caplen >= ETH.size))
-    etype = ETH.columns(data, start[e], ("eth.type",))["eth.type"].astype(np.int32)
-    off = np.full(len(e), ETH.size, np.int64)
-    cap = caplen[e]
+    typed = eth & (caplen >= ETH.size)
+    skip[eth & ~typed] = NOT_IPV4  # no whole EtherType: not IPv4 (data[12:14] compares short)
+    etype = ETH.columns(data, start, ("eth.type",), typed)["eth.type"].astype(np.int32)
+    off = np.full(len(start), ETH.size, np.int64)
     # link.headers: while the EtherType is a TPID and the tag's TCI is present, the next EtherType follows it
-    walk = np.flatnonzero(np.isin(etype, _TPIDS) & (cap >= off + 2))
+    walk = np.flatnonzero(typed & np.isin(etype, _TPIDS) & (caplen >= off + 2))
     for _ in range(MAX_TAGS):
         if len(walk) == 0:
             break
-        whole = cap[walk] >= off[walk] + VLAN.size
-        inner = np.full(len(walk), -1, np.int32)  # a cut EtherType is none
-        at = walk[whole]
-        inner[whole] = VLAN.columns(data, start[e[at]] + off[at], ("vlan.etype",))["vlan.etype"]
+        whole = caplen[walk] >= off[walk] + VLAN.size
+        inner = VLAN.columns(data, start[walk] + off[walk], ("vlan.etype",), whole)["vlan.etype"].astype(np.int32)
+        inner[~whole] = -1  # a cut EtherType is none
         etype[walk] = inner
         off[walk] += VLAN.size
-        walk = walk[np.isin(inner, _TPIDS) & (cap[walk] >= off[walk] + 2)]
-    out.frames[e[walk]] = True  # still tagged after MAX_TAGS tags
-    ipv4 = etype == ETHERTYPE_IPV4
+        walk = walk[np.isin(inner, _TPIDS) & (caplen[walk] >= off[walk] + 2)]
+    frames[walk] = True  # still tagged after MAX_TAGS tags
+    ipv4 = typed & (etype == ETHERTYPE_IPV4)
     ipv4[walk] = False
-    l3[e[ipv4]] = off[ipv4]
-    not_ip = ~ipv4
+    not_ip = typed & ~ipv4
     not_ip[walk] = False
-    out.skip[e[not_ip]] = NOT_IPV4
-    return l3
+    skip[not_ip] = NOT_IPV4
+    return np.where(ipv4, off, -1)
 
 
 def _other_links(data: np.ndarray, linktype: np.ndarray, start: np.ndarray, caplen: np.ndarray,
@@ -115,43 +109,34 @@ def _other_links(data: np.ndarray, linktype: np.ndarray, start: np.ndarray, capl
 
 
 def _ipv4_udp(data: np.ndarray, linktype: np.ndarray, start: np.ndarray, caplen: np.ndarray, l3: np.ndarray,
-              out: Datagrams) -> None:
+              skip: np.ndarray, frames: np.ndarray) -> Datagrams:
     """LinkDecoder.datagram and _udp from the IPv4 header on, in their order of decisions."""
-    has_l3 = l3 >= 0
-    readable = has_l3 & (caplen >= l3 + IPV4.size)
+    readable = (l3 >= 0) & (caplen >= l3 + IPV4.size)
     eth = linktype == LINKTYPE_ETHERNET
-    out.skip[eth & has_l3 & ~readable & ~out.frames] = SHORT
-    r = np.flatnonzero(readable)
-    ip = IPV4.columns(data, start[r] + l3[r], ("ip.version", "ip.len", "ip.flags", "ip.proto", "ip.src", "ip.dst"))
-    src, dst = be_uint(ip["ip.src"]), be_uint(ip["ip.dst"])
-    out.src[r], out.dst[r] = src, dst
-    lo, hi = np.minimum(src, dst).astype(np.uint64), np.maximum(src, dst).astype(np.uint64)
-    out.group[r] = lo << np.uint64(32) | hi
+    skip[eth & (l3 >= 0) & ~readable] = SHORT
+    ip_at = start + l3
+    ip = IPV4.columns(data, ip_at, ("ip.version", "ip.len", "ip.flags", "ip.proto", "ip.src", "ip.dst"), readable)
+    src, dst = be_uint(ip["ip.src"]), be_uint(ip["ip.dst"])  # 0 where not readable, and so is the group
+    group = np.minimum(src, dst).astype(np.uint64) << np.uint64(32) | np.maximum(src, dst).astype(np.uint64)
     # from here on Ethernet frames only (the rest goes to the per-frame path whatever its headers say)
-    keep = eth[r] & ~out.frames[r]
+    keep = readable & eth & ~frames
     ver_ihl, total = ip["ip.version"].astype(np.int64), ip["ip.len"].astype(np.int64)
     ihl = (ver_ihl & 0x0F) * 4
     not_udp = keep & (ip["ip.proto"] != IP_UDP)
-    out.skip[r[not_udp]] = NOT_UDP
+    skip[not_udp] = NOT_UDP
     keep &= ~not_udp
     # a finding (link_malformed, truncated_capture) or state (reassembly): the per-frame path's
-    cap = caplen[r] - l3[r]
-    odd = ((ver_ihl >> 4 != 4) | (ihl < IPV4.size) | (total < ihl) | (ip["ip.flags"] & IP_FRAGMENT != 0)
-           | (cap < total))
-    out.frames[r[keep & odd]] = True
+    odd = keep & ((ver_ihl >> 4 != 4) | (ihl < IPV4.size) | (total < ihl) | (ip["ip.flags"] & IP_FRAGMENT != 0)
+                  | (caplen - l3 < total))
+    frames |= odd
     keep &= ~odd
     plen = total - ihl
     short = keep & (plen < UDP.size)
-    out.skip[r[short]] = SHORT
+    skip[short] = SHORT
     keep &= ~short
-    u = r[keep]
-    udp_at = start[u] + l3[u] + ihl[keep]
-    udp = UDP.columns(data, udp_at, ("udp.sport", "udp.dport", "udp.len"))
+    udp_at = ip_at + ihl
+    udp = UDP.columns(data, udp_at, ("udp.sport", "udp.dport", "udp.len"), keep)
     ulen = udp["udp.len"].astype(np.int64)
-    bad = (ulen < UDP.size) | (ulen > plen[keep])
-    out.frames[u[bad]] = True
-    good = ~bad
-    g = u[good]
-    out.sport[g], out.dport[g] = udp["udp.sport"][good], udp["udp.dport"][good]
-    out.start[g] = udp_at[good] + UDP.size
-    out.length[g] = ulen[good] - UDP.size
+    frames |= keep & ((ulen < UDP.size) | (ulen > plen))
+    return Datagrams(skip, frames, group, src, dst, udp["udp.sport"], udp["udp.dport"], udp_at + UDP.size,
+                     ulen - UDP.size)

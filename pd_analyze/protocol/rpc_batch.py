@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pd_analyze.model.layout import be_halves
+from pd_analyze.model.layout import fields_by_order
 from pd_analyze.model.values import (
     FLAG1_BROADCAST,
     FLAG1_MAYBE,
@@ -23,15 +23,17 @@ from pd_analyze.model.values import (
 from pd_analyze.protocol import rpc
 from pd_analyze.protocol.rpc import HEADER_BE, HEADER_LE
 
-# Byte i of a canonical UUID is byte _CANONICAL[i] of its little-endian DREP form: the permutation
-# rpc.canonical_uuid applies, read from it rather than restated
-_CANONICAL = np.frombuffer(rpc.canonical_uuid(bytes(range(16)), True), np.uint8).astype(np.intp)
 # rpc.is_pnio_uuid on the two canonical halves: prefix, any interface byte, suffix
 _PNIO_HI_MASK = np.uint64(~(0xFF << 32) & (1 << 64) - 1)
 _PNIO_HI = np.uint64(int.from_bytes(PNIO_UUID_PREFIX + b"\0" + PNIO_UUID_SUFFIX[:4], "big"))
 _PNIO_LO = np.uint64(int.from_bytes(PNIO_UUID_SUFFIX[4:], "big"))
+# A UUID as two big-endian halves, and (rpc.canonical_uuid) the little-endian DREP form: time_low, time_mid
+# and time_hi_and_version in the DREP order, clock_seq and node as on the wire
+_UUID_BIG = np.dtype([("hi", ">u8"), ("lo", ">u8")])
+_UUID_LITTLE = np.dtype([("time_low", "<u4"), ("time_mid", "<u2"), ("time_hi", "<u2"), ("lo", ">u8")])
 DEVICE_INTERFACE = 1  # canonical interface byte 3 of PNIO Device (dea00001-...), the record services' interface
 IF_VERSION = 1  # the interface version R5 expects
+_PLAUSIBLE = ("rpc.ver", "rpc.ptype", "rpc.flags2", "rpc.drep")
 _NAMES = ("rpc.ptype", "rpc.flags1", "rpc.drep", "rpc.serial_hi", "rpc.interface", "rpc.activity",
           "rpc.if_version", "rpc.seq", "rpc.opnum", "rpc.frag_len", "rpc.frag_num", "rpc.auth_proto",
           "rpc.serial_lo")
@@ -39,8 +41,9 @@ _NAMES = ("rpc.ptype", "rpc.flags1", "rpc.drep", "rpc.serial_hi", "rpc.interface
 
 @dataclass(slots=True)
 class Headers:
-    """One entry per plausible header, in the order of the payloads given."""
+    """One entry per UDP payload given, in its order; the columns but `plausible` mean nothing where it is False."""
 
+    plausible: np.ndarray  # bool: rpc.plausible
     little: np.ndarray  # bool: DREP integers little-endian
     ptype: np.ndarray  # uint8
     flags1: np.ndarray  # uint8
@@ -68,38 +71,36 @@ class Headers:
         return (self.if_hi >> np.uint64(32)) & np.uint64(0xFF)
 
 
-def decode(data: np.ndarray, at: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, Headers]:
-    """The UDP payloads data[at[i] : at[i] + length[i]]: which are plausible CL-RPC (rpc.plausible), and the
-    headers of those."""
-    plausible = length >= rpc.HEADER_SIZE
-    i = np.flatnonzero(plausible)
-    head = HEADER_BE.columns(data, at[i], ("rpc.ver", "rpc.ptype", "rpc.flags2", "rpc.drep"))
+def decode(data: np.ndarray, at: np.ndarray, length: np.ndarray) -> Headers:
+    """The UDP payloads data[at[i] : at[i] + length[i]]: which are plausible CL-RPC (rpc.plausible), and their
+    headers (rpc.header), each read in its DREP byte order."""
+    records = HEADER_BE.records(data, at, length >= rpc.HEADER_SIZE)  # zero bytes (not plausible) if shorter
+    head = HEADER_BE.fields(records, _PLAUSIBLE)
     drep = head["rpc.drep"]
-    good = ((head["rpc.ver"] == rpc.RPC_VERSION) & (head["rpc.ptype"] <= rpc.PTYPE_LAST)
-            & (head["rpc.flags2"] & rpc.FLAGS2_RESERVED == 0) & (drep[:, 0] & rpc.DREP_RESERVED == 0)
-            & (drep[:, 1] <= rpc.DREP_FLOAT_LAST))
-    plausible[i] = good
-    at = at[plausible]
-    little = (drep[good, 0] & rpc.DREP_LITTLE) != 0
-    cols: dict[str, np.ndarray] = {}
-    for layout, rows in ((HEADER_LE, np.flatnonzero(little)), (HEADER_BE, np.flatnonzero(~little))):
-        for name, col in layout.columns(data, at[rows], _NAMES).items():
-            if name not in cols:
-                cols[name] = np.empty((len(at), *col.shape[1:]), col.dtype)
-            cols[name][rows] = col
-    act_hi, act_lo = be_halves(_canonical(cols["rpc.activity"], little))
-    if_hi, if_lo = be_halves(_canonical(cols["rpc.interface"], little))
+    plausible = ((head["rpc.ver"] == rpc.RPC_VERSION) & (head["rpc.ptype"] <= rpc.PTYPE_LAST)
+                 & (head["rpc.flags2"] & rpc.FLAGS2_RESERVED == 0) & (drep[:, 0] & rpc.DREP_RESERVED == 0)
+                 & (drep[:, 1] <= rpc.DREP_FLOAT_LAST))
+    little = (drep[:, 0] & rpc.DREP_LITTLE) != 0
+    cols = fields_by_order(HEADER_LE, HEADER_BE, records, little, _NAMES)
+    act_hi, act_lo = _canonical(cols["rpc.activity"], little)
+    if_hi, if_lo = _canonical(cols["rpc.interface"], little)
     serial = cols["rpc.serial_hi"].astype(np.uint16) << np.uint16(8) | cols["rpc.serial_lo"]
-    return plausible, Headers(little, cols["rpc.ptype"], cols["rpc.flags1"], cols["rpc.drep"][:, 1].copy(), serial,
-                              act_hi, act_lo, if_hi, if_lo, cols["rpc.if_version"], cols["rpc.seq"],
-                              cols["rpc.opnum"], cols["rpc.frag_len"], cols["rpc.frag_num"], cols["rpc.auth_proto"])
+    return Headers(plausible, little, cols["rpc.ptype"], cols["rpc.flags1"], cols["rpc.drep"][:, 1].copy(), serial,
+                   act_hi, act_lo, if_hi, if_lo, cols["rpc.if_version"], cols["rpc.seq"], cols["rpc.opnum"],
+                   cols["rpc.frag_len"], cols["rpc.frag_num"], cols["rpc.auth_proto"])
 
 
-def _canonical(raw: np.ndarray, little: np.ndarray) -> np.ndarray:
-    """(n, 16) DREP-ordered UUIDs as canonical bytes (rpc.canonical_uuid)."""
-    out = np.array(raw)
-    out[little] = out[little][:, _CANONICAL]
-    return out
+def _canonical(raw: np.ndarray, little: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 16) DREP-ordered UUIDs as the two big-endian halves of their canonical form (rpc.canonical_uuid)."""
+    packed = np.ascontiguousarray(raw)
+    big = packed.view(_UUID_BIG)[:, 0]
+    hi, lo = big["hi"].astype(np.uint64), big["lo"].astype(np.uint64)
+    if little.any():
+        le = packed.view(_UUID_LITTLE)[:, 0]
+        le_hi = (le["time_low"].astype(np.uint64) << np.uint64(32) | le["time_mid"].astype(np.uint64) << np.uint64(16)
+                 | le["time_hi"].astype(np.uint64))
+        hi = np.where(little, le_hi, hi)
+    return hi, lo
 
 
 def flags(h: Headers, present: np.ndarray, record_service: np.ndarray) -> np.ndarray:
