@@ -29,7 +29,7 @@ from pd_analyze.capture.batches import FrameBatch
 from pd_analyze.model.layout import fields_by_order
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.values import PROFIDRIVE_INDICES, PTYPE_REQUEST, PTYPE_RESPONSE, RECORD_SERVICES
-from pd_analyze.protocol import link, pnio, pnio_batch, rpc
+from pd_analyze.protocol import link, link_batch, pnio, pnio_batch, rpc
 from pd_analyze.protocol import pnio_checks as checks
 from pd_analyze.protocol.dissector import Dissector
 from pd_analyze.protocol.pnio_batch import ROUTE_DECIDE, ROUTE_FRAMES, ROUTE_PNIO, ROUTE_SKIP, SKIP_REASONS
@@ -172,6 +172,9 @@ def link_targeted(frames: Sequence[RawFrame], rng: random.Random) -> list[RawFra
             data[udp + 4:udp + 6] = (value & 0xFFFF).to_bytes(2, "big")
         elif roll < 0.4:
             data[l3 - 2:l3] = rng.choice((0x86DD, 0x0806, 0x8100, 0x88A8, 0x0800, 0x05DC)).to_bytes(2, "big")
+        elif roll < 0.45 and f.linktype == 1:  # more VLAN tags (802.1ad, 802.1Q, legacy): up to beyond MAX_TAGS
+            for _ in range(rng.randint(1, link_batch.MAX_TAGS + 2)):
+                data[12:12] = rng.choice((0x8100, 0x88A8, 0x9100)).to_bytes(2, "big") + rng.randbytes(2)
         elif roll < 0.5:  # other link types: the per-frame path's, but with their address pair
             linktype = rng.choice((101, 113, 228, 276, 0))
             made.append(f._replace(linktype=linktype, data=bytes(data[l3:] if linktype in (101, 228) else data)))
@@ -294,6 +297,14 @@ def test_skipped_frames_are_skipped_alike(profile: str, frames: tuple[RawFrame, 
         assert dict(d.accounting.skipped) == {SKIP_REASONS[out.skip_reason[i]]: 1}, i
 
 
+def test_vlan_tags_beyond_the_walk_go_to_the_frames_path(frames: tuple[RawFrame, ...]) -> None:
+    route = decoded("generic").frames.route
+    tags = [len(link.headers(f.linktype, f.data).tags) if f.linktype == 1 else 0 for f in frames]
+    deep = [i for i, n in enumerate(tags) if n > link_batch.MAX_TAGS]
+    assert deep and all(route[i] == ROUTE_FRAMES for i in deep)
+    assert any(route[i] == ROUTE_PNIO for i, n in enumerate(tags) if n == link_batch.MAX_TAGS)
+
+
 def test_group_is_the_address_pair(frames: tuple[RawFrame, ...]) -> None:
     out = decoded("generic").frames
     for i, frame in enumerate(frames):
@@ -314,7 +325,10 @@ def test_decide_frames_are_other_rpc_than_requests(frames: tuple[RawFrame, ...])
         hdr = rpc.header(dgram.payload)
         assert hdr.ptype != PTYPE_REQUEST and not rpc.is_pnio_uuid(hdr.interface), i
         _same_rpc_columns(out.pdus, row, dgram, hdr)
-        assert not out.pdus.flag[row] and not out.pdus.has_block[row] and out.pdus.record_len[row] == 0
+        stub = ("args_max", "status", "args_len", "max_count", "has_block", "block_type", "iod_seq", "ar_hi", "ar_lo",
+                "target_hi", "target_lo", "api", "slot", "subslot", "index", "record_len", "block_status",
+                "rec_start", "rec_len", "flag")
+        assert [getattr(out.pdus, name)[row] for name in stub] == [0] * len(stub), i  # the RPC header only
         d = Dissector()  # no call or activity known: the reference skips it
         assert d.feed(frames[i]) == [] and dict(d.accounting.skipped) == {rpc.SKIP_NOT_PNIO: 1}
     assert set(np.flatnonzero(out.frames.route == ROUTE_DECIDE)) == set(out.pdus.pos[

@@ -4,7 +4,8 @@ of ordinary shape, where its payload lies, and which frames the per-frame decode
 The same decisions as `link.LinkDecoder.datagram` (with `link.headers`) for Ethernet frames, taken for all
 frames at once with the field offsets of the link Layouts. What the per-frame decoder answers with a
 finding or with state is left to it (`frames`): IP fragments, an invalid IPv4 header or UDP length, a
-frame captured shorter than its IP total length; so are other link types and more than MAX_TAGS VLAN tags.
+frame captured shorter than its IP total length; so are other link types and more than MAX_TAGS VLAN tags
+(their headers are still read for the address pair, `group`).
 """
 
 from __future__ import annotations
@@ -78,21 +79,19 @@ def _ethernet(data: np.ndarray, linktype: np.ndarray, start: np.ndarray, caplen:
     off = np.full(len(start), ETH.size, np.int64)
     # link.headers: while the EtherType is a TPID and the tag's TCI is present, the next EtherType follows it
     walk = np.flatnonzero(typed & np.isin(etype, _TPIDS) & (caplen >= off + 2))
-    for _ in range(MAX_TAGS):
-        if len(walk) == 0:
-            break
+    tags = 0
+    while len(walk):  # one step per tag, for all frames still walking (a tag takes 4 of a frame's bytes)
+        if tags == MAX_TAGS:
+            frames[walk] = True  # more tags than handled here: walked on only for the address pair
         whole = caplen[walk] >= off[walk] + VLAN.size
         inner = VLAN.columns(data, start[walk] + off[walk], ("vlan.etype",), whole)["vlan.etype"].astype(np.int32)
         inner[~whole] = -1  # a cut EtherType is none
         etype[walk] = inner
         off[walk] += VLAN.size
         walk = walk[np.isin(inner, _TPIDS) & (caplen[walk] >= off[walk] + 2)]
-    frames[walk] = True  # still tagged after MAX_TAGS tags
+        tags += 1
     ipv4 = typed & (etype == ETHERTYPE_IPV4)
-    ipv4[walk] = False
-    not_ip = typed & ~ipv4
-    not_ip[walk] = False
-    skip[not_ip] = NOT_IPV4
+    skip[typed & ~ipv4 & ~frames] = NOT_IPV4
     return np.where(ipv4, off, -1)
 
 
@@ -113,7 +112,7 @@ def _ipv4_udp(data: np.ndarray, linktype: np.ndarray, start: np.ndarray, caplen:
     """LinkDecoder.datagram and _udp from the IPv4 header on, in their order of decisions."""
     readable = (l3 >= 0) & (caplen >= l3 + IPV4.size)
     eth = linktype == LINKTYPE_ETHERNET
-    skip[eth & (l3 >= 0) & ~readable] = SHORT
+    skip[eth & (l3 >= 0) & ~readable & ~frames] = SHORT
     ip_at = start + l3
     ip = IPV4.columns(data, ip_at, ("ip.version", "ip.len", "ip.flags", "ip.proto", "ip.src", "ip.dst"), readable)
     src, dst = be_uint(ip["ip.src"]), be_uint(ip["ip.dst"])  # 0 where not readable, and so is the group
