@@ -1,22 +1,27 @@
-"""Fixed structures declared once as data, used by the fast path and the dump alike.
+"""Fixed structures declared once as data, used by the fast path, the dump and the columnar decode alike.
 
 A Layout lists its fields in wire order as (registry name, struct code). It compiles to one
 `struct.Struct`, so the fast path unpacks a whole header in one call and works on the tuple; the
-dump asks the same Layout to annotate that tuple (offset, length, raw bytes, shown value). There is
-no second parser, so the two paths cannot disagree.
+dump asks the same Layout to annotate that tuple (offset, length, raw bytes, shown value); the
+columnar decode asks it for numpy columns of the structure at many offsets at once (`columns`). There
+is no second parser, so the paths cannot disagree.
 """
 
 from __future__ import annotations
 
 import struct
 import uuid
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from dataclasses import field as dc_field
 from socket import inet_ntoa
+from typing import TYPE_CHECKING
 
 from pd_analyze.model import fields as registry
 from pd_analyze.model.values import flag_names, name_of
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 @dataclass(slots=True)
@@ -68,8 +73,8 @@ def json_value(value: object) -> object:
 class Layout:
     """A fixed-size structure: fields in wire order with struct codes, one byte order."""
 
-    __slots__ = ("codes", "defs", "names", "offsets", "order", "plan", "positions", "size", "sizes", "struct",
-                 "title")
+    __slots__ = ("_columnar", "codes", "defs", "names", "offsets", "order", "plan", "positions", "size", "sizes",
+                 "struct", "title")
 
     def __init__(self, title: str, order: str, fields: tuple[tuple[str, str], ...]) -> None:
         self.title = title
@@ -94,12 +99,64 @@ class Layout:
         little = order == "<"
         self.plan = tuple((fdef.name, rel, size, {}, _converter(fdef, little), shower(fdef))
                           for fdef, rel, size in zip(self.defs, self.offsets, self.sizes, strict=True))
+        # numpy record types for `columns`, by the tuple of fields asked for; built on first use, so the
+        # per-frame path never imports numpy
+        self._columnar: dict[tuple[tuple[str, ...], bool], tuple[int, np.dtype]] = {}
 
     def unpack(self, buf: bytes, offset: int = 0) -> tuple:
         return self.struct.unpack_from(buf, offset)
 
     def index(self, name: str) -> int:
         return self.positions[name]
+
+    def columns(self, data: np.ndarray, at: np.ndarray, names: Sequence[str] | None = None,
+                valid: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """The structure at every offset of `at` in `data`, as one numpy column per field.
+
+        `data` is a uint8 array, `at` an int64 array of offsets. Integer fields come as arrays of their width
+        in native byte order, read in the Layout's; 's' fields as (len(at), size) uint8 arrays (`be_uint`,
+        `be_halves` read them as big-endian integers). `names` (in any order) limits the result to those
+        fields, and the bytes read to the span they cover. Each structure must lie wholly inside `data`,
+        except where `valid` (a bool array) is False: those rows are not read, and their fields are 0."""
+        wanted = self.names if names is None else tuple(names)
+        lo, rtype = self._record_type(wanted, False)
+        return _fields(_gather(data, at, rtype.itemsize, valid, lo).view(rtype), wanted)
+
+    def records(self, data: np.ndarray, at: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
+        """The whole structure at every offset of `at`, as raw records of `size` bytes (`columns` says which
+        rows are read), for `fields` of this Layout or of any other of the same size: the other byte order,
+        another variant of a header, chosen per row afterwards."""
+        return _gather(data, at, self.size, valid)
+
+    def fields(self, records: np.ndarray, names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+        """The named fields (default: all) of raw records of this size (`records`), as `columns` gives them."""
+        wanted = self.names if names is None else tuple(names)
+        return _fields(records.view(self._record_type(wanted, True)[1]), wanted)
+
+    def _record_type(self, names: tuple[str, ...], whole: bool) -> tuple[int, np.dtype]:
+        """The numpy record type of the named fields, over the whole structure or over the bytes they span
+        only, and that span's offset in the structure (0 for the whole); made once per Layout and names."""
+        plan = self._columnar.get((names, whole))
+        if plan is not None:
+            return plan
+        import numpy as np
+
+        idx = [self.positions[name] for name in names]
+        lo = 0 if whole else min(self.offsets[i] for i in idx)
+        hi = self.size if whole else max(self.offsets[i] + self.sizes[i] for i in idx)
+        formats = []
+        for i in idx:
+            code = self.codes[i]
+            if code.endswith("s"):
+                formats.append((np.uint8, (self.sizes[i],)))
+            elif code in _NUMPY_INTEGERS:
+                formats.append(np.dtype(_NUMPY_INTEGERS[code]).newbyteorder(self.order))
+            else:
+                raise ValueError(f"{self.title}: no columnar form for struct code {code!r} of {self.names[i]}")
+        plan = self._columnar[(names, whole)] = (lo, np.dtype({
+            "names": list(names), "formats": formats, "offsets": [self.offsets[i] - lo for i in idx],
+            "itemsize": hi - lo}))
+        return plan
 
     def annotate(self, buf: bytes, offset: int, values: tuple, base: int = 0) -> list[Field]:
         """Fields of the structure at `offset` in `buf`; `base` is added to shown offsets.
@@ -124,6 +181,78 @@ class Layout:
 
 
 _MEMO_SIZE = 256  # per Layout field; a Shown with its texts is some 400 bytes
+# struct codes with a numpy integer of the same width and signedness (the byte order is the Layout's)
+_NUMPY_INTEGERS = {"B": "u1", "H": "u2", "I": "u4", "Q": "u8", "b": "i1", "h": "i2", "i": "i4", "q": "i8"}
+
+
+def _gather(data: np.ndarray, at: np.ndarray, width: int, valid: np.ndarray | None, skip: int = 0) -> np.ndarray:
+    """`width`-byte raw records at the offsets `at` (+ `skip`) of `data`; rows not `valid` are zero bytes, unread."""
+    import numpy as np
+
+    n = len(at)
+    kind = np.dtype((np.void, width))
+    count = n if valid is None else int(np.count_nonzero(valid))
+    if count == 0 or len(data) < skip + width:  # nothing to read (a valid row would lie inside data)
+        return np.zeros(n, kind)
+    # every offset of data (from `skip` on) as the start of one `width`-byte record: indexing copies whole
+    # records, several times faster than gathering their bytes one by one
+    windows = np.ndarray((len(data) - skip - width + 1,), kind, data, skip, (1,))
+    if count == n:
+        return windows[at]
+    if count > n // 2:  # mostly valid: read every row (the invalid ones at 0, inside data) and clear those
+        out = windows[np.where(valid, at, 0)]
+        out.view(np.uint8).reshape(n, width)[np.flatnonzero(~valid)] = 0
+        return out
+    out = np.zeros(n, kind)  # mostly not: read only the valid rows
+    rows = np.flatnonzero(valid)
+    out[rows] = windows[at[rows]]
+    return out
+
+
+def _fields(records: np.ndarray, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The columns of structured records: integers in native byte order, byte strings as (n, size) views."""
+    out = {}
+    for name in names:
+        column = records[name]
+        out[name] = column if column.ndim == 2 else column.astype(column.dtype.newbyteorder("="))
+    return out
+
+
+def fields_by_order(little: Layout, big: Layout, records: np.ndarray, is_little: np.ndarray,
+                    names: Sequence[str]) -> dict[str, np.ndarray]:
+    """The named fields of raw records (`Layout.records`) whose byte order is chosen per row (`is_little`, e.g.
+    from a DREP byte) between two declarations of one structure, `little` and `big`."""
+    import numpy as np
+
+    if is_little.all():
+        return little.fields(records, names)
+    if not is_little.any():
+        return big.fields(records, names)
+    le, be = little.fields(records, names), big.fields(records, names)
+    out = {}
+    for name in names:
+        i, j = little.positions[name], big.positions[name]
+        if little.offsets[i] == big.offsets[j] and (little.sizes[i] == 1 or little.codes[i].endswith("s")):
+            out[name] = be[name]  # the same bytes in either order
+        else:
+            out[name] = np.where(is_little if le[name].ndim == 1 else is_little[:, None], le[name], be[name])
+    return out
+
+
+def be_uint(raw: np.ndarray) -> np.ndarray:
+    """Rows of 1, 2, 4 or 8 bytes (an 's' column) as unsigned big-endian integers (IPv4 addresses ...)."""
+    import numpy as np
+
+    size = raw.shape[1]
+    return np.ascontiguousarray(raw).view(f">u{size}")[:, 0].astype(f"u{size}")
+
+
+def be_halves(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of 16 bytes (a UUID column) as two uint64: the big-endian integers of bytes 0-7 and 8-15."""
+    import numpy as np
+
+    both = np.ascontiguousarray(raw).view(">u8").astype(np.uint64)
+    return both[:, 0], both[:, 1]
 
 
 Converter = Callable[[object], object]

@@ -49,6 +49,7 @@ PNIO_INTERFACES = _frozen({
     0xDEA00001: "PNIO Device", 0xDEA00002: "PNIO Controller",
     0xDEA00003: "PNIO Supervisor", 0xDEA00004: "PNIO ParameterServer",
 })
+PNIO_UUID_PREFIX = bytes.fromhex("dea000")  # time_low but its last byte, which names the interface
 PNIO_UUID_SUFFIX = bytes.fromhex("6c9711d1827100a02442df7d")  # time_mid, time_hi, clock_seq, node
 PNIO_OBJECT_PREFIX = 0xDEA00000
 EPM_INTERFACE = "e1af8308-5d1f-11c9-91a4-08002b14a0fa"
@@ -90,6 +91,7 @@ PNIO_ERROR_CODE = _frozen({
     0xDF: "IODWriteRes (error write)",
 })
 PNIO_ERROR_DECODE = _frozen({0x00: "OK", 0x80: "PNIORW", 0x81: "PNIO"})
+ERROR_CODE_READ, ERROR_CODE_WRITE = 0xDE, 0xDF  # the ErrorCode of a failed read and write record service
 ERROR_DECODE_PNIORW, ERROR_DECODE_PNIO = 0x80, 0x81
 
 # ErrorCode1 under ErrorDecode PNIORW: IEC 61158-6-10 names, with the PROFIdrive meaning where

@@ -11,6 +11,8 @@ from operator import itemgetter
 from pd_analyze.model.rules import Finding, finding
 from pd_analyze.model.values import (
     API_PROFIDRIVE,
+    ERROR_CODE_READ,
+    ERROR_CODE_WRITE,
     ERROR_DECODE_PNIO,
     ERROR_DECODE_PNIORW,
     INDEX_PD_DPV1,
@@ -78,7 +80,8 @@ def pnio_status(status: rec.Status, opnum: int, frame: int, prefix: str) -> list
         out.append(finding("pnio_status_form", frame, bad, status.text(),
                            "all zero, or ErrorCode != 0 with ErrorDecode 0x80/0x81",
                            f"PNIOStatus {status.text()} is not a valid error form"))
-    want = 0xDF if opnum == OP_WRITE else 0xDE if opnum in (OP_READ, OP_READ_IMPLICIT) else None
+    want = ERROR_CODE_WRITE if opnum == OP_WRITE else ERROR_CODE_READ if opnum in (OP_READ, OP_READ_IMPLICIT) \
+        else None
     if want is not None and status.code not in (0, want):
         if status.code == 0x81:
             out.append(finding("pnio_status_generic", frame, f"{prefix}.code", "0x81", f"{want:#04x}",

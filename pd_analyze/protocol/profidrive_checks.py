@@ -49,6 +49,11 @@ class Checker:
     def _limits(self, key: str) -> tuple[tuple[Profile, Limit], ...]:
         return self._by_key.get(key, ())
 
+    def limits(self, key: str) -> tuple[Limit, ...]:
+        """Every limit of `key`, the generic profile's first: what `limit` checks a value against (the
+        columnar decode checks whole columns against them)."""
+        return tuple(lim for _, lim in self._limits(key))
+
     def limit(self, key: str, name: str, value: int, frame: int, out: list[Finding]) -> None:
         """Findings for every profile limit of `key` that `value` breaks."""
         within = self._within.get(key)

@@ -14,6 +14,7 @@ from pd_analyze.model.rules import Finding, finding
 from pd_analyze.model.values import (
     FLAG1_BROADCAST,
     FLAG1_MAYBE,
+    PNIO_UUID_PREFIX,
     PNIO_UUID_SUFFIX,
     PTYPE_ACK,
     PTYPE_CANCEL,
@@ -42,7 +43,13 @@ _CONTROL_PTYPES = frozenset({PTYPE_PING, PTYPE_ACK, PTYPE_CANCEL, PTYPE_FACK, PT
 
 SKIP_NOT_RPC = "UDP, not DCE/RPC v4"
 SKIP_NOT_PNIO = "DCE/RPC, not PNIO (e.g. endpoint mapper)"
-
+# What `plausible` asks of the first header bytes (protocol.md 1.4 items 1-3)
+RPC_VERSION = 4
+PTYPE_LAST = 10  # cancel_ack, the highest packet type
+FLAGS2_RESERVED = 0xFC  # flags2 bits other than implementation (0x01) and cancel pending (0x02)
+DREP_RESERVED = 0xEE  # drep[0] bits other than the integer order (0x10) and the character set (0x01)
+DREP_FLOAT_LAST = 3  # IBM, the highest float representation
+DREP_LITTLE = 0x10  # drep[0]: integers little-endian
 
 
 def canonical_uuid(raw: bytes, little: bool) -> bytes:
@@ -53,13 +60,14 @@ def canonical_uuid(raw: bytes, little: bool) -> bytes:
 
 
 def is_pnio_uuid(canonical: bytes) -> bool:
-    return canonical[:3] == b"\xde\xa0\x00" and canonical[4:] == PNIO_UUID_SUFFIX
+    return canonical[:3] == PNIO_UUID_PREFIX and canonical[4:] == PNIO_UUID_SUFFIX
 
 
 def plausible(payload: bytes) -> bool:
     """protocol.md 1.4 items 1-3: a CL-RPC v4 header, by a few byte comparisons."""
-    return (len(payload) >= HEADER_SIZE and payload[0] == 4 and payload[1] <= 10
-            and not payload[3] & 0xFC and not payload[4] & 0xEE and payload[5] <= 3)
+    return (len(payload) >= HEADER_SIZE and payload[0] == RPC_VERSION and payload[1] <= PTYPE_LAST
+            and not payload[3] & FLAGS2_RESERVED and not payload[4] & DREP_RESERVED
+            and payload[5] <= DREP_FLOAT_LAST)
 
 
 class Header(NamedTuple):
@@ -78,7 +86,7 @@ class Header(NamedTuple):
 
 
 def header(payload: bytes) -> Header:
-    little = bool(payload[4] & 0x10)
+    little = bool(payload[4] & DREP_LITTLE)
     v = (HEADER_LE if little else HEADER_BE).unpack(payload)
     return Header(v, little, v[I_PTYPE], v[I_FLAGS1], canonical_uuid(v[I_ACTIVITY], little),
                   canonical_uuid(v[I_INTERFACE], little), v[I_SEQ], v[I_OPNUM], v[I_FRAG_LEN],
