@@ -126,7 +126,7 @@ def mirroring_findings(ref: int, req_id: int, do: int, n_params: int, r: Parsed,
         out.append(finding("reference_mismatch", frame, "pd.ref", r.ref, ref,
                            f"response reference {r.ref} does not mirror the request's {ref}"))
         mismatch = True
-    expected = _ANSWERS.get(req_id, (pt.RES_NOT_SUPPORTED,))
+    expected = ANSWERS.get(req_id, (pt.RES_NOT_SUPPORTED,))
     if r.ident not in expected:
         out.append(finding("response_id_mismatch", frame, "pd.resp_id", f"{r.ident:#04x}",
                            "/".join(f"{e:#04x}" for e in expected),
@@ -141,7 +141,7 @@ def mirroring_findings(ref: int, req_id: int, do: int, n_params: int, r: Parsed,
     return out, mismatch
 
 
-_ANSWERS = {pt.REQ_READ: (pt.RES_READ, pt.RES_READ_NAK), pt.REQ_CHANGE: (pt.RES_CHANGE, pt.RES_CHANGE_NAK)}
+ANSWERS = {pt.REQ_READ: (pt.RES_READ, pt.RES_READ_NAK), pt.REQ_CHANGE: (pt.RES_CHANGE, pt.RES_CHANGE_NAK)}
 
 
 def verdict_of(txn: Transaction) -> str:

@@ -128,6 +128,14 @@ class TransactionEngine:
         """The channel's last closed transaction, learnt elsewhere (for T1, T4)."""
         self._last_done.remember(channel, last)
 
+    def busy_pairs(self) -> set[tuple[bytes, bytes]]:
+        """(device, controller) of every pending transaction."""
+        return {(channel[0], channel[1]) for channel in self._pending}
+
+    def last_done(self) -> Iterator[tuple[Channel, LastDone]]:
+        """Each channel's last closed transaction."""
+        return iter(self._last_done.items())
+
     def reorder(self) -> None:
         """Pending transactions back in the order they opened (adopted ones came in late): expiry walks
         them oldest first."""

@@ -132,6 +132,18 @@ class Dissector:
         """A channel's last parameter request learnt elsewhere (to label and check a later response)."""
         self._pd_requests.remember(channel, (parsed, frame), profidrive.footprint(parsed))
 
+    def busy_pairs(self) -> set[tuple[bytes, bytes]]:
+        """Address pairs (source, destination) with something open here: calls, CL fragment sets, IP
+        datagrams in reassembly."""
+        out = {(call.src, call.dst) for call in self.calls.open.values()}
+        out.update(self.frags.open_pairs())
+        out.update(self.link.open_pairs())
+        return out
+
+    def channel_requests(self) -> Iterator[tuple[tuple, tuple[profidrive.Parsed, int]]]:
+        """Each channel's last parameter request and its frame."""
+        return iter(self._pd_requests.items())
+
     def reorder(self) -> None:
         """Open and answered calls back in time order (adopted ones came in late): expiry walks them oldest
         first."""

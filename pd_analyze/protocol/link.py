@@ -222,6 +222,10 @@ class LinkDecoder:
                 IP_DATAGRAMS.rule, number, "ip.id", f"{key[3]:#06x}", f"{IP_DATAGRAMS.text()}, {IP_PIECES} pieces each",
                 f"{why}: datagram from frame {entry.first_frame} dropped ({len(entry.frames)} fragments)"))
 
+    def open_pairs(self) -> set[tuple[bytes, bytes]]:
+        """(source, destination) of every incomplete datagram."""
+        return {(key[0], key[1]) for key in self._open}
+
     def open_frames(self) -> Iterator[int]:
         """First frame of every incomplete datagram."""
         return (entry.first_frame for entry in self._open.values())

@@ -114,6 +114,10 @@ class FragmentTable:
         return Reassembled(b"".join(entry.bodies[n] for n in order),
                            tuple(entry.frames[n] for n in order), entry.first_ts)
 
+    def open_pairs(self) -> set[tuple[bytes, bytes]]:
+        """(source, destination) of every unfinished set."""
+        return {(key[3], key[4]) for key in self._sets}
+
     def open_frames(self) -> Iterator[int]:
         """First frame of every unfinished set."""
         return (entry.first_frame for entry in self._sets.values())

@@ -64,6 +64,7 @@ class BatchView:
     pnio: np.ndarray  # bool per PDU: route PNIO (the rest are DECIDE)
     kind: np.ndarray  # int8 per PDU: KIND_* of a request
     flag: np.ndarray  # bool per PDU: the per-frame checks may report on it (more are added by `calls`)
+    _texts: list[str] | None = None
 
     @property
     def p(self):  # noqa: ANN201 (PduColumns)
@@ -174,6 +175,14 @@ class BatchView:
         return int(np.count_nonzero(self.pnio & self.good(bad)))
 
     # --- records as the per-frame parse gives them -------------------------------------------------
+    @property
+    def block_texts(self) -> list[str]:
+        """BlockColumns.text as a list (made once)."""
+        if self._texts is None:
+            text = self.records.blocks.text
+            self._texts = text.to_pylist() if hasattr(text, "to_pylist") else list(text)
+        return self._texts
+
     def parsed_record(self, record: int) -> Parsed:
         """Record `record` of `records`, parsed."""
         return self.parsed(int(self.rec_pdu[record]))

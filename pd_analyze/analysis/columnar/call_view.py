@@ -46,7 +46,7 @@ def request_of(view: BatchView, i: int) -> Request:
 def build(view: BatchView, calls: Calls, bad: set[int], state: ColumnarState) -> tuple[CallView, dict[int, object]]:
     """The CallView of `calls`; flags the responses N4, H7, H8 and Q7 may report on (view.flag) and adds
     to `bad` the groups of H6. Also: per read call answered with a record, the channel's last parameter
-    request as of that call (a record index of this batch, or a carried (Parsed, frame, raw))."""
+    request as of that call (a record index of this batch, or a carried (Parsed, frame)))."""
     p = view.p
     req, res = calls.req, calls.res
     inb = req >= 0
@@ -151,13 +151,13 @@ def _carried_checks(view: BatchView, q: Request, s: int, bad: set[int]) -> None:
 def _q7(view: BatchView, cv: CallView, calls: Calls, state: ColumnarState) -> dict[int, object]:
     """Q7 (n_values_read): a positive read response's No. of values against the channel's last parameter
     request's elements; flags the responses that differ. Returns, per read call answered with a record,
-    that request (a record index of this batch, or the carried (Parsed, frame, raw))."""
+    that request (a record index of this batch, or the carried (Parsed, frame))."""
     last: dict[ChannelKey, object] = {}
     out: dict[int, object] = {}
     pairs_res: list[int] = []
     pairs_req: list[int] = []
     for k, kind in enumerate(cv.kind):
-        if kind == KIND_WRITE:
+        if kind == KIND_WRITE and cv.record[k] >= 0:  # (a write carried over is state.last_request's already)
             last[cv.channel[k]] = cv.record[k]
         elif kind == KIND_READ and cv.res_record[k] >= 0:
             ch = cv.channel[k]

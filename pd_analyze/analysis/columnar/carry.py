@@ -46,8 +46,7 @@ def carry_over(view: BatchView, cv: CallView, calls: Calls, out: Outcome, machin
         if cv.kind[k] == KIND_WRITE and good[k] and cv.record[k] >= 0:
             last[cv.channel[k]] = k
     for ch, k in last.items():
-        i = int(calls.req[k])
-        state.last_request[ch] = (view.parsed_record(cv.record[k]), cv.frame[k], view.batch.raw_frame(int(p.pos[i])))
+        state.last_request[ch] = (view.parsed_record(cv.record[k]), cv.frame[k])
 
 
 def _answered_log(view: BatchView, calls: Calls, good: list[bool], state: ColumnarState, rpc_timeout: float) -> None:

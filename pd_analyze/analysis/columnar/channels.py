@@ -11,10 +11,12 @@ decoded here) marks the group for the per-frame path instead.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cache
 from types import SimpleNamespace
 
 from pd_analyze.analysis.columnar.state import KIND_READ, KIND_WRITE, ChannelKey, Txn
 from pd_analyze.analysis.transaction import (
+    ANSWERS,
     UNANSWERED_ENDS,
     LastDone,
     b5_finding,
@@ -60,6 +62,17 @@ class Outcome:
     done: dict[ChannelKey, LastDone] = field(default_factory=dict)  # each channel's last transaction closed
 
 
+@cache
+def _verdict(why: str, mismatch: bool, nak: bool) -> str:
+    """protocol.md 7.4 for a columnar transaction (never malformed: such records go to the per-frame path)."""
+    holds = {"malformed": False, "pnio_error": why == "pnio_error", "timeout": why in UNANSWERED_ENDS,
+             "reference_mismatch": mismatch, "nak": nak, "ok": True}
+    return next(verdict for verdict in PRECEDENCE if holds[verdict])
+
+
+_B5 = 0x80 << 16 | PNIORW_STATE_CONFLICT << 8  # ErrorDecode PNIORW, ErrorCode1 state conflict (in a PNIOStatus)
+
+
 class ChannelMachine:
     """The state machine of one batch over the calls of its ordinary groups."""
 
@@ -77,32 +90,66 @@ class ChannelMachine:
         self.copies: dict[int, Txn] = {}  # id of a carried transaction -> its copy
 
     def run(self, v: CallView) -> Outcome:
-        """Every call in order (`close_due` then closes what the rest of the batch's time let pass)."""
+        """Every call in order (`close_due` then closes what the rest of the batch's time let pass). The
+        common case, a read of the pending transaction answered in time, is written out here; the rest
+        goes through the methods below."""
+        bad, pending, owner, unanswered = self.bad, self.pending, self.out.owner, self.out.unanswered
+        carried_ids, timeout, threshold = self._carried, self.timeout, self.threshold
         answered_in: dict[ChannelKey, int] = {}  # the frame that answered the channel's last call (-1: none yet)
-        for k in range(len(v.frame)):
-            group = v.group[k]
-            if group in self.bad:
+        frames, groups, channels, kinds, res_frames = v.frame, v.group, v.channel, v.kind, v.res_frame
+        res_times, statuses, carried_txns = v.res_ts, v.res_status, v.carried_txn
+        for k, ch in enumerate(channels):
+            group = groups[k]
+            if group in bad:
                 continue
+            res_frame = res_frames[k]
+            if ch is None:  # a call on another record
+                if res_frame < 0:
+                    unanswered[k] = None
+                continue
+            last = answered_in.get(ch, 0)
+            if last < 0 or last > frames[k]:  # the channel's last call is not answered before this one
+                bad.add(group)
+                continue
+            answered_in[ch] = res_frame
             t = v.ts[k]
-            ch = v.channel[k]
-            res_frame = v.res_frame[k]
-            if ch is not None:
-                last = answered_in.get(ch, 0)
-                if last < 0 or last > v.frame[k]:  # the channel's last call is not answered before this one
-                    self.bad.add(group)
-                    continue
-                answered_in[ch] = res_frame
-            kind = v.kind[k]
-            txn = None
-            if kind == KIND_WRITE:
+            if kinds[k] == KIND_WRITE:
                 txn = self._write(v, k, t)
-            elif kind == KIND_READ:
-                carried = self._own(v.carried_txn[k])
-                txn = carried if carried is not None else self._read(v, k, t)
-                if txn is not None and res_frame >= 0 and carried is not None:
+            elif carried_txns[k] is not None:
+                txn = self._own(carried_txns[k])
+                if res_frame >= 0:
                     self._read_answer(v, k, txn)
+            else:
+                txn = pending.get(ch)
+                if txn is not None and id(txn) in carried_ids:
+                    txn = self._own(txn)
+                if txn is not None and txn.t_start + timeout < t:
+                    self._close(txn, "deadline")
+                    txn = None
+                if txn is None:  # no pending write on the channel: T2, or a fallback pairing: the per-frame path's
+                    bad.add(group)
+                    continue
+                frame = frames[k]
+                txn.read_frames.append(frame)
+                txn.t_reads.append(t)
+                txn.frames.append(frame)
+                owner[frame] = txn
+                if res_frame >= 0:
+                    status = statuses[k]
+                    res_ts = res_times[k]
+                    if status and status & 0xFFFF00 == _B5 and txn.t_start + timeout >= res_ts:
+                        txn.frames.append(res_frame)  # the common answer while the drive is busy
+                        owner[res_frame] = txn
+                        txn.b5 += 1
+                        txn.last_b5 = res_ts
+                        if txn.b5 == threshold + 1:
+                            txn.findings.append(b5_finding(txn.b5, threshold, res_frame))
+                        if len(txn.frames) > TXN_FRAMES:
+                            bad.add(group)
+                    else:
+                        self._read_answer(v, k, txn)
             if res_frame < 0:
-                self.out.unanswered[k] = txn
+                unanswered[k] = txn
         return self.out
 
     def close_due(self, now: float) -> None:
@@ -188,7 +235,7 @@ class ChannelMachine:
         self._owns(txn, res_frame)
         status = v.res_status[k]
         if status:
-            if (status >> 16) & 0xFF == 0x80 and (status >> 8) & 0xFF == PNIORW_STATE_CONFLICT:
+            if status & 0xFFFF00 == _B5:
                 txn.b5 += 1
                 txn.last_b5 = res_ts
                 if txn.b5 == self.threshold + 1:
@@ -204,8 +251,10 @@ class ChannelMachine:
             return
         txn.read_res_frame, txn.t_read_res = res_frame, res_ts
         txn.response = v.res_record[k]
-        found, txn.mismatch = mirroring_findings(txn.ref, txn.req_id, txn.do, txn.n_params, head, res_frame)
-        txn.findings += found
+        if not (head.ref == txn.ref and head.do == txn.do and head.n == txn.n_params
+                and head.ident in ANSWERS.get(txn.req_id, ())):  # Q2-Q5 hold, as a rule
+            found, txn.mismatch = mirroring_findings(txn.ref, txn.req_id, txn.do, txn.n_params, head, res_frame)
+            txn.findings += found
         self._close(txn, "response", head.ident)
         if txn.req_id == 0x01 and txn.verdict in ANSWERED:
             self.out.reads.append((res_frame, txn))
@@ -221,9 +270,7 @@ class ChannelMachine:
         if self.pending.get(txn.channel) is txn:
             del self.pending[txn.channel]
         txn.closed_by = why
-        holds = {"malformed": False, "pnio_error": why == "pnio_error", "timeout": why in UNANSWERED_ENDS,
-                 "reference_mismatch": txn.mismatch, "nak": ident >= 0 and bool(ident & 0x80), "ok": True}
-        txn.verdict = next(verdict for verdict in PRECEDENCE if holds[verdict])
+        txn.verdict = _verdict(why, txn.mismatch, ident >= 0 and bool(ident & 0x80))
         if why in UNANSWERED_ENDS and not txn.pnio_status and txn.b5:
             txn.pnio_status = f"DE80{PNIORW_STATE_CONFLICT:02X}00"  # the last answer was B5
         self.out.done[txn.channel] = LastDone(txn.write_frame, txn.ref, txn.verdict)

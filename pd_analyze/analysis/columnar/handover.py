@@ -56,7 +56,7 @@ def hand_over(groups: set[int], state: ColumnarState, d: Dissector, engine: Tran
     for ch in [c for c in state.last_done if group_of(c) in groups]:
         engine.adopt_last(channel_bytes(ch), state.last_done.pop(ch))
     for ch in [c for c in state.last_request if group_of(c) in groups]:
-        parsed, frame, _raw = state.last_request.pop(ch)
+        parsed, frame = state.last_request.pop(ch)
         d.adopt_channel_request(channel_bytes(ch), parsed, frame)
     d.reorder()
     engine.reorder()
@@ -65,7 +65,9 @@ def hand_over(groups: set[int], state: ColumnarState, d: Dissector, engine: Tran
 def _answered(d: Dissector, log: Answered, groups: set[int], now: float,
               rpc_timeout: float) -> dict[int, rpc_calls.Call]:
     """The calls of `groups` answered lately, as the dissector remembers them (by the digest of their body)."""
-    out = {}
+    out: dict[int, rpc_calls.Call] = {}
+    if log.keys_only:
+        return out
     keep = np.isin(log.group, np.fromiter(groups, np.uint64, len(groups))) & (log.answered + rpc_timeout >= now)
     for i in np.flatnonzero(keep):
         body = log.bodies[int(log.body_off[i]):int(log.body_off[i + 1])]
@@ -74,6 +76,51 @@ def _answered(d: Dissector, log: Answered, groups: set[int], now: float,
         d.adopt_answered((uuid_bytes(int(log.act_hi[i]), int(log.act_lo[i])), int(log.seq[i])), call)
         out[call.frame] = call
     return out
+
+
+def hand_back(state: ColumnarState, d: Dissector, engine: TransactionEngine, now: float, rpc_timeout: float) -> None:
+    """The groups of the per-frame path with nothing open there (no call, fragment set, IP datagram or
+    transaction) come back to the columns: what the columns need to go on as the per-frame path would
+    (each channel's last transaction and last parameter request, the keys of the calls answered lately)
+    is copied from it. What stays behind there is still true should the group come back to it."""
+    if not state.reference_groups or state.all_reference:
+        return
+    busy = {_group(a, b) for a, b in d.busy_pairs() | engine.busy_pairs()}
+    quiet = state.reference_groups - busy
+    if not quiet:
+        return
+    for channel, last in engine.last_done():
+        if _group(channel[0], channel[1]) in quiet:
+            state.last_done[_channel_key(channel)] = last
+    for channel, known in d.channel_requests():
+        if _group(channel[0], channel[1]) in quiet:
+            state.last_request[_channel_key(channel)] = known
+    calls = [(key, call) for key, call in d.calls.closed.items()
+             if call.answered + rpc_timeout >= now and _group(call.src, call.dst) in quiet]
+    if calls:
+        n = len(calls)
+        acts = [key[0] for key, _ in calls]
+        state.answered.append(Answered(
+            np.array([int.from_bytes(a[:8], "big") for a in acts], np.uint64),
+            np.array([int.from_bytes(a[8:], "big") for a in acts], np.uint64),
+            np.array([key[1] for key, _ in calls], np.uint32),
+            np.array([_group(c.src, c.dst) for _, c in calls], np.uint64),
+            np.array([c.frame for _, c in calls], np.int64), np.array([c.ts for _, c in calls], np.float64),
+            np.array([c.answered for _, c in calls], np.float64), np.zeros(n + 1, np.int64), b"",
+            max(c.answered for _, c in calls), keys_only=True))
+    state.reference_groups -= quiet
+
+
+def _group(a: bytes, b: bytes) -> int:
+    x, y = int.from_bytes(a, "big"), int.from_bytes(b, "big")
+    return min(x, y) << 32 | max(x, y)
+
+
+def _channel_key(channel: tuple) -> ChannelKey:
+    """A per-frame engine's channel as the columns key it (channel_bytes reversed)."""
+    device, controller, ar, api, slot, subslot, index = channel
+    return (int.from_bytes(device, "big"), int.from_bytes(controller, "big"), int.from_bytes(ar[:8], "big"),
+            int.from_bytes(ar[8:], "big"), api, slot, subslot, index)
 
 
 def _pending(engine: TransactionEngine, t: Txn, channel: tuple, calls: dict[int, rpc_calls.Call]) -> None:

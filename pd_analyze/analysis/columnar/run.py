@@ -24,9 +24,17 @@ from pd_analyze.analysis.columnar.calls import pair
 from pd_analyze.analysis.columnar.carry import carry_over, near_caps
 from pd_analyze.analysis.columnar.channels import CallView, ChannelMachine, Outcome
 from pd_analyze.analysis.columnar.frame_findings import findings_of
-from pd_analyze.analysis.columnar.handover import group_of, hand_over, uuid_bytes
+from pd_analyze.analysis.columnar.handover import group_of, hand_back, hand_over, uuid_bytes
 from pd_analyze.analysis.columnar.state import ColumnarState, Txn
-from pd_analyze.analysis.columnar.txn_rows import ACTIVITY, CHANGE, READ, Converter, remember_read, snapshot
+from pd_analyze.analysis.columnar.txn_rows import (
+    ACTIVITY,
+    CHANGE,
+    READ,
+    Converter,
+    read_elements,
+    remember_read,
+    snapshot,
+)
 from pd_analyze.analysis.pipeline import CaptureResult, Progress, Settings, error_text
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.transaction import Transaction
@@ -37,6 +45,7 @@ from pd_analyze.protocol import pnio_batch
 from pd_analyze.protocol.frames import Accounting
 from pd_analyze.protocol.link import SKIP_NOT_IPV4
 from pd_analyze.protocol.pnio_batch import SKIP_REASONS
+from pd_analyze.protocol.profidrive import Parsed
 
 Event = tuple[int, int, object]  # (frame, READ/CHANGE/ACTIVITY, what)
 
@@ -117,6 +126,7 @@ class ColumnarRun:
                 txn.txn = t.number
                 self._add(txn)
         carry_over(view, cv, calls, out, machine, bad, state, settings.rpc_timeout)
+        hand_back(state, self.d, self.engine, view.last_ts, settings.rpc_timeout)
         self.last_pnio = now
         self.accounting.decoded += view.columnar_decoded(bad)
         if near_caps(state):
@@ -164,8 +174,8 @@ class ColumnarRun:
     def _apply(self, view: BatchView, event: Event, closed: dict[int, Transaction]) -> None:
         _frame, kind, what = event
         if kind == READ:
-            txn = closed[id(what)] = self.convert.transaction(what, view)
-            remember_read(txn, self.engine.read_values)
+            remember_read(read_elements(what, view, self.convert.channel(what.channel)[0], self.convert),
+                          self.engine.read_values)
         elif kind == CHANGE:
             t = what
             if isinstance(t.request, int):
@@ -219,6 +229,7 @@ class ColumnarRun:
         batch, p = view.batch, view.p
         frames = [batch.raw_frame(int(p.pos[i])) for i in flagged]
         answer_of = {int(s): k for k, s in enumerate(calls.res.tolist()) if s >= 0}
+        requests: dict[int, tuple[tuple, Parsed, int]] = {}
         for i in flagged.tolist():
             k = answer_of.get(i)
             if k is None:
@@ -226,12 +237,12 @@ class ColumnarRun:
             q = int(calls.req[k])
             frames.append(batch.raw_frame(int(p.pos[q])) if q >= 0 else calls.carried[k].request.frame)
             source = q7_requests.get(k)
-            if isinstance(source, int):
-                frames.append(batch.raw_frame(int(p.pos[view.rec_pdu[source]])))
-            elif source is not None:
-                frames.append(source[2])
+            if source is not None:
+                parsed, frame = ((view.parsed_record(source), int(view.frame_no[view.rec_pdu[source]]))
+                                 if isinstance(source, int) else source)
+                requests[int(view.frame_no[i])] = (self.convert.channel(cv.channel[k]), parsed, frame)
         wanted = {int(n) for n in view.frame_no[flagged]}
-        for frame, found in findings_of(frames, wanted, self.checker, self.settings.rpc_timeout).items():
+        for frame, found in findings_of(frames, wanted, self.checker, self.settings.rpc_timeout, requests).items():
             owner = out.owner.get(frame)
             if owner is not None:
                 owner.findings.extend(found)

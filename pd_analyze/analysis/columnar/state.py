@@ -116,6 +116,7 @@ class Answered:
     body_off: np.ndarray  # int64, one more than calls: call i's body is bodies[body_off[i]:body_off[i + 1]]
     bodies: bytes
     last: float = float("-inf")  # the latest answer among them
+    keys_only: bool = False  # calls the per-frame dissector answered and still remembers (no bodies here)
 
 
 @dataclass(slots=True)
@@ -127,6 +128,6 @@ class ColumnarState:
     open_calls: dict[CallKey, OpenCall] = field(default_factory=dict)
     pending: dict[ChannelKey, Txn] = field(default_factory=dict)
     last_done: dict[ChannelKey, LastDone] = field(default_factory=dict)
-    # each channel's last parameter request, as the dissector keeps it, and its frame (a context of checks)
-    last_request: dict[ChannelKey, tuple[Parsed, int, RawFrame]] = field(default_factory=dict)
+    # each channel's last parameter request and its frame, as the dissector keeps them (Q7 checks against it)
+    last_request: dict[ChannelKey, tuple[Parsed, int]] = field(default_factory=dict)
     answered: list[Answered] = field(default_factory=list)

@@ -8,7 +8,7 @@ from __future__ import annotations
 from pd_analyze.analysis.columnar.batch_view import BatchView
 from pd_analyze.analysis.columnar.handover import channel_bytes
 from pd_analyze.analysis.columnar.state import ChannelKey, Txn
-from pd_analyze.analysis.transaction import Transaction, elements_read
+from pd_analyze.analysis.transaction import Element, Transaction, elements_read
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.capped import CappedTable
 from pd_analyze.protocol.profidrive import Parsed
@@ -57,10 +57,46 @@ def snapshot(t: Txn, request: Parsed, device: bytes, read_values: CappedTable) -
         t.values_before.append([read_values.get(k) for k in keys])
 
 
-def remember_read(txn: Transaction, read_values: CappedTable) -> None:
+def remember_read(pairs: list[tuple[Element, str]], read_values: CappedTable) -> None:
     """A read closing: the values it read become the last read of their elements."""
-    txn.values_read = elements_read(txn)
-    for key, value in txn.values_read:
+    for key, value in pairs:
         read_values.remember(key, value)
+
+
+_WHOLE = frozenset({"string", "octets", "unicode"})  # one value per block, whatever No. of values says
+_NUMBERS = frozenset({"hex", "bits", "nibbles"})  # the cell shows 0x..., an element's value is the number
+
+
+def read_elements(t: Txn, view: BatchView, device: bytes, convert: Converter) -> list[tuple[Element, str]]:
+    """transaction.elements_read of a closed columnar read, from the batch's columns: per element of each
+    Value address answered with values, the value as a table cell shows it."""
+    if not isinstance(t.request, int):  # parsed in an earlier batch
+        return elements_read(convert.transaction(t, view))
+    rc, a, b = view.records.records, view.records.addresses, view.records.blocks
+    req, res = t.request, t.response
+    first_addr, first_block = int(rc.first_addr[req]), int(rc.first_block[res])
+    text = None
+    out: list[tuple[Element, str]] = []
+    for j in range(min(int(rc.n_addr[req]), int(rc.n_blocks[res]))):
+        ai, bi = first_addr + j, first_block + j
+        fmt = int(b.format[bi])
+        if int(a.attr[ai]) != pt.ATTR_VALUE or fmt == pt.FMT_ERROR:
+            continue
+        spec = pt.FORMATS[fmt]
+        n = int(b.n_values[bi])
+        if spec.kind in _NUMBERS:
+            at, size = int(b.data_start[bi]), spec.size
+            buf = view.batch.buf
+            values = [str(int.from_bytes(buf[at + i * size:at + (i + 1) * size], "big")) for i in range(n)]
+        else:
+            text = view.block_texts if text is None else text
+            cell = text[bi]
+            values = [cell] if spec.kind in _WHOLE else cell.split(" ") if n > 1 else [cell] if n else []
+        pnu, sub, count = int(a.pnu[ai]), int(a.subindex[ai]), max(int(a.n_elems[ai]), 1)
+        if len(values) == count:
+            out += [((device, t.do, pnu, sub + i), value) for i, value in enumerate(values)]
+        elif len(values) == 1:
+            out.append(((device, t.do, pnu, sub), values[0]))
+    return out
 
 
