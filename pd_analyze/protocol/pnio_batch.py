@@ -20,6 +20,10 @@ ordinary. Each frame gets a route:
 H1-H5, H9, H10, H12-H14, profibus_index, P4 on the IOD fields) may report something: the caller has
 those frames' findings made by the per-frame checks, so their text is the reference's. Rules that
 need the paired request (R4, N4, H6-H8) are the caller's too.
+
+Each layer's columnar decode lives beside its parser: link_batch (link, IPv4, UDP), rpc_batch (CL-RPC
+header, rpc.check_header), this module the NDR args and the IOD header (pnio.parse_stub, pnio_checks);
+all of them read fields with Layout.columns / Layout.records and the parsers' declarations.
 """
 
 from __future__ import annotations
@@ -129,6 +133,8 @@ class PduColumns:
 
 @dataclass(slots=True)
 class DecodedBatch:
+    """What `decode` makes of a batch."""
+
     frames: FrameColumns
     pdus: PduColumns
 
@@ -194,6 +200,7 @@ _NDR_STATUS = ("ndr.status.code", "ndr.status.decode", "ndr.status.code1", "ndr.
 
 
 def _declared_alike(layouts: tuple[Layout, ...], names: tuple[str, ...]) -> bool:
+    """The named fields sit at the same offsets with the same codes and byte order in every layout."""
     return all(len({(lay.offsets[lay.index(name)], lay.codes[lay.index(name)], lay.order) for lay in layouts}) == 1
                for name in names)
 
