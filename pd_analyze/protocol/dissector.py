@@ -454,13 +454,11 @@ class Dissector:
         (held.findings if held is not None else self.loose_findings).append(f)
 
     def _unanswered(self, call: rpc_calls.Call, key: tuple, out: list[FrameResult], why: str) -> None:
-        self._attach(finding("rpc_unanswered", call.frame, "rpc.seq", key[1],
-                             f"a response within {self.rpc_timeout:g} s",
-                             f"request not answered ({why})"), out)
+        self._attach(rpc_calls.unanswered_finding(call.frame, key[1], self.rpc_timeout, why), out)
 
     def _expire(self, out: list[FrameResult]) -> None:
         for key, call in self.calls.expire(self._now, self.rpc_timeout):
-            self._unanswered(call, key, out, f"no response within {self.rpc_timeout:g} s")
+            self._unanswered(call, key, out, rpc_calls.NO_RESPONSE)
 
     @staticmethod
     def _marked(results: list[FrameResult]) -> list[FrameResult]:

@@ -8,13 +8,14 @@ ordinary. Each frame gets a route:
   counts it (a frame without IPv4, a UDP datagram that is no DCE/RPC v4, a request to another DCE/RPC
   interface), and it earns no finding;
 - ROUTE_FRAMES: the per-frame dissector must take it: IP fragments, malformed or truncated headers,
-  other link types, CL fragments, faults and rejects, pings and other control PDUs with a PNIO
-  interface, other operations, stubs or records cut short, Write-Multiple, authentication, ...;
+  other link types, CL fragments, faults and rejects without their status, pings and other control PDUs
+  with a PNIO interface, other operations, stubs or records cut short, Write-Multiple, authentication, ...;
 - ROUTE_DECIDE: a plausible DCE/RPC v4 PDU other than a request whose interface is not a PNIO one: it
   is PNIO only if its call (activity + sequence number) is a PNIO call, or (pings, acks ...) its
   activity is known: the caller, who holds that state, decides (skip it, or give it to the frames path);
 - ROUTE_PNIO: a PNIO RPC request (ptype 0, PNIO interface) or response (ptype 2, PNIO interface) whose
-  stub decodes by the columns below without a structural problem.
+  stub decodes by the columns below without a structural problem; or a fault or reject (ptype 3, 6) with
+  a PNIO interface and its status (always flagged: the per-frame dissector reports every fault).
 
 `flag` marks PNIO frames on which a frame-local rule (R2, R5, R6, the serial note, R8, N1-N3, N5-N9,
 H1-H5, H9, H10, H12-H14, profibus_index, P4 on the IOD fields) may report something: the caller has
@@ -47,6 +48,8 @@ from pd_analyze.model.values import (
     OP_WRITE,
     PNIORW_STATE_CONFLICT,
     PROFIDRIVE_INDICES,
+    PTYPE_FAULT,
+    PTYPE_REJECT,
     PTYPE_REQUEST,
     PTYPE_RESPONSE,
     RECORD_SERVICES,
@@ -108,7 +111,8 @@ class PduColumns:
     body_len: np.ndarray  # int32: rpc.frag_len (the body; bytes beyond it are R2's, and flagged)
     # NDR args header (protocol.md 2.5)
     args_max: np.ndarray  # uint32, requests (0 for responses)
-    status: np.ndarray  # uint32, responses: PNIOStatus as ErrorCode << 24 | ErrorDecode << 16 | Code1 << 8 | Code2
+    status: np.ndarray  # uint32, responses: PNIOStatus as ErrorCode << 24 | ErrorDecode << 16 | Code1 << 8 | Code2;
+    # faults and rejects (ptype 3, 6): their NCA status
     args_len: np.ndarray  # uint32
     max_count: np.ndarray  # uint32
     # First IOD header block (protocol.md 2.6); has_block False: a response of the NDR header only
@@ -161,8 +165,14 @@ def decode(batch: FrameBatch, checker: Checker) -> DecodedBatch:
     candidate = (pnio & (request | response) & (body_len <= present) & (hdr.flags1 & FLAG1_FRAG == 0)
                  & (hdr.auth == 0) & record_service)
     stubs = _stubs(data, at + rpc.HEADER_SIZE, body_len, candidate, response, hdr.little, hdr.opnum, checker)
-    ordinary = stubs.pop("ok")
-    stubs["flag"] = ordinary & (stubs["flag"] | rpc_batch.flags(hdr, present, record_service))
+    # a fault or reject answering a call with its status (dissector._fault): always reported (rpc_fault)
+    fault = (pnio & ((hdr.ptype == PTYPE_FAULT) | (hdr.ptype == PTYPE_REJECT)) & (body_len >= 4)
+             & (body_len <= present) & (hdr.flags1 & FLAG1_FRAG == 0) & (hdr.auth == 0))
+    raw = rpc.FAULT_LE.records(data, at + rpc.HEADER_SIZE, fault)
+    status = fields_by_order(rpc.FAULT_LE, rpc.FAULT_BE, raw, hdr.little, ("rpc.fault_status",))["rpc.fault_status"]
+    stubs["status"] = np.where(fault, status, stubs["status"]).astype(np.uint32)
+    ordinary = stubs.pop("ok") | fault
+    stubs["flag"] = ordinary & (stubs["flag"] | fault | rpc_batch.flags(hdr, present, record_service))
     rows = np.select([~hdr.plausible, other & request, other, ordinary], [ROUTE_SKIP, ROUTE_SKIP, ROUTE_DECIDE,
                                                                           ROUTE_PNIO], ROUTE_FRAMES)
     route[d] = rows

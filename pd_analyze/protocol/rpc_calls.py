@@ -14,6 +14,13 @@ from pd_analyze.model.capped import ANSWERED_CALLS, MAX_LISTED, OPEN_CALLS, Capp
 from pd_analyze.model.rules import Finding
 
 CALL_OVERHEAD = 512  # bytes a call costs beyond its body (objects), counted against the byte caps
+NO_RESPONSE = "no response within {timeout:g} s"  # why a call was not answered: it expired
+
+
+def unanswered_finding(frame: int, seq: int, timeout: float, why: str = NO_RESPONSE) -> Finding:
+    """rpc_unanswered: the request of `frame` got no response (it expired, or the capture ended)."""
+    return rules.finding("rpc_unanswered", frame, "rpc.seq", seq, f"a response within {timeout:g} s",
+                         f"request not answered ({why.format(timeout=timeout)})")
 
 
 @dataclass(slots=True)

@@ -14,10 +14,10 @@ import numpy as np
 
 from pd_analyze.analysis.columnar.batch_view import BatchView
 from pd_analyze.analysis.columnar.calls import Calls
-from pd_analyze.analysis.columnar.channels import CallView
+from pd_analyze.analysis.columnar.channels import FAULT, CallView
 from pd_analyze.analysis.columnar.state import KIND_OTHER, KIND_READ, KIND_WRITE, ChannelKey, ColumnarState, Request
 from pd_analyze.model import pd_values as pt
-from pd_analyze.model.values import OP_WRITE
+from pd_analyze.model.values import OP_WRITE, PTYPE_FAULT, PTYPE_REJECT
 from pd_analyze.protocol.profidrive import Parsed
 
 _ERROR_BLOCK = SimpleNamespace(is_error=True)
@@ -85,7 +85,9 @@ def build(view: BatchView, calls: Calls, bad: set[int], state: ColumnarState) ->
         heads[k] = head
     # the answer
     write = p.opnum[s] == OP_WRITE
-    status = np.where(has, np.where(write & (p.status[s] == 0), p.block_status[s], p.status[s]), 0)
+    fault = (p.ptype[s] == PTYPE_FAULT) | (p.ptype[s] == PTYPE_REJECT)
+    status = np.where(has, np.where(write & (p.status[s] == 0), p.block_status[s], p.status[s]), 0).astype(np.int64)
+    status = np.where(has & fault, p.status[s].astype(np.int64) | FAULT, status)
     res_record = np.where(has & ~write, view.rec_of[s], -1)
     res_heads: list[SimpleNamespace | None] = [None] * n
     a = np.flatnonzero(res_record >= 0)

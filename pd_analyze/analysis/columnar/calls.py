@@ -35,13 +35,15 @@ class Calls:
     carried: list[OpenCall | None]  # the carried-over call where req is -1
     frame: np.ndarray  # int64 request frame
     ts: np.ndarray  # float64 request time
+    expired: np.ndarray  # bool: unanswered longer than rpc_timeout by `now` (rpc_unanswered; the call is dropped)
 
 
 def pair(p: PduColumns, cand: np.ndarray, frame_no: np.ndarray, ts: np.ndarray, open_calls: dict[CallKey, OpenCall],
          answered: list[Answered], rpc_timeout: float, now: float, bad: set[int]) -> Calls:
     """Pair the candidate PDUs (`cand`, indices into `p`, in frame order) with each other and with the calls
     carried over; add to `bad` every group whose calls are not ordinary. `frame_no`/`ts` give each PDU's
-    frame number and time (indexed like `p`); `now` is the capture time at the end of the batch."""
+    frame number and time (indexed like `p`); `now` is the per-frame dissector's clock at the end of the
+    batch (its last frame read): a call unanswered that long expires as it would there."""
     open_calls = {key: call for key, call in open_calls.items() if call.request.group not in bad}
     group = _groups_of(p, cand)
     hi, lo, sq = p.act_hi[cand], p.act_lo[cand], p.seq[cand]
@@ -83,7 +85,7 @@ def pair(p: PduColumns, cand: np.ndarray, frame_no: np.ndarray, ts: np.ndarray, 
     req = first[ok]
     res = np.where(sizes[ok] == 2, second[ok], -1)
     req_i, res_i = cand[req], np.where(res >= 0, cand[np.maximum(res, 0)], -1)
-    _check_answers(p, req_i, res_i, frame_no, ts, rpc_timeout, now, bad)
+    _check_answers(p, req_i, res_i, frame_no, ts, rpc_timeout, bad)
     # calls carried over: their answer in this batch, or still none
     c_res = np.array([cand[i] for i, _ in carried], np.int64)
     c_calls = [c for _, c in carried]
@@ -94,8 +96,7 @@ def pair(p: PduColumns, cand: np.ndarray, frame_no: np.ndarray, ts: np.ndarray, 
             c_calls.append(call)
     for k, call in enumerate(c_calls):
         i = int(c_res[k])
-        late = (ts[i] if i >= 0 else now) - call.ts > rpc_timeout
-        if late or (i >= 0 and not _answers(p, i, call)):
+        if i >= 0 and (ts[i] - call.ts > rpc_timeout or not _answers(p, i, call)):
             bad.add(call.request.group)
     req_all = np.concatenate([req_i, np.full(len(c_calls), -1, np.int64)])
     res_all = np.concatenate([res_i, c_res]).astype(np.int64)
@@ -103,8 +104,9 @@ def pair(p: PduColumns, cand: np.ndarray, frame_no: np.ndarray, ts: np.ndarray, 
     times = np.concatenate([ts[req_i], np.array([c.ts for c in c_calls], np.float64)])
     by_frame = np.argsort(frames, kind="stable")
     carried_all: list[OpenCall | None] = [None] * len(req_i) + c_calls
+    expired = (res_all < 0) & (now - times > rpc_timeout)
     return Calls(req_all[by_frame], res_all[by_frame], [carried_all[k] for k in by_frame], frames[by_frame],
-                 times[by_frame])
+                 times[by_frame], expired[by_frame])
 
 
 def _groups_of(p: PduColumns, idx: np.ndarray) -> np.ndarray:
@@ -113,14 +115,14 @@ def _groups_of(p: PduColumns, idx: np.ndarray) -> np.ndarray:
 
 
 def _check_answers(p: PduColumns, req: np.ndarray, res: np.ndarray, frame_no: np.ndarray, ts: np.ndarray,
-                   rpc_timeout: float, now: float, bad: set[int]) -> None:
+                   rpc_timeout: float, bad: set[int]) -> None:
     """R4 and rpc_timeout on the calls paired in this batch: operation, interface, addresses, lateness
     (both the request's group and the response's go to the per-frame path)."""
     has = res >= 0
     r = np.maximum(res, 0)
     wrong = has & ((p.opnum[r] != p.opnum[req]) | (p.if_hi[r] != p.if_hi[req]) | (p.if_lo[r] != p.if_lo[req])
                    | (p.src[r] != p.dst[req]) | (p.dst[r] != p.src[req]) | (frame_no[r] < frame_no[req]))
-    late = np.where(has, ts[r], now) - ts[req] > rpc_timeout
+    late = has & (ts[r] - ts[req] > rpc_timeout)
     odd = wrong | late
     bad.update(np.unique(_groups_of(p, req[odd])).tolist())
     bad.update(np.unique(_groups_of(p, r[odd & has])).tolist())

@@ -24,11 +24,11 @@ def carry_over(view: BatchView, cv: CallView, calls: Calls, out: Outcome, machin
     for k, carried in enumerate(calls.carried):
         if carried is None or not good[k]:
             continue
-        if cv.res_frame[k] >= 0:
+        if cv.res_frame[k] >= 0 or calls.expired[k]:
             state.open_calls.pop(carried.key, None)
         elif carried.txn is not None:
             carried.txn = machine.copies.get(id(carried.txn), carried.txn)
-    for k in np.flatnonzero((calls.req >= 0) & (calls.res < 0)).tolist():
+    for k in np.flatnonzero((calls.req >= 0) & (calls.res < 0) & ~calls.expired).tolist():
         if not good[k]:
             continue
         i = int(calls.req[k])

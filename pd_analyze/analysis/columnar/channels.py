@@ -44,7 +44,7 @@ class CallView:
     # the answer in this batch (res_frame -1: none yet)
     res_frame: list[int]
     res_ts: list[float]
-    res_status: list[int]  # PNIOStatus (a write's: per block)
+    res_status: list[int]  # PNIOStatus (a write's: its block's when the NDR one is OK), or FAULT | NCA status
     res_record: list[int]  # a read's response record, -1 when none (status not OK, or no record)
     res_head: list[SimpleNamespace | None]  # its ref, ident, do, n, blocks ([error] when header-level)
 
@@ -71,6 +71,8 @@ def _verdict(why: str, mismatch: bool, nak: bool) -> str:
 
 
 _B5 = 0x80 << 16 | PNIORW_STATE_CONFLICT << 8  # ErrorDecode PNIORW, ErrorCode1 state conflict (in a PNIOStatus)
+FAULT = 1 << 32  # in CallView.res_status: the answer is an RPC fault or reject, with this NCA status below
+_B5_MASK = FAULT | 0xFFFF00
 
 
 class ChannelMachine:
@@ -107,9 +109,8 @@ class ChannelMachine:
                 if res_frame < 0:
                     unanswered[k] = None
                 continue
-            last = answered_in.get(ch, 0)
-            if last < 0 or last > frames[k]:  # the channel's last call is not answered before this one
-                bad.add(group)
+            if answered_in.get(ch, 0) > frames[k]:  # the channel's last call is answered after this one's request
+                bad.add(group)  # (one left unanswered is not: an answer in a later batch finds its txn closed)
                 continue
             answered_in[ch] = res_frame
             t = v.ts[k]
@@ -137,7 +138,7 @@ class ChannelMachine:
                 if res_frame >= 0:
                     status = statuses[k]
                     res_ts = res_times[k]
-                    if status and status & 0xFFFF00 == _B5 and txn.t_start + timeout >= res_ts:
+                    if status & _B5_MASK == _B5 and txn.t_start + timeout >= res_ts:
                         txn.frames.append(res_frame)  # the common answer while the drive is busy
                         owner[res_frame] = txn
                         txn.b5 += 1
@@ -184,6 +185,8 @@ class ChannelMachine:
         carried = self._own(v.carried_txn[k])
         if carried is not None:  # opened in the last batch; its answer comes in this one
             txn = carried
+            if txn.closed_by:  # superseded or due meanwhile: the answer belongs to no transaction
+                return txn
         else:
             old = self._due(ch, t)
             txn = Txn(ch, v.group[k], frame, t)
@@ -209,7 +212,7 @@ class ChannelMachine:
             txn.write_res_frame, txn.t_write_res = res_frame, res_ts
             self._owns(txn, res_frame)
             if v.res_status[k]:
-                txn.pnio_status = f"{v.res_status[k]:08X}"
+                txn.pnio_status = f"{v.res_status[k] & 0xFFFFFFFF:08X}"
                 self._close(txn, "pnio_error")
         return txn
 
@@ -235,13 +238,13 @@ class ChannelMachine:
         self._owns(txn, res_frame)
         status = v.res_status[k]
         if status:
-            if status & 0xFFFF00 == _B5:
+            if status & _B5_MASK == _B5:
                 txn.b5 += 1
                 txn.last_b5 = res_ts
                 if txn.b5 == self.threshold + 1:
                     txn.findings.append(b5_finding(txn.b5, self.threshold, res_frame))
                 return
-            txn.pnio_status = f"{status:08X}"
+            txn.pnio_status = f"{status & 0xFFFFFFFF:08X}"
             txn.read_res_frame, txn.t_read_res = res_frame, res_ts
             self._close(txn, "pnio_error")
             return

@@ -20,7 +20,7 @@ import numpy as np
 
 from pd_analyze.analysis.columnar import call_view
 from pd_analyze.analysis.columnar.batch_view import BatchView, fed
-from pd_analyze.analysis.columnar.calls import pair
+from pd_analyze.analysis.columnar.calls import Calls, pair
 from pd_analyze.analysis.columnar.carry import carry_over, near_caps
 from pd_analyze.analysis.columnar.channels import CallView, ChannelMachine, Outcome
 from pd_analyze.analysis.columnar.frame_findings import findings_of
@@ -46,6 +46,7 @@ from pd_analyze.protocol.frames import Accounting
 from pd_analyze.protocol.link import SKIP_NOT_IPV4
 from pd_analyze.protocol.pnio_batch import SKIP_REASONS
 from pd_analyze.protocol.profidrive import Parsed
+from pd_analyze.protocol.rpc_calls import unanswered_finding
 
 Event = tuple[int, int, object]  # (frame, READ/CHANGE/ACTIVITY, what)
 
@@ -97,7 +98,7 @@ class ColumnarRun:
         self._count_skipped(view)
         bad = view.reference_groups(state)
         calls = pair(view.p, view.candidates(bad), view.frame_no, view.ts, state.open_calls, state.answered,
-                     settings.rpc_timeout, view.last_ts, bad)
+                     settings.rpc_timeout, max(view.last_fed_ts, self.d._now), bad)
         cv, q7_requests = call_view.build(view, calls, bad, state)
         machine = ChannelMachine(state.pending, state.last_done, settings.txn_timeout, self.engine.b5_threshold, bad)
         out = machine.run(cv)
@@ -120,6 +121,7 @@ class ColumnarRun:
                                                                                                 t.write_frame)
         self.next_number = self._base + len(self._col_opens) + len(self._ref_opens)
         self._flagged(view, cv, calls, out, bad, q7_requests)
+        self._expired(view, calls, bad)
         for t in out.closed:
             if t.group not in bad:
                 txn = closed.get(id(t)) or self.convert.transaction(t, view)
@@ -249,6 +251,16 @@ class ColumnarRun:
             else:
                 for f in found:
                     self.rows.add_finding(self.capture_of(f.frame), f)
+
+    def _expired(self, view: BatchView, calls: Calls, bad: set[int]) -> None:
+        """rpc_unanswered for the calls of the columnar groups that expired unanswered."""
+        for k in np.flatnonzero(calls.expired).tolist():
+            i = int(calls.req[k])
+            carried = calls.carried[k]
+            group, seq = (int(view.group[i]), int(view.p.seq[i])) if i >= 0 else (carried.request.group, carried.key[2])
+            if group not in bad:
+                f = unanswered_finding(int(calls.frame[k]), seq, self.settings.rpc_timeout)
+                self.rows.add_finding(self.capture_of(f.frame), f)
 
     def _number_of(self, frame: int, position: int) -> int:
         """A transaction the per-frame engine opens: numbered in frame order among both paths' opens."""
