@@ -14,7 +14,7 @@ from collections.abc import Callable
 import click
 
 from pd_analyze import __version__
-from pd_analyze.analysis.pipeline import Settings
+from pd_analyze.analysis.capture_run import Settings
 from pd_analyze.capture import CaptureError
 from pd_analyze.model.fields import FIELDS
 from pd_analyze.output import dump

@@ -28,7 +28,14 @@ from pd_analyze.capture import RawFrame
 from pd_analyze.capture.batches import FrameBatch
 from pd_analyze.model.layout import fields_by_order
 from pd_analyze.model.rules import Finding
-from pd_analyze.model.values import PROFIDRIVE_INDICES, PTYPE_REQUEST, PTYPE_RESPONSE, RECORD_SERVICES
+from pd_analyze.model.values import (
+    PROFIDRIVE_INDICES,
+    PTYPE_FAULT,
+    PTYPE_REJECT,
+    PTYPE_REQUEST,
+    PTYPE_RESPONSE,
+    RECORD_SERVICES,
+)
 from pd_analyze.protocol import link, link_batch, pnio, pnio_batch, rpc
 from pd_analyze.protocol import pnio_checks as checks
 from pd_analyze.protocol.dissector import Dissector
@@ -364,8 +371,15 @@ def _reference(frame: RawFrame, pdus: pnio_batch.PduColumns, row: int, batch: Fr
     hdr = rpc.header(dgram.payload)
     _same_rpc_columns(pdus, row, dgram, hdr)
     response = hdr.ptype == PTYPE_RESPONSE
-    assert rpc.is_pnio_uuid(hdr.interface) and hdr.ptype in (PTYPE_REQUEST, PTYPE_RESPONSE), number
     body = dgram.payload[rpc.HEADER_SIZE:rpc.HEADER_SIZE + hdr.frag_len]
+    if hdr.ptype in (PTYPE_FAULT, PTYPE_REJECT):  # a fault with its status: always flagged (rpc_fault)
+        assert rpc.is_pnio_uuid(hdr.interface) and len(body) == hdr.frag_len >= 4 and pdus.flag[row], number
+        layout = rpc.FAULT_LE if hdr.little else rpc.FAULT_BE
+        assert pdus.status[row] == layout.unpack(body)[0] and not pdus.has_block[row], number
+        (res,) = Dissector(checker=checker).feed(frame)
+        assert "rpc_fault" in [f.name for f in res.findings], number
+        return res.findings
+    assert rpc.is_pnio_uuid(hdr.interface) and hdr.ptype in (PTYPE_REQUEST, PTYPE_RESPONSE), number
     assert len(body) == hdr.frag_len == pdus.body_len[row]
     assert batch.buf[pdus.body_start[row]:pdus.body_start[row] + pdus.body_len[row]] == body
     structural: list[Finding] = []

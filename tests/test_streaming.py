@@ -26,7 +26,7 @@ TABLES = ("transactions", "parameters", "findings", "changes")
 
 
 def _settings():
-    from pd_analyze.analysis.pipeline import Settings
+    from pd_analyze.analysis.capture_run import Settings
 
     return Settings()
 

@@ -226,7 +226,7 @@ class Runner:
     def tables(self) -> None:
         """The report path beyond rows: typed tables, CSV cells, the summary."""
         from pd_analyze.analysis.api import Analysis
-        from pd_analyze.analysis.pipeline import CaptureResult
+        from pd_analyze.analysis.capture_run import CaptureResult
         from pd_analyze.output import report
         from pd_analyze.protocol.frames import Accounting
 

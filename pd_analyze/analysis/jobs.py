@@ -9,11 +9,15 @@ from __future__ import annotations
 
 import os
 
-from pd_analyze.analysis.pipeline import CaptureResult, Progress, Settings, analyze_chain, analyze_file
+from pd_analyze.analysis import pipeline
+from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.split import analyze_split
 
 PARALLEL_MIN_BYTES = 8 * 1024 * 1024  # captures smaller than this in all are analysed in one process
+# Captures smaller than this in all are read frame by frame: for them the columns' imports (numpy,
+# pyarrow: about 0.2 s) cost more than the columns save
+COLUMNS_MIN_BYTES = 4 * 1024 * 1024
 
 
 def run(files: list[str], rows: Rows, settings: Settings, progress: Progress | None = None, jobs: int = 1,
@@ -23,12 +27,13 @@ def run(files: list[str], rows: Rows, settings: Settings, progress: Progress | N
 
     One process streams frame by frame; the parallel paths (`jobs` > 1) get each file's or part's rows
     from the workers and hand them on in order."""
+    way = _way(files, settings)
     if chain:
-        return analyze_chain(files, settings, progress, rows)
+        return way.analyze_chain(files, settings, progress, rows)
     if jobs > 1 and ("-" in files or _input_bytes(files) < PARALLEL_MIN_BYTES):
         jobs = 1  # standard input is one stream; for small files, process start-up and shipping the rows
         # back would cost more than the files take
-    if jobs > 1 and len(files) == 1:
+    if jobs > 1 and len(files) == 1 and way is pipeline:
         split = analyze_split(files[0], settings, jobs, rows)
         if split is not None:
             return [split]
@@ -46,6 +51,24 @@ def run(files: list[str], rows: Rows, settings: Settings, progress: Progress | N
         _, result = analyze_file(path, settings, progress, rows, sum(r.transactions for r in results))
         results.append(result)
     return results
+
+
+def analyze_file(path: str, settings: Settings, progress: Progress | None = None, rows: Rows | None = None,
+                 offset: int = 0) -> tuple[Rows, CaptureResult]:
+    """One capture, numbered from transaction `offset` + 1 (a process-pool task: arguments and result pickle)."""
+    return _way([path], settings).analyze_file(path, settings, progress, rows, offset)
+
+
+def _way(files: list[str], settings: Settings):  # noqa: ANN202 (the module: pipeline or columnar.files)
+    """Columns, or frame by frame (Settings.columns). The columnar modules are imported only when used."""
+    columns = settings.columns
+    if columns is None:
+        columns = "-" in files or _input_bytes(files) >= COLUMNS_MIN_BYTES
+    if not columns:
+        return pipeline
+    from pd_analyze.analysis.columnar import files as columnar
+
+    return columnar
 
 
 def _input_bytes(files: list[str]) -> int:

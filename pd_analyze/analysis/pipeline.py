@@ -6,47 +6,16 @@
 from __future__ import annotations
 
 from bisect import bisect_right
-from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass
 
 from pd_analyze import capture
+from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings, difference, error_text, snapshot
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.transaction import Transaction
-from pd_analyze.analysis.transactions import DEFAULT_TXN_TIMEOUT, TransactionEngine, iter_closed
+from pd_analyze.analysis.transactions import TransactionEngine, iter_closed
 from pd_analyze.capture import CaptureError
-from pd_analyze.protocol import profiles
-from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT, Dissector, dissect_frames
+from pd_analyze.protocol.dissector import Dissector, dissect_frames
 from pd_analyze.protocol.frames import Accounting
-from pd_analyze.protocol.profidrive_checks import Checker
-
-Progress = Callable[[str, int], None]  # (capture, frames read so far)
-
-
-@dataclass(frozen=True, slots=True)
-class Settings:
-    """What an analysis is run with (the same in every worker process)."""
-
-    profile: str = profiles.DEFAULT
-    txn_timeout: float = DEFAULT_TXN_TIMEOUT  # seconds a transaction may wait for its final response
-    rpc_timeout: float = DEFAULT_RPC_TIMEOUT  # seconds a call may wait for its response
-
-    def checker(self) -> Checker:
-        return Checker.for_profile(self.profile)
-
-    def dissector(self) -> Dissector:
-        return Dissector(annotate=False, rpc_timeout=self.rpc_timeout, checker=self.checker())
-
-    def engine(self) -> TransactionEngine:
-        return TransactionEngine(self.txn_timeout)
-
-
-@dataclass(slots=True)
-class CaptureResult:
-    path: str
-    accounting: Accounting
-    error: str = ""
-    transactions: int = 0
 
 
 def analyze_file(path: str, settings: Settings, progress: Progress | None = None, rows: Rows | None = None,
@@ -113,19 +82,6 @@ def run_frames(source: Iterable[capture.RawFrame], d: Dissector, engine: Transac
         for txn in engine.finish(last[0]):
             add(txn)
     _drain(engine, d, rows, capture_of)
-
-
-def error_text(exc: CaptureError) -> str:
-    return exc.reason if exc.offset is None else f"byte {exc.offset}: {exc.reason}"
-
-
-def snapshot(acc: Accounting) -> Accounting:
-    return Accounting(acc.read, acc.decoded, Counter(acc.skipped), Counter(acc.malformed))
-
-
-def difference(acc: Accounting, before: Accounting) -> Accounting:
-    return Accounting(acc.read - before.read, acc.decoded - before.decoded, acc.skipped - before.skipped,
-                      acc.malformed - before.malformed)
 
 
 def _drain(engine: TransactionEngine, d: Dissector, rows: Rows, capture_of: Callable[[int], str]) -> None:

@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 from itertools import chain
 
 from pd_analyze import capture
-from pd_analyze.analysis.pipeline import CaptureResult, Settings, difference, run_frames, snapshot
+from pd_analyze.analysis.capture_run import CaptureResult, Settings, difference, snapshot
+from pd_analyze.analysis.pipeline import run_frames
 from pd_analyze.analysis.rows import Rows, finding_row
 from pd_analyze.analysis.transaction import Element, LastDone, Transaction, reuse_finding
 from pd_analyze.analysis.transactions import TransactionEngine

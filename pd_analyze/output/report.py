@@ -23,7 +23,7 @@ from pd_analyze.output.writers import neutralise, open_table
 
 if TYPE_CHECKING:
     from pd_analyze.analysis.api import Analysis
-    from pd_analyze.analysis.pipeline import CaptureResult, Progress, Settings
+    from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings
     from pd_analyze.analysis.transaction import Transaction
 
 __all__ = ["CHUNK_ROWS", "TABLES", "Streamed", "neutralise", "stream", "stream_findings", "summary", "write_tables"]

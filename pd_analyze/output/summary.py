@@ -22,7 +22,7 @@ from pd_analyze.model.rules import SEVERITIES
 from pd_analyze.model.verdicts import VERDICTS
 
 if TYPE_CHECKING:
-    from pd_analyze.analysis.pipeline import CaptureResult
+    from pd_analyze.analysis.capture_run import CaptureResult
 
 TOP = 10
 _LAST = float("inf")

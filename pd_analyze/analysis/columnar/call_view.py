@@ -120,7 +120,8 @@ def _paired_checks(view: BatchView, calls: Calls, bad: set[int], groups: list[in
                        p.target_hi[q], p.ar_hi[q])
     want_lo = np.where((p.target_hi[q] | p.target_lo[q]).astype(bool) & ((p.ar_hi[s] | p.ar_lo[s]) != 0),
                        p.target_lo[q], p.ar_lo[q])
-    ar_ok = ((p.ar_hi[s] == want_hi) & (p.ar_lo[s] == want_lo)) | ((p.ar_hi[s] == p.ar_hi[q]) & (p.ar_lo[s] == p.ar_lo[q]))
+    ar_ok = (((p.ar_hi[s] == want_hi) & (p.ar_lo[s] == want_lo))
+             | ((p.ar_hi[s] == p.ar_hi[q]) & (p.ar_lo[s] == p.ar_lo[q])))
     h6 = block & ((p.iod_seq[s] != p.iod_seq[q]) | (p.api[s] != p.api[q]) | (p.slot[s] != p.slot[q])
                   | (p.subslot[s] != p.subslot[q]) | (p.index[s] != p.index[q]) | ~ar_ok)
     write = p.opnum[q] == OP_WRITE

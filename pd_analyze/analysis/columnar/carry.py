@@ -104,5 +104,7 @@ def _ranges(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
 def near_caps(state: ColumnarState) -> bool:
     """The columnar memory has grown to half a cap of the per-frame path: from here on everything goes
     there, whose caps and evictions are the reference's."""
-    return (len(state.open_calls) > OPEN_CALLS.count // 2 or len(state.pending) > PENDING_TRANSACTIONS.count // 2
-            or len(state.last_request) > CHANNEL_REQUESTS.count // 2 or len(state.last_done) > CHANNEL_HISTORY.count // 2)
+    return (len(state.open_calls) > OPEN_CALLS.count // 2
+            or len(state.pending) > PENDING_TRANSACTIONS.count // 2
+            or len(state.last_request) > CHANNEL_REQUESTS.count // 2
+            or len(state.last_done) > CHANNEL_HISTORY.count // 2)

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from functools import cache
 from types import SimpleNamespace
 
-from pd_analyze.analysis.columnar.state import KIND_READ, KIND_WRITE, ChannelKey, Txn
+from pd_analyze.analysis.columnar.state import KIND_WRITE, ChannelKey, Txn
 from pd_analyze.analysis.transaction import (
     ANSWERS,
     UNANSWERED_ENDS,

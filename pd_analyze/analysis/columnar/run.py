@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
+from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings, error_text
 from pd_analyze.analysis.columnar import call_view
 from pd_analyze.analysis.columnar.batch_view import BatchView, fed
 from pd_analyze.analysis.columnar.calls import Calls, pair
@@ -35,7 +36,6 @@ from pd_analyze.analysis.columnar.txn_rows import (
     remember_read,
     snapshot,
 )
-from pd_analyze.analysis.pipeline import CaptureResult, Progress, Settings, error_text
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.transaction import Transaction
 from pd_analyze.capture import CaptureError

@@ -123,7 +123,8 @@ class TableBuilder:
         devices = [texts[o][0] for o in owners]
         dos = [txns[o].do for o in owners]
         out["parameters"].append(pa.Table.from_arrays([
-            pa.array([numbers[o] for o in owners], pa.int64()), pa.array([captures[o] for o in owners], pa.large_string()),
+            pa.array([numbers[o] for o in owners], pa.int64()),
+            pa.array([captures[o] for o in owners], pa.large_string()),
             pa.array(devices, pa.large_string()), pa.array(dos, pa.int64()), pa.array(labels, pa.large_string()),
             pa.array(pnu, pa.int64()), pa.array(sub, pa.int64()), pa.array(elems, pa.int64()),
             pa.array([_ATTRIBUTE[a] for a in attr.tolist()], pa.large_string()),
