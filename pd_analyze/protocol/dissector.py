@@ -157,9 +157,10 @@ class Dissector:
         yield from self.frags.open_frames()
         yield from self.link.open_frames()
 
-    def finish(self) -> list[FrameResult]:
-        """End of capture: unfinished fragments, unanswered calls, everything still held."""
-        last = self.accounting.read
+    def finish(self, frames_read: int | None = None) -> list[FrameResult]:
+        """End of capture: unfinished fragments, unanswered calls, everything still held. `frames_read`:
+        the frames of the capture when this dissector did not read them all (the columnar path)."""
+        last = self.accounting.read if frames_read is None else frames_read
         ends = self.link.finish()
         self.loose_findings += ends
         out: list[FrameResult] = []

@@ -44,6 +44,7 @@ from pd_analyze.model.values import (
     FLAG1_FRAG,
     INDEX_PD_DPV1,
     INDEX_WRITE_MULTIPLE,
+    LINKTYPE_ETHERNET,
     OP_READ_IMPLICIT,
     OP_WRITE,
     PNIORW_STATE_CONFLICT,
@@ -81,6 +82,10 @@ class FrameColumns:
     # The frame's IPv4 address pair as one key, min << 32 | max of the two addresses as big-endian
     # integers, for every frame with a readable IPv4 header (fragments included); 0 otherwise
     group: np.ndarray  # uint64
+    # The activity UUID (canonical halves) of a frame with a plausible DCE/RPC v4 header where its UDP
+    # payload would start, whatever its route; 0 otherwise (a call's frames may cross address pairs)
+    act_hi: np.ndarray  # uint64
+    act_lo: np.ndarray  # uint64
 
 
 @dataclass(slots=True)
@@ -191,7 +196,18 @@ def decode(batch: FrameBatch, checker: Checker) -> DecodedBatch:
         act_lo=take(hdr.act_lo), if_hi=take(hdr.if_hi), if_lo=take(hdr.if_lo), seq=take(hdr.seq),
         opnum=take(hdr.opnum), body_start=take(at) + rpc.HEADER_SIZE, body_len=take(body_len).astype(np.int32),
         **{name: take(column) for name, column in stubs.items()})
-    return DecodedBatch(FrameColumns(route, reason, dg.group), pdus)
+    act_hi, act_lo = np.zeros(len(batch), np.uint64), np.zeros(len(batch), np.uint64)
+    act_hi[d] = np.where(hdr.plausible, hdr.act_hi, 0)
+    act_lo[d] = np.where(hdr.plausible, hdr.act_lo, 0)
+    # frames for the per-frame path (cut, fragmented...) whose RPC header is there all the same
+    end = batch.start.astype(np.int64) + batch.caplen
+    peek = np.flatnonzero(dg.frames & (dg.group != 0) & (batch.linktype == LINKTYPE_ETHERNET)
+                          & (dg.start + rpc.HEADER_SIZE <= end))
+    if len(peek):
+        seen = rpc_batch.decode(data, dg.start[peek], end[peek] - dg.start[peek])
+        act_hi[peek] = np.where(seen.plausible, seen.act_hi, 0)
+        act_lo[peek] = np.where(seen.plausible, seen.act_lo, 0)
+    return DecodedBatch(FrameColumns(route, reason, dg.group, act_hi, act_lo), pdus)
 
 
 # The stub columns of PduColumns, with their dtypes

@@ -37,10 +37,11 @@ def fed(batch: FrameBatch) -> np.ndarray:
     """Per frame: the per-frame loop hands it to the dissector (`dissector.dissect_frames` counts an
     Ethernet frame without an IPv4 EtherType itself, and the dissector's clock does not see it)."""
     b = np.frombuffer(batch.buf, np.uint8)
-    long = batch.caplen >= 14
-    at = np.where(long, batch.start + 12, 0)
-    ethertype = (b[at].astype(np.int64) << 8) | b[at + 1]
-    return (batch.linktype != LINKTYPE_ETHERNET) | (long & np.isin(ethertype, _IP_ETHERTYPES))
+    long = np.flatnonzero(batch.caplen >= 14)
+    at = batch.start[long] + 12
+    ip = np.zeros(len(batch), bool)
+    ip[long] = np.isin((b[at].astype(np.int64) << 8) | b[at + 1], _IP_ETHERTYPES)
+    return (batch.linktype != LINKTYPE_ETHERNET) | ip
 
 
 def group_key(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -122,30 +123,37 @@ class BatchView:
         sel = np.flatnonzero(self.rec_of >= 0)
         odd = ~r.regular | ((self.p.index[sel] == INDEX_PD_DPV1) & ~r.plausible)
         bad.update(np.unique(self.group[sel[odd]]).tolist())
-        bad.update(self._decide_groups(state))
+        self._shared_activities(state, bad)
         return bad
 
-    def _decide_groups(self, state: ColumnarState) -> set[int]:
-        """Groups with a PNIO call whose activity a DECIDE frame (no PNIO interface) carries: the per-frame
-        dissector decides whether such a frame is PNIO, so the call's group goes with it."""
-        decide = ~self.pnio
-        if not decide.any():
-            return set()
+    def _shared_activities(self, state: ColumnarState, bad: set[int]) -> None:
+        """Adds to `bad` the groups with a call whose activity a frame of the per-frame path carries: a
+        call's frames may cross address pairs (a response from another address is R4's), and the
+        dissector decides whether a frame without a PNIO interface belongs to a PNIO call (DECIDE)."""
+        f = self.decoded.frames
         p = self.p
-        acts = {(hi, lo) for hi, lo in zip(p.act_hi[decide].tolist(), p.act_lo[decide].tolist(), strict=True)}
-        out = set()
-        for i in np.flatnonzero(self.pnio):
-            if (int(p.act_hi[i]), int(p.act_lo[i])) in acts:
-                out.add(int(self.group[i]))
-        for key, call in state.open_calls.items():
-            if key[:2] in acts:
-                out.add(call.request.group)
-        for log in state.answered:
-            hit = np.zeros(len(log.group), bool)
-            for hi, lo in acts:
-                hit |= (log.act_hi == hi) & (log.act_lo == lo)
-            out.update(np.unique(log.group[hit]).tolist())
-        return out
+        while True:
+            frames = (f.route == ROUTE_FRAMES) | (f.route == ROUTE_DECIDE)
+            if bad:
+                frames[p.pos[self.pnio & ~self.good(bad)]] = True
+            frames &= (f.act_hi != 0) | (f.act_lo != 0)
+            if not frames.any():
+                return
+            acts = set(zip(f.act_hi[frames].tolist(), f.act_lo[frames].tolist(), strict=True))
+            found: set[int] = set()
+            mine = np.flatnonzero(self.pnio & self.good(bad))
+            for i, hi, lo in zip(mine.tolist(), p.act_hi[mine].tolist(), p.act_lo[mine].tolist(), strict=True):
+                if (hi, lo) in acts:
+                    found.add(int(self.group[i]))
+            found.update(call.request.group for key, call in state.open_calls.items() if key[:2] in acts)
+            for log in state.answered:
+                hit = np.zeros(len(log.group), bool)
+                for hi, lo in acts:
+                    hit |= (log.act_hi == hi) & (log.act_lo == lo)
+                found.update(np.unique(log.group[hit]).tolist())
+            if found <= bad:
+                return
+            bad |= found
 
     def candidates(self, bad: set[int]) -> np.ndarray:
         """The PDUs the columns analyse: PNIO frames of the groups not in `bad`, in frame order."""

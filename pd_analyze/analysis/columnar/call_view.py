@@ -49,6 +49,8 @@ def build(view: BatchView, calls: Calls, bad: set[int], state: ColumnarState) ->
     request as of that call (a record index of this batch, or a carried (Parsed, frame)))."""
     p = view.p
     req, res = calls.req, calls.res
+    if not len(view.group):  # no PDU in this batch: only calls carried over, none answered yet
+        return _carried_only(calls), {}
     inb = req >= 0
     r = np.where(inb, req, 0)
     has = res >= 0
@@ -107,6 +109,14 @@ def build(view: BatchView, calls: Calls, bad: set[int], state: ColumnarState) ->
                   status.astype(np.int64).tolist(), np.where(res_record >= 0, res_record, -1).tolist(), res_heads)
     requests = _q7(view, cv, calls, state)
     return cv, requests
+
+
+def _carried_only(calls: Calls) -> CallView:
+    n = len(calls.req)
+    q = [c.request for c in calls.carried]
+    return CallView(calls.frame.tolist(), calls.ts.tolist(), [r.group for r in q], [r.kind for r in q],
+                    [r.channel for r in q], [-1] * n, [None] * n, [c.txn for c in calls.carried], [-1] * n,
+                    [0.0] * n, [0] * n, [-1] * n, [None] * n)
 
 
 def _paired_checks(view: BatchView, calls: Calls, bad: set[int], groups: list[int]) -> None:

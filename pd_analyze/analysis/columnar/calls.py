@@ -98,6 +98,7 @@ def pair(p: PduColumns, cand: np.ndarray, frame_no: np.ndarray, ts: np.ndarray, 
         i = int(c_res[k])
         if i >= 0 and (ts[i] - call.ts > rpc_timeout or not _answers(p, i, call)):
             bad.add(call.request.group)
+            bad.add(int(_groups_of(p, np.array([i]))[0]))
     req_all = np.concatenate([req_i, np.full(len(c_calls), -1, np.int64)])
     res_all = np.concatenate([res_i, c_res]).astype(np.int64)
     frames = np.concatenate([frame_no[req_i], np.array([c.request.frame.number for c in c_calls], np.int64)])

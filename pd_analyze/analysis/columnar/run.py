@@ -144,7 +144,7 @@ class ColumnarRun:
         self.d.advance(self.last_ts)
         for txn in self.engine.advance(self.last_pnio):
             self._add_reference(txn)
-        for res in self.d.finish():
+        for res in self.d.finish(self.read):
             for txn in self.engine.feed(res):
                 self._add_reference(txn)
         for txn in self.engine.finish(max(self.last_pnio, self.engine._now)):
