@@ -24,7 +24,7 @@ from pd_analyze.model.values import (
     OP_WRITE,
     PROFIDRIVE_INDICES,
 )
-from pd_analyze.protocol import profidrive_batch
+from pd_analyze.protocol import pnio_batch, profidrive_batch
 from pd_analyze.protocol.pnio_batch import ROUTE_DECIDE, ROUTE_FRAMES, ROUTE_PNIO, ROUTE_SKIP, DecodedBatch
 from pd_analyze.protocol.profidrive import Parsed
 from pd_analyze.protocol.profidrive_checks import Checker
@@ -92,7 +92,9 @@ class BatchView:
         return float(ts[-1]) if len(ts) else float("-inf")
 
     @staticmethod
-    def of(batch: FrameBatch, decoded: DecodedBatch, checker: Checker) -> BatchView:
+    def of(batch: FrameBatch, checker: Checker) -> BatchView:
+        """The batch decoded (pnio_batch, profidrive_batch): what needs no state across batches."""
+        decoded = pnio_batch.decode(batch, checker)
         p = decoded.pdus
         route = decoded.frames.route[p.pos]
         pnio = route == ROUTE_PNIO

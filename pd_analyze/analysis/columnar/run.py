@@ -13,8 +13,9 @@ what is still open to the next batch.
 from __future__ import annotations
 
 from bisect import bisect_left
-from collections import Counter
-from collections.abc import Callable, Iterable
+from collections import Counter, deque
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
@@ -41,11 +42,11 @@ from pd_analyze.analysis.transaction import Transaction
 from pd_analyze.capture import CaptureError
 from pd_analyze.capture.batches import FrameBatch
 from pd_analyze.model import pd_values as pt
-from pd_analyze.protocol import pnio_batch
 from pd_analyze.protocol.frames import Accounting
 from pd_analyze.protocol.link import SKIP_NOT_IPV4
 from pd_analyze.protocol.pnio_batch import SKIP_REASONS
 from pd_analyze.protocol.profidrive import Parsed
+from pd_analyze.protocol.profidrive_checks import Checker
 from pd_analyze.protocol.rpc_calls import unanswered_finding
 
 Event = tuple[int, int, object]  # (frame, READ/CHANGE/ACTIVITY, what)
@@ -77,7 +78,8 @@ class ColumnarRun:
         self._base = 1
 
     # --- the loop -----------------------------------------------------------------------------------
-    def feed(self, batch: FrameBatch) -> None:
+    def feed(self, batch: FrameBatch, view: BatchView | None = None) -> None:
+        """The next batch of frames (`view`: its decode, when made ahead, e.g. by `decoded`)."""
         if not len(batch):
             return
         ts = batch.ts
@@ -86,14 +88,13 @@ class ColumnarRun:
         if self.state.all_reference:
             self._frames_only(batch)
         else:
-            self._columns(batch)
+            self._columns(batch, view or BatchView.of(batch, self.checker))
         self.last_ts = max(self.last_ts, float(ts.max()))
         if self.progress is not None and self.results:
             self.progress(self.results[-1].path, self.read)
 
-    def _columns(self, batch: FrameBatch) -> None:
+    def _columns(self, batch: FrameBatch, view: BatchView) -> None:
         settings, state = self.settings, self.state
-        view = BatchView.of(batch, pnio_batch.decode(batch, self.checker), self.checker)
         self.accounting.read += len(batch)
         self._count_skipped(view)
         bad = view.reference_groups(state)
@@ -303,14 +304,39 @@ class ColumnarRun:
                   self.settings.rpc_timeout)
 
 
+def decoded(source: Iterable[FrameBatch], checker: Checker, threads: int) -> Iterator[tuple[FrameBatch, BatchView]]:
+    """The batches with their decode, made `threads` batches ahead by as many threads (numpy lets go of
+    the interpreter in its loops, so decoding overlaps the state machine's Python). At most 2 x threads
+    batches are held beyond the one being analysed."""
+    with ThreadPoolExecutor(threads, thread_name_prefix="pd-analyze-decode") as pool:
+        ahead: deque[tuple[FrameBatch, Future[BatchView]]] = deque()
+        try:
+            for batch in source:
+                ahead.append((batch, pool.submit(BatchView.of, batch, checker)))
+                if len(ahead) > 2 * threads:
+                    done, view = ahead.popleft()
+                    yield done, view.result()
+            while ahead:
+                done, view = ahead.popleft()
+                yield done, view.result()
+        finally:
+            for _batch, view in ahead:
+                view.cancel()
+
+
 def run_batches(source: Iterable[FrameBatch], settings: Settings, rows: Rows, capture_of: Callable[[int], str],
-                results: list[CaptureResult], progress: Progress | None, offset: int = 0) -> Accounting:
-    """The columnar loop over batches; the frames' accounting when done (also after a CaptureError, which
-    is recorded in the last result)."""
+                results: list[CaptureResult], progress: Progress | None, offset: int = 0,
+                threads: int = 0) -> Accounting:
+    """The columnar loop over batches (decoded by `threads` threads ahead of it, when > 0); the frames'
+    accounting when done (also after a CaptureError, which is recorded in the last result)."""
     run = ColumnarRun(settings, rows, capture_of, results, progress, offset)
     try:
-        for batch in source:
-            run.feed(batch)
+        if threads:
+            for batch, view in decoded(source, run.checker, threads):
+                run.feed(batch, view)
+        else:
+            for batch in source:
+                run.feed(batch)
     except CaptureError as exc:
         results[-1].error = error_text(exc)
     run.finish()
