@@ -1,0 +1,179 @@
+"""CSV lines of a table batch, column by column in Arrow: the bytes `csv.writer` writes for the same rows.
+
+`CsvWriter.line` formats a row's cells one by one in Python; here each column is formatted at once with
+pyarrow compute (casts, regular expressions, joins) and the lines are one string buffer, written as
+is. The cells are today's: times `2026-01-01 00:00:00.026500+00:00`, floats as Python's repr, True and
+False, missing as an empty cell, text a spreadsheet would run prefixed with an apostrophe; and a cell is
+quoted exactly where `csv.writer` (QUOTE_MINIMAL, lineterminator "\\n") quotes it, so the files are the
+same byte for byte.
+"""
+
+from __future__ import annotations
+
+import csv
+from functools import cache
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from pd_analyze.analysis.schema import COLUMNS, TIME, Column
+
+_L = pa.large_string()
+# writers._NUMBER for RE2: Python's \d is any Unicode decimal digit, and its $ also
+# matches before a newline that ends the text (RE2's $ matches only at the very end).
+_NUMBER = r"^[+-]?(\p{Nd}+(\.\p{Nd}*)?|\.\p{Nd}+)([eE][+-]?\p{Nd}+)?\n?$"
+
+
+def _text(text: str) -> pa.Scalar:
+    return pa.scalar(text, _L)
+
+
+@cache
+def _quoted_chars() -> str:
+    """The characters that make csv.writer quote a cell (with lineterminator "\\n"): asked of csv itself,
+    since Python versions differ (3.11 leaves a lone carriage return unquoted)."""
+    line = csv.writer(_Returned, lineterminator="\n").writerow
+    return "".join(ch for ch in ',"\r\n' if line([f"a{ch}b"]).startswith('"'))
+
+
+class _Returned:
+    @staticmethod
+    def write(text: str) -> str:
+        return text
+
+
+def _string_buffers(values: pa.Array) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets (n + 1, into the second) and UTF-8 bytes of a large_string array, without copies."""
+    n = len(values)
+    offsets = np.frombuffer(values.buffers()[1], dtype=np.int64)[values.offset:values.offset + n + 1]
+    data = values.buffers()[2]
+    return offsets, (np.frombuffer(data, dtype=np.uint8) if data is not None and n else np.zeros(0, np.uint8))
+
+
+def _byte_table(chars: str) -> np.ndarray:
+    table = np.zeros(256, dtype=bool)
+    table[[ord(c) for c in chars]] = True
+    return table
+
+
+_FORMULA_BYTES = _byte_table("=+-@\t\r")
+
+
+def _rows_holding(values: pa.Array, chars: str) -> np.ndarray:
+    """Which cells hold any of these ASCII characters (a UTF-8 sequence never holds an ASCII byte)."""
+    offsets, data = _string_buffers(values)
+    mask = np.zeros(len(values), dtype=bool)
+    text = data[offsets[0]:offsets[-1]].tobytes() if len(values) else b""
+    if not any(ch.encode() in text for ch in chars):  # memchr over the column: almost always the answer
+        return mask
+    hits = np.flatnonzero(_byte_table(chars)[data[offsets[0]:offsets[-1]]]) + offsets[0]
+    mask[np.searchsorted(offsets, hits, side="right") - 1] = True
+    return mask
+
+
+def _rows_starting(values: pa.Array, table: np.ndarray) -> np.ndarray:
+    """Which cells start with one of the characters of a byte table (an empty or missing cell does not)."""
+    offsets, data = _string_buffers(values)
+    starts = offsets[:-1]
+    nonempty = offsets[1:] > starts
+    mask = np.zeros(len(values), dtype=bool)
+    mask[nonempty] = table[data[starts[nonempty]]]
+    return mask
+
+
+def float_text(values: pa.Array) -> pa.Array:
+    """float64 values (no NaN) as Python's repr writes them: shortest round trip, `1.0`, `1e-05`, `inf`."""
+    text = pc.cast(values, _L)
+    x = np.abs(values.to_numpy(zero_copy_only=False))  # nulls come as NaN: compare False below
+    with np.errstate(invalid="ignore"):
+        positional = ((x >= 1e-4) & (x < 1e16)) | (x == 0) | np.isinf(x)  # where repr writes no exponent
+        whole = positional & (x == np.floor(x)) & np.isfinite(x)  # repr writes 5.0, Arrow 5
+    scientific = _rows_holding(text, "e")  # where Arrow writes an exponent
+    odd = positional == scientific  # the notations differ: repr() those cells
+    odd &= values.is_valid().to_numpy(zero_copy_only=False)
+    if scientific.any():  # repr's exponent has two digits at least: 1e-07, not 1e-7
+        text = pc.replace_substring_regex(text, r"e([+-])(\d)$", "e\\10\\2")
+    fix = whole & ~odd
+    if fix.any():
+        text = pc.if_else(pa.array(fix), pc.binary_join_element_wise(text, _text(".0"), _text("")), text)
+    if odd.any():
+        fixed = [repr(v) for v in values.filter(pa.array(odd)).to_pylist()]
+        text = pc.replace_with_mask(text, pa.array(odd), pa.array(fixed, _L))
+    return text
+
+
+_TIME_TEMPLATE = np.frombuffer(b"0000-00-00 00:00:00.000000+00:00", dtype=np.uint8)
+_DIGITS = ((0, 4), (5, 2), (8, 2), (11, 2), (14, 2), (17, 2), (20, 6))  # (position, width) of Y m d H M S us
+
+
+def time_text(values: pa.Array) -> pa.Array:
+    """timestamp[us, UTC] as writers.csv_time: `2026-01-01 00:00:00.026500+00:00`, microseconds always.
+
+    Every such cell is 32 characters (the years a table holds have four digits), so the text is built
+    as a block of bytes: the civil date of each day by H. Hinnant's days_from_civil inverse."""
+    us = pc.fill_null(pc.cast(values, pa.int64()), 0).to_numpy(zero_copy_only=False)
+    days, rest = np.divmod(us, 86_400_000_000)
+    seconds, micros = np.divmod(rest, 1_000_000)
+    z = days + 719_468
+    era = np.floor_divide(z, 146_097)
+    doe = z - era * 146_097
+    yoe = (doe - doe // 1460 + doe // 36_524 - doe // 146_096) // 365
+    doy = doe - (365 * yoe + yoe // 4 - yoe // 100)
+    mp = (5 * doy + 2) // 153
+    month = np.where(mp < 10, mp + 3, mp - 9)
+    parts = (yoe + era * 400 + (month <= 2), month, doy - (153 * mp + 2) // 5 + 1,
+             seconds // 3600, seconds // 60 % 60, seconds % 60, micros)
+    out = np.tile(_TIME_TEMPLATE, (len(us), 1))
+    for (at, width), part in zip(_DIGITS, parts, strict=True):
+        for k in range(width):
+            out[:, at + width - 1 - k] = 48 + part // 10 ** k % 10
+    offsets = pa.py_buffer(np.arange(0, 32 * len(us) + 1, 32, dtype=np.int64))
+    text = pa.Array.from_buffers(_L, len(us), [None, offsets, pa.py_buffer(out)])
+    return pc.if_else(values.is_valid(), text, pa.scalar(None, _L)) if values.null_count else text
+
+
+def neutralised(values: pa.Array) -> pa.Array:
+    """Text cells a spreadsheet would run as a formula, with a leading apostrophe (writers.neutralise)."""
+    formula = _rows_starting(values, _FORMULA_BYTES)
+    if not formula.any():
+        return values
+    run = pc.and_(pa.array(formula), pc.invert(pc.match_substring_regex(values, _NUMBER)))
+    return pc.if_else(run, pc.binary_join_element_wise(_text("'"), values, _text("")), values)
+
+
+def quoted(values: pa.Array) -> pa.Array:
+    """Text cells quoted where csv.writer quotes them, quotes inside doubled."""
+    need = _rows_holding(values, _quoted_chars())
+    if not need.any():
+        return values
+    body = pc.replace_substring(values, '"', '""')
+    return pc.if_else(pa.array(need), pc.binary_join_element_wise(_text('"'), body, _text('"'), _text("")), values)
+
+
+def _cells(col: Column, values: pa.Array) -> pa.Array:
+    """One column's CSV cells (null for an empty cell)."""
+    if col.dtype == TIME:
+        return time_text(values)
+    if col.dtype == "Float64":
+        return float_text(values)
+    if col.dtype == "boolean":
+        return pc.if_else(values, _text("True"), _text("False"))
+    if col.dtype == "Int64":
+        return pc.cast(values, _L)
+    return quoted(neutralised(values))
+
+
+def csv_lines(name: str, batch: pa.RecordBatch) -> pa.Array:
+    """The CSV lines of a batch (columns of batch_schema(name)), each ending in a newline."""
+    cells = [_cells(c, batch.column(i)) for i, c in enumerate(COLUMNS[name])]
+    lines = pc.binary_join_element_wise(*cells, _text(","), null_handling="replace", null_replacement="")
+    return pc.binary_join_element_wise(lines, _text(""), _text("\n"))
+
+
+def string_data(values: pa.Array) -> memoryview:
+    """The characters of a large_string array without nulls, end to end, as UTF-8 bytes."""
+    if len(values) == 0:
+        return memoryview(b"")
+    offsets = np.frombuffer(values.buffers()[1], dtype=np.int64)
+    return memoryview(values.buffers()[2])[offsets[values.offset]:offsets[values.offset + len(values)]]
