@@ -22,6 +22,7 @@ import os
 import shutil
 import tempfile
 from collections.abc import Iterator
+from itertools import pairwise
 from typing import Any, Protocol
 
 import numpy as np
@@ -33,6 +34,7 @@ from pd_analyze.analysis.table_batches import SEQ, arrival_numbers, batch_schema
 MAX_HELD = 500_000  # rows held in memory before the sink spills (about 100 MB of transactions)
 CHUNK_ROWS = 65_536  # rows per write_batch call at most
 FAN_IN = 16  # runs merged at once
+RUN_ROWS = 4_096  # rows in order, on average, worth keeping as slices rather than gathered
 
 
 class BatchWriter(Protocol):
@@ -54,6 +56,18 @@ def _below(parts: list[Any], key: Key) -> np.ndarray:
             less, equal = array < bound, array == bound
         result = less | (equal & result)
     return result
+
+
+def _sorted(table: pa.Table, width: int) -> pa.Table:
+    """A table sorted by its last `width` columns (the key parts, then SEQ). Rows mostly come in order,
+    a batch at a time, so the order is usually a few runs of consecutive rows: those are sliced (no copy);
+    a gather of every column is left for rows in disorder."""
+    order = sort_indices(table.select(table.column_names[-width:])).to_numpy()
+    starts = np.flatnonzero(np.diff(order) != 1) + 1
+    if len(starts) + 1 > max(1, len(order) // RUN_ROWS):
+        return table.take(pa.array(order))
+    bounds = [0, *starts.tolist(), len(order)]
+    return pa.concat_tables([table.slice(int(order[a]), b - a) for a, b in pairwise(bounds)])
 
 
 class _Block:
@@ -229,7 +243,7 @@ class TableSink:
             return None
         table = pa.concat_tables(self._held) if len(self._held) > 1 else self._held[0]
         if not self._held_sorted:
-            table = table.take(sort_indices(table.select(table.column_names[-self._width:])))
+            table = _sorted(table, self._width)
         self._held, self._held_sorted = [table], True
         return table
 
@@ -286,7 +300,7 @@ class TableSink:
                         source.used(n)
                 piece = pa.concat_tables(pieces) if len(pieces) > 1 else pieces[0]
                 if len(pieces) > 1:
-                    piece = piece.take(sort_indices(piece.select(piece.column_names[-self._width:])))
+                    piece = _sorted(piece, self._width)
                 yield piece
         finally:
             if memory is not None:  # what is left in memory: the rows not taken, then those at or above limit
