@@ -40,7 +40,7 @@ TIME_TYPE = pa.timestamp("us", tz="UTC")
 _TYPES = {"Int64": pa.int64(), "string": pa.large_string(), "category": pa.large_string(),
           VERDICT: pa.large_string(), SEVERITY: pa.large_string(), TIME: TIME_TYPE, "Float64": pa.float64(),
           "boolean": pa.bool_()}
-_MAX_MICROS = int(MAX_TIME_SECONDS * 1e6)  # a time at or beyond this is missing, as micros() makes it
+_MAX_MICROS = int(MAX_TIME_SECONDS * 1e6)  # a time beyond this is missing (micros() keeps what rounds to it)
 SEQ = "__seq"  # the arrival number of a row, where a key needs it: ties keep the order rows came in
 
 
@@ -86,9 +86,10 @@ def conform(name: str, table: pa.Table) -> pa.Table:
             bad = pc.is_nan(col)
         elif c.dtype == TIME:
             micros = pc.cast(col, pa.int64())
-            bad = pc.or_(pc.greater_equal(micros, _MAX_MICROS), pc.less_equal(micros, -_MAX_MICROS))
+            bad = pc.or_(pc.greater(micros, _MAX_MICROS), pc.less(micros, -_MAX_MICROS))
         elif c.dtype in FIXED_CATEGORIES:
-            bad = pc.invert(pc.is_in(col, value_set=pa.array(FIXED_CATEGORIES[c.dtype][0], pa.large_string())))
+            known = pc.is_in(col, value_set=pa.array(FIXED_CATEGORIES[c.dtype][0], pa.large_string()))
+            bad = pc.and_(pc.invert(known), pc.is_valid(col))
         else:
             continue
         if pc.any(bad).as_py():  # null where bad (a null stays null)

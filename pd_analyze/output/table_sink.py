@@ -58,6 +58,12 @@ def _below(parts: list[Any], key: Key) -> np.ndarray:
     return result
 
 
+def _number(value: object) -> int | float:
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer) or value != value:
+        raise TypeError(f"a watermark is a number, not {value!r}")
+    return value if isinstance(value, int | float) else int(value)
+
+
 def _sorted(table: pa.Table, width: int) -> pa.Table:
     """A table sorted by its last `width` columns (the key parts, then SEQ). Rows mostly come in order,
     a batch at a time, so the order is usually a few runs of consecutive rows: those are sliced (no copy);
@@ -228,11 +234,12 @@ class TableSink:
             self._dir = None
 
     def _prefix(self, watermark: object) -> Key:
+        """The watermark as a prefix of the key parts: present (0), then the value (inf: every value)."""
         if self.by_capture:
             if not (isinstance(watermark, tuple) and len(watermark) == 2):
                 raise TypeError("a sink by capture takes a watermark (capture, value)")
-            return (0, str(watermark[0]), 0, int(watermark[1]))  # type: ignore[call-overload]
-        return (0, int(watermark))  # type: ignore[call-overload]
+            return (0, str(watermark[0]), 0, _number(watermark[1]))
+        return (0, _number(watermark))
 
     def _peak(self, held: int) -> None:
         self.peak_held = max(self.peak_held, held)
