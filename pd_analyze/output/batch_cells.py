@@ -58,28 +58,36 @@ def _byte_table(chars: str) -> np.ndarray:
     return table
 
 
-_FORMULA_BYTES = _byte_table("=+-@\t\r")
+_FORMULA_START = "=+-@\t\r"  # writers._FORMULA
 
 
-def _rows_holding(values: pa.Array, chars: str) -> np.ndarray:
-    """Which cells hold any of these ASCII characters (a UTF-8 sequence never holds an ASCII byte)."""
+def _column_bytes(values: pa.Array) -> bytes:
     offsets, data = _string_buffers(values)
+    return data[offsets[0]:offsets[-1]].tobytes() if len(values) else b""
+
+
+def _rows_holding(values: pa.Array, chars: str, text: bytes | None = None) -> np.ndarray:
+    """Which cells hold any of these ASCII characters (a UTF-8 sequence never holds an ASCII byte);
+    `text`: the column's bytes, when the caller has them."""
     mask = np.zeros(len(values), dtype=bool)
-    text = data[offsets[0]:offsets[-1]].tobytes() if len(values) else b""
+    text = _column_bytes(values) if text is None else text
     if not any(ch.encode() in text for ch in chars):  # memchr over the column: almost always the answer
         return mask
+    offsets, data = _string_buffers(values)
     hits = np.flatnonzero(_byte_table(chars)[data[offsets[0]:offsets[-1]]]) + offsets[0]
     mask[np.searchsorted(offsets, hits, side="right") - 1] = True
     return mask
 
 
-def _rows_starting(values: pa.Array, table: np.ndarray) -> np.ndarray:
-    """Which cells start with one of the characters of a byte table (an empty or missing cell does not)."""
+def _rows_starting(values: pa.Array, chars: str, text: bytes) -> np.ndarray:
+    """Which cells start with one of these ASCII characters (an empty or missing cell does not)."""
+    mask = np.zeros(len(values), dtype=bool)
+    if not any(ch.encode() in text for ch in chars):  # none anywhere in the column
+        return mask
     offsets, data = _string_buffers(values)
     starts = offsets[:-1]
     nonempty = offsets[1:] > starts
-    mask = np.zeros(len(values), dtype=bool)
-    mask[nonempty] = table[data[starts[nonempty]]]
+    mask[nonempty] = _byte_table(chars)[data[starts[nonempty]]]
     return mask
 
 
@@ -164,22 +172,31 @@ def _few(values: pa.Array, text: Callable[[pa.Array], pa.Array]) -> pa.Array:
     return text(values)
 
 
-def neutralised(values: pa.Array) -> pa.Array:
-    """Text cells a spreadsheet would run as a formula, with a leading apostrophe (writers.neutralise)."""
-    formula = _rows_starting(values, _FORMULA_BYTES)
+def neutralised(values: pa.Array, text: bytes | None = None) -> pa.Array:
+    """Text cells a spreadsheet would run as a formula, with a leading apostrophe (writers.neutralise);
+    `text`: the column's bytes, when the caller has them."""
+    formula = _rows_starting(values, _FORMULA_START, _column_bytes(values) if text is None else text)
     if not formula.any():
         return values
     run = pc.and_(pa.array(formula), pc.invert(pc.match_substring_regex(values, _NUMBER)))
     return pc.if_else(run, pc.binary_join_element_wise(_text("'"), values, _text("")), values)
 
 
-def quoted(values: pa.Array) -> pa.Array:
-    """Text cells quoted where csv.writer quotes them, quotes inside doubled."""
-    need = _rows_holding(values, _quoted_chars())
+def quoted(values: pa.Array, text: bytes | None = None) -> pa.Array:
+    """Text cells quoted where csv.writer quotes them, quotes inside doubled; `text` as for neutralised."""
+    need = _rows_holding(values, _quoted_chars(), text)
     if not need.any():
         return values
     body = pc.replace_substring(values, '"', '""')
     return pc.if_else(pa.array(need), pc.binary_join_element_wise(_text('"'), body, _text('"'), _text("")), values)
+
+
+def text_cells(values: pa.Array) -> pa.Array:
+    """A text column's CSV cells: neutralised, then quoted (the column's bytes read once when neither
+    changes a cell, as for nearly every column)."""
+    text = _column_bytes(values)
+    # an apostrophe added is no character that needs quotes: the bytes before say where quotes may be needed
+    return quoted(neutralised(values, text), text)
 
 
 def _cells(col: Column, values: pa.Array) -> pa.Array:
@@ -192,7 +209,7 @@ def _cells(col: Column, values: pa.Array) -> pa.Array:
         return pc.if_else(values, _text("True"), _text("False"))
     if col.dtype == "Int64":
         return int_text(values)
-    return quoted(neutralised(values))
+    return text_cells(values)
 
 
 def csv_lines(name: str, batch: pa.RecordBatch) -> pa.Array:

@@ -7,7 +7,7 @@ with the capture. `write_tables` and `summary` do the same from an Analysis alre
 
 `BatchReport` (and `write_batches`, all at once) is the same end for the columnar analysis: the tables
 come as pyarrow batches in any order, a `TableSink` per table writes them in table order, and the
-summary is counted from the batches as they are written.
+summary is counted from the batches as they come.
 """
 
 from __future__ import annotations
@@ -73,22 +73,11 @@ def summary(analysis: Analysis, top: int = TOP) -> str:
     return acc.text(analysis.captures, top)
 
 
-class _Counted:
-    """A writer whose batches are counted into the summary as they are written (in table order)."""
-
-    def __init__(self, name: str, writer: Any, acc: Summary | None) -> None:
-        self.name, self.writer, self.acc = name, writer, acc
-
-    def write_batch(self, table: Any) -> None:
-        self.writer.write_batch(table)
-        if self.acc is not None:
-            self.acc.add_batch(self.name, table)
-
-
 class BatchReport:
     """The report files and summary of the columnar analysis: `add(name, table)` batches of a table in any
-    order, `flush(name, watermark)` when no row of that table still to come sorts below the watermark,
-    `close(captures)` at the end (or `abort()` after a failure; as a context manager it does that itself).
+    order (columns of table_batches.batch_schema(name)), `flush(name, watermark)` when no row of that table
+    still to come sorts below the watermark, `close(captures)` at the end (or `abort()` after a failure; as
+    a context manager it does that itself).
 
     A watermark is a value of the table's sort column (txn; frame for findings); for Parquet's findings,
     which are written by capture, a pair (capture, frame) (`by_capture(name)` says which). Rows are held
@@ -109,8 +98,8 @@ class BatchReport:
             for name in TABLES:
                 self._writers[name] = writer = open_table(out_dir, name, fmt)
                 self.sinks[name] = table_sink.TableSink(
-                    name, _Counted(name, writer, self.acc), self.by_capture(name), self._spill,
-                    max_held or table_sink.MAX_HELD, chunk_rows or table_sink.CHUNK_ROWS)
+                    name, writer, self.by_capture(name), self._spill, max_held or table_sink.MAX_HELD,
+                    chunk_rows or table_sink.CHUNK_ROWS)
         except BaseException:
             self.abort()
             raise
@@ -120,6 +109,13 @@ class BatchReport:
         return _by_capture(name, self.fmt)
 
     def add(self, name: str, table: Any) -> None:
+        """A batch of one table. It is counted into the summary now, in the order batches come: the summary
+        is the same in any order (a row's place is its key, then its number), as the row stream's is."""
+        from pd_analyze.analysis.table_batches import conform
+
+        table = conform(name, table)
+        if self.acc is not None:
+            self.acc.add_batch(name, table)
         self.sinks[name].add(table)
 
     def flush(self, name: str, watermark: object) -> int:

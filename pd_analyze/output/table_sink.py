@@ -7,6 +7,11 @@ row below the watermark to its writer (`write_batch`), in table order: by the ta
 (`schema.SORT_COLUMN`; findings then by rule rank), missing keys last, ties in the order the rows came
 (`add` numbers them). `close()` writes the rest.
 
+A writer that can format rows ahead (`format_batch(table) -> pa.Array` of text, one element a row, and
+`write_formatted(text)`: CSV and JSON Lines) gets them formatted as they arrive, a few thousand at a time,
+and the sink sorts that one column of text instead of every column (a gather of thirty string columns
+costs more than formatting them). Other writers (Parquet) get `write_batch(table)` of the columns.
+
 Memory: rows waiting are held as Arrow tables. Past `max_held` rows the sink does what `spool.Spool`
 does with its rows: it sorts them, writes all but the highest `max_held // 2` to a sorted run on disk
 (Arrow IPC files in `spill_dir`; rows below what the current run holds start a run of their own) and
@@ -33,6 +38,8 @@ from pd_analyze.analysis.table_batches import SEQ, arrival_numbers, batch_schema
 
 MAX_HELD = 500_000  # rows held in memory before the sink spills (about 100 MB of transactions)
 CHUNK_ROWS = 65_536  # rows per write_batch call at most
+FORMAT_ROWS = 16_384  # rows gathered before they are formatted (a column at a time costs per call, too)
+TEXT = "__text"  # the column of formatted rows
 FAN_IN = 16  # runs merged at once
 RUN_ROWS = 4_096  # rows in order, on average, worth keeping as slices rather than gathered
 
@@ -176,7 +183,8 @@ class TableSink:
         self.block = max(1, self.max_held // (2 * FAN_IN))
         self.chunk_rows = max(1, chunk_rows)
         self.spill_dir = spill_dir
-        self.names = batch_schema(name).names
+        self._format = getattr(writer, "format_batch", None)  # formats rows ahead (CSV, JSON Lines)
+        self.names = [TEXT] if self._format is not None else batch_schema(name).names  # the columns held
         self.rows_in = self.rows_out = 0
         self.peak_held = 0  # most rows held in memory at once (waiting rows, merge blocks)
         self.runs_made = 0
@@ -184,6 +192,8 @@ class TableSink:
         self._held: list[pa.Table] = []  # waiting rows: the data columns, the key parts, SEQ
         self._held_rows = 0
         self._held_sorted = False  # the held rows are one table, sorted
+        self._raw: list[pa.Table] = []  # rows still to be formatted (formatting writers only), as added
+        self._raw_rows = 0
         self._runs: list[_Run] = []
         self._current: _Run | None = None  # the run spilled rows go on to
         self._floor: Key | None = None  # the highest watermark flushed: nothing may come below it
@@ -200,13 +210,32 @@ class TableSink:
             raise ValueError(f"{self.name}: a row below the watermark {self._floor[-1]!r} already flushed")
         for part_name, values in parts:
             table = table.append_column(part_name, values)
-        self._held.append(table.append_column(SEQ, arrival_numbers(self.rows_in, n)))
-        self._held_sorted = False
+        table = table.append_column(SEQ, arrival_numbers(self.rows_in, n))
         self.rows_in += n
         self._held_rows += n
         self._peak(self._held_rows)
+        if self._format is not None:
+            self._raw.append(table)
+            self._raw_rows += n
+            if self._raw_rows >= FORMAT_ROWS:
+                self._formatted()
+        else:
+            self._held.append(table)
+            self._held_sorted = False
         if self._held_rows > self.max_held:
             self._spill()
+
+    def _formatted(self) -> None:
+        """The rows waiting to be formatted, formatted (in the order they came) and held."""
+        if not self._raw:
+            return
+        table = pa.concat_tables(self._raw) if len(self._raw) > 1 else self._raw[0]
+        self._raw, self._raw_rows = [], 0
+        text = self._format(table.select(batch_schema(self.name).names))  # type: ignore[misc]
+        keys = table.columns[table.num_columns - self._width:]
+        names = table.column_names[table.num_columns - self._width:]
+        self._held.append(pa.Table.from_arrays([text, *keys], names=[TEXT, *names]))
+        self._held_sorted = False
 
     def flush(self, watermark: object) -> int:
         """Write every held row whose key is below the watermark; the caller promises none will come
@@ -228,7 +257,7 @@ class TableSink:
         """Forget every held row and remove the spill files (after a failure)."""
         for run in self._runs:
             run.remove()
-        self._runs, self._current, self._held, self._held_rows = [], None, [], 0
+        self._runs, self._current, self._held, self._held_rows, self._raw, self._raw_rows = [], None, [], 0, [], 0
         if self._dir is not None:
             shutil.rmtree(self._dir, ignore_errors=True)
             self._dir = None
@@ -246,6 +275,7 @@ class TableSink:
 
     def _sorted_held(self) -> pa.Table | None:
         """The rows in memory as one sorted table (also kept as the only held table)."""
+        self._formatted()
         if not self._held:
             return None
         table = pa.concat_tables(self._held) if len(self._held) > 1 else self._held[0]
@@ -385,9 +415,13 @@ class _Output:
             return
         table = pa.concat_tables(self._pending)
         self._pending, self._pending_rows = [], 0
+        writer = self.sink.writer
         for start in range(0, table.num_rows, self.sink.chunk_rows):
             chunk = table.slice(start, self.sink.chunk_rows)
-            self.sink.writer.write_batch(chunk)
+            if self.sink.names == [TEXT]:
+                writer.write_formatted(chunk.column(TEXT))  # type: ignore[attr-defined]
+            else:
+                writer.write_batch(chunk)
             self.rows += chunk.num_rows
             self.sink.rows_out += chunk.num_rows
 

@@ -123,11 +123,23 @@ class CsvWriter(_LineWriter):
     def write_batch(self, table: Any) -> None:
         """Rows of a pyarrow Table of batch_schema(name), in table order (as TableSink hands them on):
         the same bytes `write` writes for the same rows, formatted a column at a time."""
-        from pd_analyze.output.batch_cells import csv_lines, string_data
+        self.write_formatted(self.format_batch(table))
+
+    def format_batch(self, table: Any) -> Any:
+        """The CSV lines of a batch's rows (a pyarrow ChunkedArray, one line a row), to be written later."""
+        import pyarrow as pa
+
+        from pd_analyze.output.batch_cells import csv_lines
+
+        return pa.chunked_array([csv_lines(self._name, b) for b in table.to_batches()], pa.large_string())
+
+    def write_formatted(self, lines: Any) -> None:
+        """Lines made by format_batch (or pieces of them, in any order the caller chose)."""
+        from pd_analyze.output.batch_cells import string_data
 
         self._file.flush()  # the header and any rows written as text go first
-        for batch in table.to_batches():
-            self._file.buffer.write(string_data(csv_lines(self._name, batch)))
+        for chunk in lines.chunks:
+            self._file.buffer.write(string_data(chunk))
 
     def line(self, row: tuple) -> str:
         cells = self._cells.row(row)
@@ -159,6 +171,10 @@ class JsonWriter(_LineWriter):
     def write_batch(self, table: Any) -> None:
         """Rows of a pyarrow Table of batch_schema(name), in table order: the same bytes `write` writes
         for the same rows (the cells become Python values again and go through the same encoder)."""
+        self.write_formatted(self.format_batch(table))
+
+    def format_batch(self, table: Any) -> Any:
+        """The JSON lines of a batch's rows (a pyarrow ChunkedArray, one line a row), to be written later."""
         import pyarrow as pa
 
         columns = []
@@ -170,7 +186,13 @@ class JsonWriter(_LineWriter):
             else:
                 columns.append(values.to_pylist())
         encode, names = self._encode, self._names
-        self.write_lines([encode(dict(zip(names, row, strict=True))) + "\n" for row in zip(*columns, strict=True)])
+        return pa.chunked_array([pa.array([encode(dict(zip(names, row, strict=True))) + "\n"
+                                           for row in zip(*columns, strict=True)], pa.large_string())])
+
+    def write_formatted(self, lines: Any) -> None:
+        """Lines made by format_batch (or pieces of them, in any order the caller chose)."""
+        for chunk in lines.chunks:
+            self._file.write("".join(chunk.to_pylist()))
 
 
 class ParquetWriter:
