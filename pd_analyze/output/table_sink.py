@@ -16,9 +16,11 @@ Memory: rows waiting are held as Arrow tables. Past `max_held` rows the sink doe
 does with its rows: it sorts them, writes all but the highest `max_held // 2` to a sorted run on disk
 (Arrow IPC files in `spill_dir`; rows below what the current run holds start a run of their own) and
 keeps the rest. A flush then merges the runs with the rows in memory, a block of each run at a time;
-more than FAN_IN runs are first merged into one. Rows held stay below about 1.5 x `max_held` (the rows
-in memory, one block of `max_held // (2 * FAN_IN)` rows per run being merged) plus one output chunk of
-`chunk_rows`, whatever arrives: `peak_held` records the most.
+more than FAN_IN runs are first merged, FAN_IN into one. So the rows in memory stay below `max_held`
+plus the batch being added, plus one block of `max_held // (2 * FAN_IN)` rows for each run being merged
+(at most FAN_IN + 1: about `max_held // 2`), whatever arrives and however long the watermark stalls:
+about 1.5 x `max_held` rows and one batch. `peak_held` records the most. (The writer's own chunk is made
+of those rows: slices, not copies, where they lie in order.)
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ import pyarrow.compute as pc
 
 from pd_analyze.analysis.table_batches import SEQ, arrival_numbers, batch_schema, conform, order_keys, sort_indices
 
-MAX_HELD = 500_000  # rows held in memory before the sink spills (about 100 MB of transactions)
+MAX_HELD = 250_000  # rows held in memory before the sink spills (about 100 MB of transaction rows)
 CHUNK_ROWS = 65_536  # rows per write_batch call at most
 FORMAT_ROWS = 16_384  # rows gathered before they are formatted (a column at a time costs per call, too)
 TEXT = "__text"  # the column of formatted rows
@@ -45,6 +47,9 @@ RUN_ROWS = 4_096  # rows in order, on average, worth keeping as slices rather th
 
 
 class BatchWriter(Protocol):
+    """What a sink writes to: tables of batch_schema(name), in table order. A writer may also offer
+    `format_batch(table) -> pa.ChunkedArray` (a row's text each) and `write_formatted(text)`."""
+
     def write_batch(self, table: pa.Table) -> None: ...
 
 
@@ -174,7 +179,9 @@ class TableSink:
 
     `name` is a table of schema.COLUMNS; `by_capture` orders by capture first (Parquet's findings,
     one partition file at a time). A watermark is a value of the sort column (txn, or frame for findings)
-    or, with `by_capture`, a pair (capture, value)."""
+    or, with `by_capture`, a pair (capture, value); float("inf") stands for every value. Spill files go
+    to a hidden directory in `spill_dir` (the system's temporary directory when None), made when first
+    needed and removed by close() or discard(). `chunk_rows` bounds the rows of one writer call."""
 
     def __init__(self, name: str, writer: BatchWriter, by_capture: bool = False, spill_dir: str | None = None,
                  max_held: int = MAX_HELD, chunk_rows: int = CHUNK_ROWS) -> None:
@@ -319,7 +326,7 @@ class TableSink:
                         heads.append((run, head))
                 if not heads:
                     return
-                self._peak(sum(len(b) for _, b in heads) + (rest.num_rows if rest is not None else 0))
+                self._peak(sum(len(b) for _, b in heads) + (rest.num_rows if rest is not None else self._held_rows))
                 lasts = [b.key(len(b) - 1) for s, b in heads if s is not None]
                 bound = min(lasts) if lasts else None
                 pieces = []

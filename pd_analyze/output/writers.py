@@ -191,8 +191,11 @@ class JsonWriter(_LineWriter):
 
     def write_formatted(self, lines: Any) -> None:
         """Lines made by format_batch (or pieces of them, in any order the caller chose)."""
+        from pd_analyze.output.batch_cells import string_data
+
+        self._file.flush()
         for chunk in lines.chunks:
-            self._file.write("".join(chunk.to_pylist()))
+            self._file.buffer.write(string_data(chunk))
 
 
 class ParquetWriter:
