@@ -12,7 +12,7 @@ row path, which imports neither pyarrow nor pandas.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from functools import cache
 from typing import TYPE_CHECKING
 
@@ -50,9 +50,10 @@ def batch_schema(name: str) -> pa.Schema:
     return pa.schema([pa.field(c.name, _TYPES[c.dtype]) for c in COLUMNS[name]])
 
 
-def rows_to_batch(name: str, rows: Sequence[tuple]) -> pa.Table:
+def rows_to_batch(name: str, rows: Iterable[tuple]) -> pa.Table:
     """Row tuples (as `Rows` builds them: times as float seconds, None for missing) as one batch."""
     cols, schema = COLUMNS[name], batch_schema(name)
+    rows = rows if isinstance(rows, list | tuple) else list(rows)
     columns = list(zip(*rows, strict=True)) if rows else [()] * len(cols)
     arrays = []
     for c, field, cells in zip(cols, schema, columns, strict=True):

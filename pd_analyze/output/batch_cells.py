@@ -47,9 +47,11 @@ class _Returned:
 def _string_buffers(values: pa.Array) -> tuple[np.ndarray, np.ndarray]:
     """Offsets (n + 1, into the second) and UTF-8 bytes of a large_string array, without copies."""
     n = len(values)
-    offsets = np.frombuffer(values.buffers()[1], dtype=np.int64)[values.offset:values.offset + n + 1]
-    data = values.buffers()[2]
-    return offsets, (np.frombuffer(data, dtype=np.uint8) if data is not None and n else np.zeros(0, np.uint8))
+    buffers = values.buffers()
+    if not n or buffers[1] is None:
+        return np.zeros(n + 1, np.int64), np.zeros(0, np.uint8)
+    offsets = np.frombuffer(buffers[1], dtype=np.int64)[values.offset:values.offset + n + 1]
+    return offsets, (np.frombuffer(buffers[2], dtype=np.uint8) if buffers[2] is not None else np.zeros(0, np.uint8))
 
 
 def _byte_table(chars: str) -> np.ndarray:
