@@ -15,9 +15,10 @@ costs more than formatting them). Other writers (Parquet) get `write_batch(table
 Memory: rows waiting are held as Arrow tables. Past `max_held` rows the sink does what `spool.Spool`
 does with its rows: it sorts them, writes all but the highest `max_held // 2` to a sorted run on disk
 (Arrow IPC files in `spill_dir`; rows below what the current run holds start a run of their own) and
-keeps the rest. A flush then merges the runs with the rows in memory, a block of each run at a time;
-more than FAN_IN runs are first merged, FAN_IN into one. So the rows in memory stay below `max_held`
-plus the batch being added, plus one block of `max_held // (2 * FAN_IN)` rows for each run being merged
+keeps the rest (output/table_runs.py). A flush then merges the runs with the rows in memory, a block of
+each run at a time; more than FAN_IN runs are first merged, FAN_IN into one. Without runs (no flood so
+far) a flush sorts only the keys and copies only the rows it writes. So the rows in memory stay below
+`max_held` plus the batch being added, plus one block of `max_held // (2 * FAN_IN)` rows for each run being merged
 (at most FAN_IN + 1: about `max_held // 2`), whatever arrives and however long the watermark stalls:
 about 1.5 x `max_held` rows and one batch. `peak_held` records the most. (The writer's own chunk is made
 of those rows: slices, not copies, where they lie in order.)
@@ -29,21 +30,19 @@ import os
 import shutil
 import tempfile
 from collections.abc import Iterator
-from itertools import pairwise
 from typing import Any, Protocol
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 
-from pd_analyze.analysis.table_batches import SEQ, arrival_numbers, batch_schema, conform, order_keys, sort_indices
+from pd_analyze.analysis.table_batches import SEQ, arrival_numbers, batch_schema, conform, order_keys
+from pd_analyze.output.table_runs import Block, Key, Run, below, number, sort_order, sorted_rows, taken
 
 MAX_HELD = 250_000  # rows held in memory before the sink spills (about 100 MB of transaction rows)
 CHUNK_ROWS = 65_536  # rows per write_batch call at most
 FORMAT_ROWS = 16_384  # rows gathered before they are formatted (a column at a time costs per call, too)
 TEXT = "__text"  # the column of formatted rows
 FAN_IN = 16  # runs merged at once
-RUN_ROWS = 4_096  # rows in order, on average, worth keeping as slices rather than gathered
 
 
 class BatchWriter(Protocol):
@@ -51,127 +50,6 @@ class BatchWriter(Protocol):
     `format_batch(table) -> pa.ChunkedArray` (a row's text each) and `write_formatted(text)`."""
 
     def write_batch(self, table: pa.Table) -> None: ...
-
-
-Key = tuple  # a row's key parts (order_keys), then its SEQ; a prefix of them for a watermark
-
-
-def _below(parts: list[Any], key: Key) -> np.ndarray:
-    """Which rows sort below `key`, comparing the first len(key) parts (one vectorised pass)."""
-    result = np.zeros(len(parts[0]), dtype=bool)  # equal in every part compared: not below
-    for values, bound in reversed(list(zip(parts, key, strict=False))):
-        if isinstance(bound, str):
-            less = pc.less(values, bound).to_numpy(zero_copy_only=False)
-            equal = pc.equal(values, bound).to_numpy(zero_copy_only=False)
-        else:
-            array = values.to_numpy()
-            less, equal = array < bound, array == bound
-        result = less | (equal & result)
-    return result
-
-
-def _number(value: object) -> int | float:
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer) or value != value:
-        raise TypeError(f"a watermark is a number, not {value!r}")
-    return value if isinstance(value, int | float) else int(value)
-
-
-def _sorted(table: pa.Table, width: int) -> pa.Table:
-    """A table sorted by its last `width` columns (the key parts, then SEQ). Rows mostly come in order,
-    a batch at a time, so the order is usually a few runs of consecutive rows: those are sliced (no copy);
-    a gather of every column is left for rows in disorder."""
-    order = sort_indices(table.select(table.column_names[-width:])).to_numpy()
-    starts = np.flatnonzero(np.diff(order) != 1) + 1
-    if len(starts) + 1 > max(1, len(order) // RUN_ROWS):
-        return table.take(pa.array(order))
-    bounds = [0, *starts.tolist(), len(order)]
-    return pa.concat_tables([table.slice(int(order[a]), b - a) for a, b in pairwise(bounds)])
-
-
-class _Block:
-    """Sorted rows of one source (memory or a run), the head of what is left of it."""
-
-    def __init__(self, table: pa.Table, width: int) -> None:
-        self.table = table
-        self.parts = table.columns[table.num_columns - width:]
-
-    def __len__(self) -> int:
-        return self.table.num_rows
-
-    def key(self, i: int) -> Key:
-        return tuple(p[i].as_py() for p in self.parts)
-
-    def count(self, key: Key, or_equal: bool = False) -> int:
-        """Rows at the head that sort below `key` (at or below: `or_equal`), comparing len(key) parts:
-        the block is sorted, so they are a prefix, found by bisection."""
-        m = len(key)
-        lo, hi = 0, len(self)
-        while lo < hi:
-            mid = (lo + hi) // 2
-            k = self.key(mid)[:m]
-            if k < key or (or_equal and k == key):
-                lo = mid + 1
-            else:
-                hi = mid
-        return lo
-
-    def split(self, n: int) -> tuple[pa.Table, pa.Table]:
-        return self.table.slice(0, n), self.table.slice(n)
-
-
-class _Run:
-    """A sorted run on disk: IPC files, each sorted and starting at or above where the one before ends."""
-
-    def __init__(self) -> None:
-        self.files: list[str] = []
-        self.rows = 0
-        self.last: Key | None = None  # the key of the last row appended
-        self._reader: Any = None
-        self._file: Any = None
-        self._batch = 0  # next record batch of the first file
-        self.head: _Block | None = None  # rows read and not yet used
-
-    def append(self, path: str, table: pa.Table, block: int, last: Key) -> None:
-        with pa.OSFile(path, "wb") as sink, pa.ipc.new_file(sink, table.schema) as writer:
-            writer.write_table(table, max_chunksize=block)
-        self.files.append(path)
-        self.rows += table.num_rows
-        self.last = last
-
-    def next_block(self, width: int) -> _Block | None:
-        """The head, reading the next record batch when it is used up; None at the end of the run."""
-        while self.head is None or not len(self.head):
-            if not self.files:
-                return None
-            if self._reader is None:
-                self._file = pa.OSFile(self.files[0], "rb")
-                self._reader = pa.ipc.open_file(self._file)
-                self._batch = 0
-            if self._batch < self._reader.num_record_batches:
-                batch = self._reader.get_batch(self._batch)
-                self._batch += 1
-                self.head = _Block(pa.Table.from_batches([batch]), width)
-                continue
-            self._close()
-            os.unlink(self.files.pop(0))
-        return self.head
-
-    def used(self, n: int) -> None:
-        assert self.head is not None
-        self.rows -= n
-        self.head = _Block(self.head.table.slice(n), len(self.head.parts))
-
-    def _close(self) -> None:
-        if self._reader is not None:
-            self._file.close()
-            self._reader = self._file = None
-
-    def remove(self) -> None:
-        self._close()
-        self.head = None
-        for path in self.files:
-            os.unlink(path)
-        self.files = []
 
 
 class TableSink:
@@ -201,8 +79,8 @@ class TableSink:
         self._held_sorted = False  # the held rows are one table, sorted
         self._raw: list[pa.Table] = []  # rows still to be formatted (formatting writers only), as added
         self._raw_rows = 0
-        self._runs: list[_Run] = []
-        self._current: _Run | None = None  # the run spilled rows go on to
+        self._runs: list[Run] = []
+        self._current: Run | None = None  # the run spilled rows go on to
         self._floor: Key | None = None  # the highest watermark flushed: nothing may come below it
         self._dir: str | None = None
 
@@ -213,7 +91,7 @@ class TableSink:
         if not n:
             return
         parts = order_keys(self.name, table, self.by_capture)
-        if self._floor is not None and _below([p for _, p in parts], self._floor).any():
+        if self._floor is not None and below([p for _, p in parts], self._floor).any():
             raise ValueError(f"{self.name}: a row below the watermark {self._floor[-1]!r} already flushed")
         for part_name, values in parts:
             table = table.append_column(part_name, values)
@@ -274,8 +152,8 @@ class TableSink:
         if self.by_capture:
             if not (isinstance(watermark, tuple) and len(watermark) == 2):
                 raise TypeError("a sink by capture takes a watermark (capture, value)")
-            return (0, str(watermark[0]), 0, _number(watermark[1]))
-        return (0, _number(watermark))
+            return (0, str(watermark[0]), 0, number(watermark[1]))
+        return (0, number(watermark))
 
     def _peak(self, held: int) -> None:
         self.peak_held = max(self.peak_held, held)
@@ -287,19 +165,31 @@ class TableSink:
             return None
         table = pa.concat_tables(self._held) if len(self._held) > 1 else self._held[0]
         if not self._held_sorted:
-            table = _sorted(table, self._width)
+            table = sorted_rows(table, self._width)
         self._held, self._held_sorted = [table], True
         return table
 
     def _emit(self, limit: Key | None) -> int:
         """Write every row below `limit` (None: every row), merging memory and runs."""
-        held = self._sorted_held()
-        sources: list[Any] = []
-        if held is not None:
-            sources.append(held)
-        sources += self._runs
         out = _Output(self)
-        for piece in self._merge(sources, limit):
+        if not self._runs:  # all in memory (no flood so far): the rows below the limit, the rest left as is
+            self._formatted()
+            table = pa.concat_tables(self._held) if len(self._held) > 1 else self._held[0] if self._held else None
+            if table is None:
+                return 0
+            parts = table.columns[table.num_columns - self._width:]
+            low = np.ones(table.num_rows, bool) if limit is None else below(parts, limit)
+            n = int(np.count_nonzero(low))
+            if n:  # the rows below sort first: the head of the order
+                out.add(taken(table, sort_order(table, self._width)[:n]))
+                table = table.filter(pa.array(~low)) if n < table.num_rows else None
+            self._held = [table] if table is not None else []
+            self._held_rows = table.num_rows if table is not None else 0
+            self._held_sorted = self._held_sorted and len(self._held) == 1  # a filter keeps a sorted table sorted
+            out.close()
+            return out.rows
+        held = self._sorted_held()
+        for piece in self._merge(([held] if held is not None else []) + self._runs, limit):
             out.add(piece)
         out.close()
         return out.rows
@@ -311,13 +201,13 @@ class TableSink:
         of the runs' blocks: nothing still unread can sort below them."""
         memory = rest = None
         if sources and isinstance(sources[0], pa.Table):
-            block = _Block(sources[0], self._width)
-            below = len(block) if limit is None else block.count(limit)
-            memory, rest = _Block(block.table.slice(0, below), self._width), block.table.slice(below)
-        runs = [s for s in sources if isinstance(s, _Run)]
+            block = Block(sources[0], self._width)
+            head = len(block) if limit is None else block.count(limit)
+            memory, rest = Block(block.table.slice(0, head), self._width), block.table.slice(head)
+        runs = [s for s in sources if isinstance(s, Run)]
         try:
             while True:
-                heads: list[tuple[_Run | None, _Block]] = []
+                heads: list[tuple[Run | None, Block]] = []
                 if memory is not None and len(memory):
                     heads.append((None, memory))
                 for run in runs:
@@ -339,12 +229,12 @@ class TableSink:
                     taken, left = head.split(n)
                     pieces.append(taken)
                     if source is None:
-                        memory = _Block(left, self._width)
+                        memory = Block(left, self._width)
                     else:
                         source.used(n)
                 piece = pa.concat_tables(pieces) if len(pieces) > 1 else pieces[0]
                 if len(pieces) > 1:
-                    piece = _sorted(piece, self._width)
+                    piece = sorted_rows(piece, self._width)
                 yield piece
         finally:
             if memory is not None:  # what is left in memory: the rows not taken, then those at or above limit
@@ -362,25 +252,25 @@ class TableSink:
         table = self._sorted_held()
         assert table is not None
         keep = self.max_held // 2
-        out = _Block(table.slice(0, table.num_rows - keep), self._width)
+        out = Block(table.slice(0, table.num_rows - keep), self._width)
         self._held, self._held_rows = [table.slice(table.num_rows - keep)], keep
-        below = out.count(self._current.last) if self._current is not None and self._current.last else 0
-        if below:  # lower than the current run's end: a run of their own
-            run = _Run()
+        lower = out.count(self._current.last) if self._current is not None and self._current.last else 0
+        if lower:  # lower than the current run's end: a run of their own
+            run = Run()
             self._runs.append(run)
-            run.append(self._path(), out.table.slice(0, below), self.block, out.key(below - 1))
-        if below < len(out):
+            run.append(self._path(), out.table.slice(0, lower), self.block, out.key(lower - 1))
+        if lower < len(out):
             if self._current is None:
-                self._current = _Run()
+                self._current = Run()
                 self._runs.append(self._current)
-            self._current.append(self._path(), out.table.slice(below), self.block, out.key(len(out) - 1))
+            self._current.append(self._path(), out.table.slice(lower), self.block, out.key(len(out) - 1))
         if len(self._runs) > FAN_IN:
             self._compact()
 
     def _compact(self) -> None:
         """Merge the FAN_IN smallest runs but the current one into one run."""
         others = sorted((r for r in self._runs if r is not self._current), key=lambda r: r.rows)[:FAN_IN]
-        merged = _Run()
+        merged = Run()
         pending: list[pa.Table] = []
         for piece in self._merge(others, None):
             pending.append(piece)
@@ -391,9 +281,9 @@ class TableSink:
             self._append(merged, pending)
         self._runs = [r for r in self._runs if r.rows and all(r is not o for o in others)] + [merged]
 
-    def _append(self, run: _Run, pieces: list[pa.Table]) -> None:
+    def _append(self, run: Run, pieces: list[pa.Table]) -> None:
         table = pa.concat_tables(pieces)
-        block = _Block(table, self._width)
+        block = Block(table, self._width)
         run.append(self._path(), table, self.block, block.key(len(block) - 1))
 
     def _path(self) -> str:
