@@ -136,6 +136,14 @@ def test_frame_from_batches_equals_frame_of(samples, name):
 
 
 @pytest.mark.parametrize("name", TABLES)
+def test_frame_from_batches_sorts_batches_that_came_out_of_order(samples, name):
+    batches = _batches(name, list(getattr(samples.rows, name)), random.Random(name))
+    arrived = [r for b in batches for r in b]
+    got = frame_from_batches(name, [rows_to_batch(name, b) for b in batches])
+    pd.testing.assert_frame_equal(got, frame_of(name, arrived))
+
+
+@pytest.mark.parametrize("name", TABLES)
 def test_frame_from_batches_of_nothing_and_of_missing_columns(samples, name):
     pd.testing.assert_frame_equal(frame_from_batches(name, []), frame_of(name, []))
     pd.testing.assert_frame_equal(frame_from_batches(name, [rows_to_batch(name, [])]), frame_of(name, []))
@@ -354,6 +362,15 @@ def test_write_batches_equals_the_stream(tmp_path, samples, fmt):
     for name in TABLES:
         _assert_same_files(tmp_path / "today" / (name + SUFFIX[fmt]), tmp_path / "new" / (name + SUFFIX[fmt]), fmt)
     assert sorted(p.name for p in (tmp_path / "new").iterdir()) == sorted(n + SUFFIX[fmt] for n in TABLES)
+
+
+def test_a_failed_report_leaves_no_spill_behind(tmp_path, samples):
+    rows = list(samples.rows.transactions)
+    with pytest.raises(RuntimeError), report.BatchReport(str(tmp_path), "csv", max_held=10) as out:
+        out.add("transactions", rows_to_batch("transactions", rows[::-1]))  # spills
+        assert any(p.name.startswith(".pd-analyze-") for p in tmp_path.iterdir())
+        raise RuntimeError("the analysis failed")
+    assert not any(p.name.startswith(".") for p in tmp_path.iterdir())
 
 
 def test_write_tables_writes_csv_and_parquet_through_the_batches(tmp_path, samples):
