@@ -6,6 +6,11 @@ in CSV, `2026-01-01T00:00:00.000000Z` in JSON), floats at full precision, empty 
 (JSON) for missing values. CSV and JSON need neither pandas nor pyarrow; Parquet imports pyarrow when
 the first Parquet file is opened, and pandas for the schema metadata that gives the same dtypes back
 (pyarrow imports pandas anyway as soon as it converts a Python list).
+
+`write_batch(table)` writes rows that come as a pyarrow batch (table_batches.batch_schema) into the same
+bytes: CSV formatted a column at a time (batch_cells), JSON Lines through the same encoder, Parquet with
+the same dictionaries and partitions. CSV and JSON can also format ahead (`format_batch`) and write the
+lines later (`write_formatted`), so that table_sink sorts one column of lines.
 """
 
 from __future__ import annotations
