@@ -207,7 +207,8 @@ def test_tricky_cells_as_today(tmp_path, name, fmt):
     pd.testing.assert_frame_equal(frame_from_batches(name, [rows_to_batch(name, rows)]), frame_of(name, rows))
     (tmp_path / "new").mkdir()
     writer = open_table(str(tmp_path / "new"), name, fmt)
-    sink = TableSink(name, writer, by_capture=by_capture, spill_dir=str(tmp_path), max_held=16, chunk_rows=9)
+    sink = TableSink(name, writer, by_capture=by_capture, spill_dir=str(tmp_path), max_held=16, chunk_rows=9,
+                     min_write=1)
     arrived = _feed(sink, name, _batches(name, rows, random.Random(1), 8), by_capture)
     writer.close()
     today = _today(tmp_path / "today", name, fmt, arrived, by_capture)
@@ -260,7 +261,8 @@ def test_shuffled_batches_through_the_sink_equal_todays_files(tmp_path, samples,
     rows = list(getattr(samples.rows, name))
     (tmp_path / "new").mkdir()
     writer = open_table(str(tmp_path / "new"), name, fmt)
-    sink = TableSink(name, writer, by_capture=by_capture, spill_dir=str(tmp_path), chunk_rows=50)
+    sink = TableSink(name, writer, by_capture=by_capture, spill_dir=str(tmp_path), chunk_rows=50,
+                     min_write=1 if fmt != "json" else 100)  # JSON: flushes wait for 100 rows
     batches = _batches(name, rows, random.Random(name + fmt))
     arrived = _feed(sink, name, batches, by_capture)
     assert arrived != rows and sink.rows_in == sink.rows_out == len(rows)  # out of order, nothing lost
@@ -274,7 +276,7 @@ def test_the_sink_spills_and_still_writes_in_order(tmp_path, samples, name):
     rows = list(getattr(samples.rows, name))
     (tmp_path / "new").mkdir()
     writer = open_table(str(tmp_path / "new"), name, "csv")
-    sink = TableSink(name, writer, spill_dir=str(tmp_path / "new"), max_held=10, chunk_rows=7)
+    sink = TableSink(name, writer, spill_dir=str(tmp_path / "new"), max_held=10, chunk_rows=7, min_write=1)
     arrived = _feed(sink, name, _batches(name, rows, random.Random(7), 6), every=5)
     writer.close()
     assert sink.runs_made > FAN_IN  # runs were merged before they were read
@@ -307,12 +309,14 @@ def test_the_sink_sorts_rows_far_out_of_order_stably(tmp_path):
 
 def test_a_row_below_a_flushed_watermark_is_refused(tmp_path):
     rows = _tricky_rows("transactions")
-    sink = TableSink("transactions", open_table(str(tmp_path), "transactions", "csv"))
-    sink.add(rows_to_batch("transactions", [r._replace(txn=5) for r in rows[:3]]))
-    assert sink.flush(6) == 3
+    sink = TableSink("transactions", open_table(str(tmp_path), "transactions", "csv"), min_write=3)
+    sink.add(rows_to_batch("transactions", [r._replace(txn=5) for r in rows[:2]]))
+    assert sink.flush(6) == 0  # fewer than min_write complete: they wait
+    sink.add(rows_to_batch("transactions", [rows[0]._replace(txn=7)]))
+    assert sink.flush(8) == 3
     with pytest.raises(ValueError, match="watermark"):
-        sink.add(rows_to_batch("transactions", [rows[0]._replace(txn=4)]))
-    sink.add(rows_to_batch("transactions", [rows[0]._replace(txn=6), rows[1]._replace(txn=None)]))
+        sink.add(rows_to_batch("transactions", [rows[0]._replace(txn=6)]))
+    sink.add(rows_to_batch("transactions", [rows[0]._replace(txn=8), rows[1]._replace(txn=None)]))
     assert sink.close() == 2
     by_capture = TableSink("findings", open_table(str(tmp_path), "findings", "parquet"), by_capture=True)
     with pytest.raises(TypeError):

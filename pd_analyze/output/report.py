@@ -81,16 +81,18 @@ class BatchReport:
 
     A watermark is a value of the table's sort column (txn; frame for findings); for Parquet's findings,
     which are written by capture, a pair (capture, frame) (`by_capture(name)` says which). Rows are held
-    in memory up to `max_held` per table, beyond that spilled to a hidden directory in `out_dir` (see
-    table_sink); `count=False` leaves the summary out."""
+    in memory up to `max_held` per table, beyond that spilled to a hidden directory in `out_dir`; a flush
+    writes once `min_write` rows are complete (see table_sink); `count=False` leaves the summary out."""
 
     def __init__(self, out_dir: str, fmt: str, max_held: int | None = None, chunk_rows: int | None = None,
-                 count: bool = True) -> None:
+                 count: bool = True, min_write: int | None = None) -> None:
         from pd_analyze.output import table_sink
 
         os.makedirs(out_dir, exist_ok=True)
         self.fmt = fmt
         self.acc = Summary() if count else None
+        self._uncounted: dict[str, list[Any]] = {name: [] for name in TABLES}  # batches not yet in the summary
+        self._count_rows = table_sink.FORMAT_ROWS  # batches counted together: a call costs, whatever its size
         self._spill = tempfile.mkdtemp(prefix=".pd-analyze-", dir=out_dir)  # beside the output: room for big files
         self._writers: dict[str, Any] = {}
         self.sinks: dict[str, table_sink.TableSink] = {}
@@ -99,7 +101,7 @@ class BatchReport:
                 self._writers[name] = writer = open_table(out_dir, name, fmt)
                 self.sinks[name] = table_sink.TableSink(
                     name, writer, self.by_capture(name), self._spill, max_held or table_sink.MAX_HELD,
-                    chunk_rows or table_sink.CHUNK_ROWS)
+                    chunk_rows or table_sink.CHUNK_ROWS, min_write or table_sink.FORMAT_ROWS)
         except BaseException:
             self.abort()
             raise
@@ -115,8 +117,18 @@ class BatchReport:
 
         table = conform(name, table)
         if self.acc is not None:
-            self.acc.add_batch(name, table)
+            waiting = self._uncounted[name]
+            waiting.append(table)
+            if sum(t.num_rows for t in waiting) >= self._count_rows:
+                self._count(name)
         self.sinks[name].add(table)
+
+    def _count(self, name: str) -> None:
+        import pyarrow as pa
+
+        waiting, self._uncounted[name] = self._uncounted[name], []
+        if self.acc is not None and waiting:
+            self.acc.add_batch(name, pa.concat_tables(waiting))
 
     def flush(self, name: str, watermark: object) -> int:
         return self.sinks[name].flush(watermark)
@@ -126,6 +138,7 @@ class BatchReport:
         try:
             written = []
             for name in TABLES:
+                self._count(name)
                 self.sinks[name].close()
                 written.append(self._writers.pop(name).close())
             text = self.acc.text(list(captures)) if self.acc is not None else ""
@@ -151,10 +164,10 @@ class BatchReport:
 
 def write_batches(out_dir: str, fmt: str, batches_by_table: Mapping[str, Iterable[Any]],
                   captures: Sequence[CaptureResult] = (), max_held: int | None = None,
-                  chunk_rows: int | None = None, count: bool = True) -> Streamed:
+                  chunk_rows: int | None = None, count: bool = True, min_write: int | None = None) -> Streamed:
     """The report files of tables given as pyarrow batches (each table's batches in any order, rows of a
     batch in the order found; tables not given are written empty), and the summary of `captures`."""
-    with BatchReport(out_dir, fmt, max_held, chunk_rows, count) as out:
+    with BatchReport(out_dir, fmt, max_held, chunk_rows, count, min_write) as out:
         for name, tables in batches_by_table.items():
             for table in tables:
                 out.add(name, table)

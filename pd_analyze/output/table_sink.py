@@ -59,11 +59,13 @@ class TableSink:
     one partition file at a time). A watermark is a value of the sort column (txn, or frame for findings)
     or, with `by_capture`, a pair (capture, value); float("inf") stands for every value. Spill files go
     to a hidden directory in `spill_dir` (the system's temporary directory when None), made when first
-    needed and removed by close() or discard(). `chunk_rows` bounds the rows of one writer call."""
+    needed and removed by close() or discard(). `chunk_rows` bounds the rows of one writer call;
+    `min_write` is the fewest complete rows a flush writes (1: every flush writes what it can)."""
 
     def __init__(self, name: str, writer: BatchWriter, by_capture: bool = False, spill_dir: str | None = None,
-                 max_held: int = MAX_HELD, chunk_rows: int = CHUNK_ROWS) -> None:
+                 max_held: int = MAX_HELD, chunk_rows: int = CHUNK_ROWS, min_write: int = FORMAT_ROWS) -> None:
         self.name, self.writer, self.by_capture = name, writer, by_capture
+        self.min_write = max(1, min_write)
         self.max_held = max(2, max_held)
         self.block = max(1, self.max_held // (2 * FAN_IN))
         self.chunk_rows = max(1, chunk_rows)
@@ -123,12 +125,24 @@ class TableSink:
         self._held_sorted = False
 
     def flush(self, watermark: object) -> int:
-        """Write every held row whose key is below the watermark; the caller promises none will come
-        below it any more. Returns the rows written."""
+        """The rows below the watermark are complete: the caller promises none will come below it any more.
+        They are written, in table order, once `min_write` of them wait (or runs lie on disk); fewer wait
+        for a later flush or close(), since a few hundred rows cost more to write a column at a time than
+        their formatting. Returns the rows written now."""
         prefix = self._prefix(watermark)
-        written = self._emit(prefix)
         self._floor = prefix if self._floor is None or prefix > self._floor else self._floor
-        return written
+        if not self._runs and self.min_write > 1 and self._waiting(self._floor) < self.min_write:
+            return 0
+        return self._emit(self._floor)
+
+    def _waiting(self, limit: Key) -> int:
+        """Rows in memory below `limit`, counted until min_write of them are found."""
+        count = 0
+        for t in self._held + self._raw:
+            count += int(np.count_nonzero(below(t.columns[t.num_columns - self._width:], limit)))
+            if count >= self.min_write:
+                break
+        return count
 
     def close(self) -> int:
         """Write every row still held and remove the spill files; returns the rows written by it.

@@ -32,6 +32,7 @@ _FORMULA = re.compile(r"^[=+\-@\t\r]")
 _NUMBER = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$")
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 _EPOCH_NAIVE = datetime(1970, 1, 1)
+CSV_BATCH_ROWS = 65_536  # rows formatted a column at a time at once (each call costs some microseconds)
 
 
 def neutralise(text: object) -> object:
@@ -136,7 +137,8 @@ class CsvWriter(_LineWriter):
 
         from pd_analyze.output.batch_cells import csv_lines
 
-        return pa.chunked_array([csv_lines(self._name, b) for b in table.to_batches()], pa.large_string())
+        batches = table.combine_chunks().to_batches(max_chunksize=CSV_BATCH_ROWS)  # few calls: each costs
+        return pa.chunked_array([csv_lines(self._name, b) for b in batches], pa.large_string())
 
     def write_formatted(self, lines: Any) -> None:
         """Lines made by format_batch (or pieces of them, in any order the caller chose)."""
