@@ -12,7 +12,7 @@ from collections import namedtuple
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from pd_analyze.model.rules import RULES, SEVERITIES
 from pd_analyze.model.verdicts import VERDICTS
@@ -146,6 +146,43 @@ def micros(seconds: object) -> int | None:
     if not abs(s) < MAX_TIME_SECONDS:  # NaN fails too
         return None
     return round(s * 1e6)
+
+
+def text_cell(value: object) -> str | None:
+    """A string cell as pandas' "string" dtype holds it: None stays missing, anything else str()."""
+    if value is None or (isinstance(value, float) and value != value):
+        return None
+    return value if isinstance(value, str) else str(value)
+
+
+def float_cell(value: object) -> float | None:
+    if value is None:
+        return None
+    value = float(value)  # type: ignore[arg-type]
+    return None if value != value else value  # NaN is missing, as in the Float64 column
+
+
+def _category(col: Column) -> Callable[[object], str | None]:
+    """Cells of a categorical: a fixed categorical has no cell for a value outside its categories."""
+    fixed = FIXED_CATEGORIES.get(col.dtype)
+    if fixed is None:
+        return text_cell
+    allowed = frozenset(fixed[0])
+    return lambda v: v if v in allowed else None  # type: ignore[return-value]
+
+
+def cell_value(col: Column) -> Callable[[object], Any]:
+    """The typed value of one cell of a row (None when missing), as every table file and batch holds it:
+    times as whole microseconds, NaN missing, text cells str(), values outside fixed categories missing."""
+    if col.dtype == TIME:
+        return micros
+    if col.dtype == "Float64":
+        return float_cell
+    if col.dtype in ("Int64", "boolean"):
+        return lambda v: v
+    if col.dtype == "string":
+        return text_cell
+    return _category(col)
 
 
 def pandas_dtype(col: Column) -> object:

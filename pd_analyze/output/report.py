@@ -4,6 +4,10 @@
 and formatted as the line its file will hold (CSV, JSON; Parquet keeps the row), then goes into a spool
 (a bounded external sort) that hands the lines on in table order and in chunks, so memory does not grow
 with the capture. `write_tables` and `summary` do the same from an Analysis already in memory.
+
+`BatchReport` (and `write_batches`, all at once) is the same end for the columnar analysis: the tables
+come as pyarrow batches in any order, a `TableSink` per table writes them in table order, and the
+summary is counted from the batches as they come.
 """
 
 from __future__ import annotations
@@ -11,7 +15,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -26,7 +30,8 @@ if TYPE_CHECKING:
     from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings
     from pd_analyze.analysis.transaction import Transaction
 
-__all__ = ["CHUNK_ROWS", "TABLES", "Streamed", "neutralise", "stream", "stream_findings", "summary", "write_tables"]
+__all__ = ["CHUNK_ROWS", "TABLES", "BatchReport", "Streamed", "neutralise", "stream", "stream_findings", "summary",
+           "write_batches", "write_tables"]
 
 TABLES = tuple(COLUMNS)
 CHUNK_ROWS = 4096  # rows per table held for sorting, and per chunk written
@@ -39,7 +44,16 @@ def _by_capture(name: str, fmt: str) -> bool:
 
 
 def write_tables(analysis: Analysis, out_dir: str, fmt: str) -> list[str]:
-    """transactions, parameters, findings, changes as csv / parquet / json (JSON Lines) files."""
+    """transactions, parameters, findings, changes as csv / parquet / json (JSON Lines) files.
+
+    CSV and Parquet go the columnar way (each table one batch through `write_batches`); JSON Lines, which
+    a batch would only turn back into rows, and which alone can hold a string Arrow cannot (a lone
+    surrogate from an undecodable file name), stays on the rows."""
+    if fmt in ("csv", "parquet"):
+        from pd_analyze.analysis.table_batches import rows_to_batch
+
+        return write_batches(out_dir, fmt, {name: [rows_to_batch(name, getattr(analysis.rows, name))]
+                                            for name in TABLES}, count=False).written
     os.makedirs(out_dir, exist_ok=True)
     written = []
     for name in TABLES:
@@ -57,6 +71,107 @@ def summary(analysis: Analysis, top: int = TOP) -> str:
     for name in ("transactions", "parameters", "findings"):
         acc.add(name, getattr(analysis.rows, name))
     return acc.text(analysis.captures, top)
+
+
+class BatchReport:
+    """The report files and summary of the columnar analysis: `add(name, table)` batches of a table in any
+    order (columns of table_batches.batch_schema(name)), `flush(name, watermark)` when no row of that table
+    still to come sorts below the watermark, `close(captures)` at the end (or `abort()` after a failure; as
+    a context manager it does that itself).
+
+    A watermark is a value of the table's sort column (txn; frame for findings); for Parquet's findings,
+    which are written by capture, a pair (capture, frame) (`by_capture(name)` says which). Rows are held
+    in memory up to `max_held` per table, beyond that spilled to a hidden directory in `out_dir`; a flush
+    writes once `min_write` rows are complete (see table_sink); `count=False` leaves the summary out."""
+
+    def __init__(self, out_dir: str, fmt: str, max_held: int | None = None, chunk_rows: int | None = None,
+                 count: bool = True, min_write: int | None = None) -> None:
+        from pd_analyze.output import table_sink
+
+        os.makedirs(out_dir, exist_ok=True)
+        self.fmt = fmt
+        self.acc = Summary() if count else None
+        self._uncounted: dict[str, list[Any]] = {name: [] for name in TABLES}  # batches not yet in the summary
+        self._count_rows = table_sink.FORMAT_ROWS  # batches counted together: a call costs, whatever its size
+        self._spill = tempfile.mkdtemp(prefix=".pd-analyze-", dir=out_dir)  # beside the output: room for big files
+        self._writers: dict[str, Any] = {}
+        self.sinks: dict[str, table_sink.TableSink] = {}
+        try:
+            for name in TABLES:
+                self._writers[name] = writer = open_table(out_dir, name, fmt)
+                self.sinks[name] = table_sink.TableSink(
+                    name, writer, self.by_capture(name), self._spill, max_held or table_sink.MAX_HELD,
+                    chunk_rows or table_sink.CHUNK_ROWS, min_write or table_sink.FORMAT_ROWS)
+        except BaseException:
+            self.abort()
+            raise
+
+    def by_capture(self, name: str) -> bool:
+        """Whether the table is written by capture first (its watermark then a pair (capture, value))."""
+        return _by_capture(name, self.fmt)
+
+    def add(self, name: str, table: Any) -> None:
+        """A batch of one table. It is counted into the summary now, in the order batches come: the summary
+        is the same in any order (a row's place is its key, then its number), as the row stream's is."""
+        from pd_analyze.analysis.table_batches import conform
+
+        table = conform(name, table)
+        if self.acc is not None:
+            waiting = self._uncounted[name]
+            waiting.append(table)
+            if sum(t.num_rows for t in waiting) >= self._count_rows:
+                self._count(name)
+        self.sinks[name].add(table)
+
+    def _count(self, name: str) -> None:
+        import pyarrow as pa
+
+        waiting, self._uncounted[name] = self._uncounted[name], []
+        if self.acc is not None and waiting:
+            self.acc.add_batch(name, pa.concat_tables(waiting))
+
+    def flush(self, name: str, watermark: object) -> int:
+        return self.sinks[name].flush(watermark)
+
+    def close(self, captures: Sequence[CaptureResult] = ()) -> Streamed:
+        """Write every row still held, close the files; the summary of `captures`."""
+        try:
+            written = []
+            for name in TABLES:
+                self._count(name)
+                self.sinks[name].close()
+                written.append(self._writers.pop(name).close())
+            text = self.acc.text(list(captures)) if self.acc is not None else ""
+            return Streamed(written, text, list(captures), {n: s.peak_held for n, s in self.sinks.items()})
+        finally:
+            self.abort()
+
+    def abort(self) -> None:
+        """Close what is open and remove the spill files (the files written so far stay)."""
+        for sink in self.sinks.values():
+            sink.discard()
+        for writer in self._writers.values():
+            writer.close()
+        self._writers = {}
+        shutil.rmtree(self._spill, ignore_errors=True)
+
+    def __enter__(self) -> BatchReport:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.abort()
+
+
+def write_batches(out_dir: str, fmt: str, batches_by_table: Mapping[str, Iterable[Any]],
+                  captures: Sequence[CaptureResult] = (), max_held: int | None = None,
+                  chunk_rows: int | None = None, count: bool = True, min_write: int | None = None) -> Streamed:
+    """The report files of tables given as pyarrow batches (each table's batches in any order, rows of a
+    batch in the order found; tables not given are written empty), and the summary of `captures`."""
+    with BatchReport(out_dir, fmt, max_held, chunk_rows, count, min_write) as out:
+        for name, tables in batches_by_table.items():
+            for table in tables:
+                out.add(name, table)
+        return out.close(captures)
 
 
 class _Table:

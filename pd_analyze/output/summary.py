@@ -15,7 +15,7 @@ import math
 from array import array
 from collections import Counter
 from collections.abc import Iterable, Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from pd_analyze.analysis.schema import sort_key
 from pd_analyze.model.rules import SEVERITIES
@@ -146,6 +146,20 @@ class Summary:
                 self.by_do[do] += 1
                 if place < first.get(("do", do), (_LAST,)):
                     first[("do", do)] = place
+
+    def add_batch(self, table: str, batch: Any) -> None:
+        """A pyarrow Table of batch_schema(table): the same as `add` of the same rows in the same order,
+        counted a column at a time (pyarrow and numpy, imported here: the row path needs neither)."""
+        from pd_analyze.output import summary_batches
+
+        if not batch.num_rows:
+            return
+        if table == "transactions":
+            summary_batches.transactions(self, batch)
+        elif table == "parameters":
+            summary_batches.parameters(self, batch)
+        elif table == "findings":
+            summary_batches.findings(self, batch)
 
     def _findings(self, rows: Iterable[tuple]) -> None:
         for r in rows:

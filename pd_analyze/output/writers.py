@@ -6,6 +6,11 @@ in CSV, `2026-01-01T00:00:00.000000Z` in JSON), floats at full precision, empty 
 (JSON) for missing values. CSV and JSON need neither pandas nor pyarrow; Parquet imports pyarrow when
 the first Parquet file is opened, and pandas for the schema metadata that gives the same dtypes back
 (pyarrow imports pandas anyway as soon as it converts a Python list).
+
+`write_batch(table)` writes rows that come as a pyarrow batch (table_batches.batch_schema) into the same
+bytes: CSV formatted a column at a time (batch_cells), JSON Lines through the same encoder, Parquet with
+the same dictionaries and partitions. CSV and JSON can also format ahead (`format_batch`) and write the
+lines later (`write_formatted`), so that table_sink sorts one column of lines.
 """
 
 from __future__ import annotations
@@ -20,12 +25,14 @@ from datetime import UTC, datetime, timedelta
 from typing import Any
 from urllib.parse import quote
 
-from pd_analyze.analysis.schema import COLUMNS, FIXED_CATEGORIES, TIME, Column, micros
+from pd_analyze.analysis.schema import COLUMNS, FIXED_CATEGORIES, TIME, float_cell, micros, text_cell
+from pd_analyze.analysis.schema import cell_value as value_of
 
 _FORMULA = re.compile(r"^[=+\-@\t\r]")
 _NUMBER = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$")
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 _EPOCH_NAIVE = datetime(1970, 1, 1)
+CSV_BATCH_ROWS = 65_536  # rows formatted a column at a time at once (each call costs some microseconds)
 
 
 def neutralise(text: object) -> object:
@@ -33,42 +40,6 @@ def neutralise(text: object) -> object:
     if isinstance(text, str) and _FORMULA.match(text) and not _NUMBER.match(text):
         return "'" + text
     return text
-
-
-def _text(value: object) -> str | None:
-    """A string cell as pandas' "string" dtype holds it: None stays missing, anything else str()."""
-    if value is None or (isinstance(value, float) and value != value):
-        return None
-    return value if isinstance(value, str) else str(value)
-
-
-def _float(value: object) -> float | None:
-    if value is None:
-        return None
-    value = float(value)  # type: ignore[arg-type]
-    return None if value != value else value  # NaN is missing, as in the Float64 column
-
-
-def _category(col: Column) -> Callable[[object], str | None]:
-    """Cells of a categorical: a fixed categorical has no cell for a value outside its categories."""
-    fixed = FIXED_CATEGORIES.get(col.dtype)
-    if fixed is None:
-        return _text
-    allowed = frozenset(fixed[0])
-    return lambda v: v if v in allowed else None  # type: ignore[return-value]
-
-
-def value_of(col: Column) -> Callable[[object], Any]:
-    """The typed value of one cell (None when missing); times as whole microseconds."""
-    if col.dtype == TIME:
-        return micros
-    if col.dtype == "Float64":
-        return _float
-    if col.dtype in ("Int64", "boolean"):
-        return lambda v: v
-    if col.dtype == "string":
-        return _text
-    return _category(col)
 
 
 def csv_time(us: int) -> str:
@@ -87,7 +58,7 @@ class _Cells:
     made str, values outside fixed categories missing. Integers, booleans and None go out as they are."""
 
     def __init__(self, name: str, time_text: Callable[[int], str]) -> None:
-        cols = COLUMNS[name]
+        self.cols = cols = COLUMNS[name]
         self.time_text = time_text
         self.times = [i for i, c in enumerate(cols) if c.dtype == TIME]
         self.floats = [i for i, c in enumerate(cols) if c.dtype == "Float64"]
@@ -103,11 +74,11 @@ class _Cells:
         for i in self.floats:
             v = out[i]
             if v is not None:
-                out[i] = _float(v)
+                out[i] = float_cell(v)
         for i in self.texts:
             v = out[i]
             if v is not None and type(v) is not str:
-                out[i] = _text(v)
+                out[i] = text_cell(v)
         for i, allowed in self.fixed:
             if out[i] not in allowed:
                 out[i] = None
@@ -150,9 +121,32 @@ class CsvWriter(_LineWriter):
         self.path = path
         self._cells = _Cells(name, csv_time)
         self._texts = self._cells.texts
+        self._name = name
         self._line = csv.writer(_Returned, lineterminator="\n").writerow  # None is written as an empty cell
         self._file = open(path, "w", newline="", encoding="utf-8")  # noqa: SIM115 - closed by close()
         self._file.write(self._line([c.name for c in COLUMNS[name]]))
+
+    def write_batch(self, table: Any) -> None:
+        """Rows of a pyarrow Table of batch_schema(name), in table order (as TableSink hands them on):
+        the same bytes `write` writes for the same rows, formatted a column at a time."""
+        self.write_formatted(self.format_batch(table))
+
+    def format_batch(self, table: Any) -> Any:
+        """The CSV lines of a batch's rows (a pyarrow ChunkedArray, one line a row), to be written later."""
+        import pyarrow as pa
+
+        from pd_analyze.output.batch_cells import csv_lines
+
+        batches = table.combine_chunks().to_batches(max_chunksize=CSV_BATCH_ROWS)  # few calls: each costs
+        return pa.chunked_array([csv_lines(self._name, b) for b in batches], pa.large_string())
+
+    def write_formatted(self, lines: Any) -> None:
+        """Lines made by format_batch (or pieces of them, in any order the caller chose)."""
+        from pd_analyze.output.batch_cells import string_data
+
+        self._file.flush()  # the header and any rows written as text go first
+        for chunk in lines.chunks:
+            self._file.buffer.write(string_data(chunk))
 
     def line(self, row: tuple) -> str:
         cells = self._cells.row(row)
@@ -180,6 +174,35 @@ class JsonWriter(_LineWriter):
             if cells[i] is not None and not math.isfinite(cells[i]):
                 cells[i] = None
         return self._encode(dict(zip(self._names, cells, strict=True))) + "\n"
+
+    def write_batch(self, table: Any) -> None:
+        """Rows of a pyarrow Table of batch_schema(name), in table order: the same bytes `write` writes
+        for the same rows (the cells become Python values again and go through the same encoder)."""
+        self.write_formatted(self.format_batch(table))
+
+    def format_batch(self, table: Any) -> Any:
+        """The JSON lines of a batch's rows (a pyarrow ChunkedArray, one line a row), to be written later."""
+        import pyarrow as pa
+
+        columns = []
+        for c, values in zip(self._cells.cols, table.columns, strict=True):
+            if c.dtype == TIME:
+                columns.append([None if us is None else json_time(us) for us in values.cast(pa.int64()).to_pylist()])
+            elif c.dtype == "Float64":  # JSON has no infinity (nor NaN): null
+                columns.append([v if v is None or math.isfinite(v) else None for v in values.to_pylist()])
+            else:
+                columns.append(values.to_pylist())
+        encode, names = self._encode, self._names
+        return pa.chunked_array([pa.array([encode(dict(zip(names, row, strict=True))) + "\n"
+                                           for row in zip(*columns, strict=True)], pa.large_string())])
+
+    def write_formatted(self, lines: Any) -> None:
+        """Lines made by format_batch (or pieces of them, in any order the caller chose)."""
+        from pd_analyze.output.batch_cells import string_data
+
+        self._file.flush()
+        for chunk in lines.chunks:
+            self._file.buffer.write(string_data(chunk))
 
 
 class ParquetWriter:
@@ -212,13 +235,48 @@ class ParquetWriter:
                 start = i
 
     def _write_run(self, rows: Sequence[tuple]) -> None:
-        capture = str(rows[0][self._capture])
-        if self._file is None or self._file[0] != capture:
-            self._close_file()
-            self._file = (capture, self._open(capture))
+        self._switch(str(rows[0][self._capture]))
         columns = list(zip(*rows, strict=True))
         arrays = [self._array(i, columns[i]) for i in self._keep]
         self._file[1].write_table(self._pa.Table.from_arrays(arrays, schema=self._file_schema))
+
+    def write_batch(self, table: Any) -> None:
+        """Rows of a pyarrow Table of batch_schema(name), in table order and grouped by capture (as
+        TableSink hands them on; findings with by_capture): the same files `write` writes."""
+        import numpy as np
+        import pyarrow.compute as pc
+
+        if not table.num_rows:
+            return
+        capture = pc.fill_null(table.column("capture"), "None").combine_chunks()  # str(None), as write() names it
+        starts = [0, *(np.flatnonzero(pc.not_equal(capture[1:], capture[:-1]).to_numpy(zero_copy_only=False)) + 1)]
+        for start, end in zip(starts, [*starts[1:], len(capture)], strict=True):  # runs of one capture
+            self._switch(capture[start].as_py())
+            run = table.slice(start, end - start)
+            arrays = [self._batch_array(i, run.column(i)) for i in self._keep]
+            self._file[1].write_table(self._pa.Table.from_arrays(arrays, schema=self._file_schema))  # type: ignore[index]
+
+    def _batch_array(self, i: int, values: Any) -> Any:
+        """A batch column as _array makes it: times in ns, fixed categoricals int8 codes of their
+        categories, the other categoricals int32 dictionaries."""
+        import pyarrow.compute as pc
+
+        pa = self._pa
+        kind = self._schema.field(i).type
+        fixed = FIXED_CATEGORIES.get(self._cols[i].dtype)
+        values = values.combine_chunks()
+        if fixed is not None:
+            codes = pc.index_in(values, value_set=pa.array(fixed[0], values.type)).cast(kind.index_type)
+            return pa.DictionaryArray.from_arrays(codes, pa.array(fixed[0], kind.value_type), ordered=fixed[1])
+        if pa.types.is_dictionary(kind):
+            return pc.dictionary_encode(values).cast(kind)
+        return values.cast(kind)
+
+    def _switch(self, capture: str) -> None:
+        """The partition file of this capture open (a new partition closes the one before)."""
+        if self._file is None or self._file[0] != capture:
+            self._close_file()
+            self._file = (capture, self._open(capture))
 
     def _open(self, capture: str) -> Any:
         import pyarrow.parquet as pq

@@ -1,0 +1,146 @@
+"""Summary.add_batch's counting, a column at a time: what Summary.add counts row by row, for a batch.
+
+Each function takes the Summary and a pyarrow Table of one table's batch schema and leaves the Summary
+as `add` of the same rows would: the same counters (incremented in order of first appearance), the same
+first places (a row's place is its sort key, then its number among the rows added so far), the same
+latency arrays in the same order.
+"""
+
+from __future__ import annotations
+
+from array import array
+from collections import Counter
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from pd_analyze.model.rules import SEVERITIES
+from pd_analyze.model.verdicts import VERDICTS
+
+Summary = Any  # output.summary.Summary, which imports this module (when its add_batch is first called)
+
+_LAST = float("inf")
+
+
+def _values(strings: tuple[str, ...]) -> pa.Array:
+    return pa.array(strings, pa.large_string())
+
+
+def _mask(values: pa.ChunkedArray | pa.Array) -> np.ndarray:
+    """A boolean column as numpy, missing as False."""
+    return pc.fill_null(values, False).to_numpy(zero_copy_only=False) if len(values) else np.zeros(0, bool)
+
+
+def _group_counts(table: pa.Table, keys: list[str]) -> list[tuple[tuple, int]]:
+    """(key values, count) of each group, missing values as None, groups in order of first appearance."""
+    counted = table.select(keys).group_by(keys, use_threads=False).aggregate([([], "count_all")])
+    columns = [counted.column(k).to_pylist() for k in keys]
+    return list(zip(zip(*columns, strict=True), counted.column("count_all").to_pylist(), strict=True))
+
+
+def _firsts(codes: np.ndarray, txn: pa.ChunkedArray, places: np.ndarray) -> np.ndarray:
+    """For each code 0..k-1 (each present), the row of its smallest place (txn, missing last; then number)."""
+    missing = _mask(txn.is_null())
+    order = np.lexsort((places, pc.fill_null(txn, 0).to_numpy(), missing))
+    first = np.full(codes.max() + 1 if len(codes) else 0, -1, dtype=np.int64)
+    ranked = codes[order]
+    _, at = np.unique(ranked, return_index=True)
+    first[ranked[at]] = order[at]
+    return first
+
+
+def _place(txn: object, number: int) -> tuple:
+    return (_LAST if txn is None else txn, number)
+
+
+def transactions(acc: Summary, t: pa.Table) -> None:
+    n, base = t.num_rows, acc.added["transactions"]
+    acc.transactions += n
+    acc.added["transactions"] += n
+    verdict, device = t.column("verdict"), t.column("device")
+    known = pc.is_in(verdict, value_set=_values(VERDICTS))
+    for item in pc.value_counts(pc.filter(verdict, known)).to_pylist():
+        acc.verdicts[item["values"]] += item["counts"]
+    ok = _mask(pc.equal(verdict, "ok"))
+    if not ok.all():  # a missing verdict is not ok either
+        acc.any_failed = True
+        failed = _mask(known) & ~ok & _mask(device.is_valid())
+        for (dev, v), count in _group_counts(t.filter(pa.array(failed)), ["device", "verdict"]):
+            acc.failed.setdefault(dev, Counter())[v] += count
+    b5 = t.column("b5_retries")
+    valid = _mask(b5.is_valid())
+    if valid.any():
+        values = pc.fill_null(b5, 0).to_numpy()
+        acc.b5_total += int(values[valid].sum())
+        acc.b5_transactions += int(np.count_nonzero(values[valid] > 0))
+        most = int(values[valid].max())
+        rows = np.flatnonzero(valid & (values == most))
+        txn = t.column("txn").take(pa.array(rows))
+        best = int(rows[_firsts(np.zeros(len(rows), np.int64), txn, rows)[0]])
+        number = t.column("txn")[best].as_py()
+        place = _place(number, base + best + 1)
+        if acc.b5_max is None or most > acc.b5_max[0] or (most == acc.b5_max[0] and place < acc.b5_max[1]):
+            acc.b5_max = (most, place, number)
+    total = t.column("t_total")
+    timed = _mask(total.is_valid()) & ~np.isnan(total.to_numpy()) & _mask(device.is_valid())
+    if timed.any():
+        rows = pa.array(np.flatnonzero(timed))
+        devices = pc.dictionary_encode(device.take(rows)).combine_chunks()
+        codes = devices.indices.to_numpy()
+        totals = total.take(rows).to_numpy()
+        rtts = t.column("t_write_rtt").take(rows).to_numpy()  # missing as NaN, which is missing too
+        order = np.argsort(codes, kind="stable")
+        bounds = np.searchsorted(codes[order], np.arange(len(devices.dictionary) + 1))
+        for code, dev in enumerate(devices.dictionary.to_pylist()):
+            at = order[bounds[code]:bounds[code + 1]]
+            got_totals, got_rtts = acc.latency.setdefault(dev, (array("d"), array("d")))
+            got_totals.frombytes(totals[at].tobytes())
+            rtt = rtts[at]
+            got_rtts.frombytes(rtt[~np.isnan(rtt)].tobytes())
+
+
+def parameters(acc: Summary, t: pa.Table) -> None:
+    n, base = t.num_rows, acc.added["parameters"]
+    acc.added["parameters"] += n
+    error = t.column("error")
+    naks = _mask(error.is_valid()) & _mask(pc.not_equal(error, ""))
+    if not naks.any():
+        return
+    rows = np.flatnonzero(naks)
+    sub = t.take(pa.array(rows))
+    places = base + rows + 1
+    for key, count in _group_counts(sub, ["device", "do", "param", "error", "error_text"]):
+        acc.naks[key] += count
+    _count_first(acc, "error", acc.by_error, sub.column("error"), sub.column("txn"), places)
+    do = sub.column("do")
+    known = _mask(do.is_valid())
+    if known.any():
+        at = pa.array(np.flatnonzero(known))
+        _count_first(acc, "do", acc.by_do, do.take(at), sub.column("txn").take(at), places[known])
+
+
+def _count_first(acc: Summary, kind: str, counter: Counter, values: pa.ChunkedArray, txn: pa.ChunkedArray,
+                 places: np.ndarray) -> None:
+    """Count each value, and keep its first place in the table (acc.first[(kind, value)])."""
+    encoded = pc.dictionary_encode(values).combine_chunks()
+    codes = encoded.indices.to_numpy()
+    counts = np.bincount(codes)
+    first = _firsts(codes, txn, places)
+    for code, value in enumerate(encoded.dictionary.to_pylist()):
+        counter[value] += int(counts[code])
+        row = int(first[code])
+        place = _place(txn[row].as_py(), int(places[row]))
+        if place < acc.first.get((kind, value), (_LAST,)):
+            acc.first[(kind, value)] = place
+
+
+def findings(acc: Summary, t: pa.Table) -> None:
+    acc.findings += t.num_rows
+    severity = t.column("severity")
+    for item in pc.value_counts(pc.filter(severity, pc.is_in(severity, value_set=_values(SEVERITIES)))).to_pylist():
+        acc.severities[item["values"]] += item["counts"]
+    named = _mask(t.column("rule").is_valid()) & _mask(t.column("name").is_valid())
+    for key, count in _group_counts(t.filter(pa.array(named)), ["rule", "name"]):
+        acc.rules[key] += count
