@@ -18,14 +18,14 @@ from devtools import hostile
 from devtools.fuzz.corpus import load_seeds, seed_paths
 from devtools.fuzz.mutators import make_case
 from devtools.synth.mixed_capture import make_capture
+from pd_analyze.analysis.api import Analysis
 from pd_analyze.analysis.capture_run import CaptureResult, Settings
 from pd_analyze.analysis.columnar.run import ColumnarRun
 from pd_analyze.analysis.pipeline import run_frames
 from pd_analyze.analysis.rows import Rows
-from pd_analyze.analysis.schema import frame_of
 from pd_analyze.capture import RawFrame
 from pd_analyze.capture.batches import FrameBatch
-from pd_analyze.output.summary import Summary
+from pd_analyze.output.report import summary
 
 ROOT = Path(__file__).resolve().parents[1]
 CAPTURES = sorted(p for d in (ROOT / "sample_pcaps", ROOT.parent / "shared" / "captures")
@@ -36,7 +36,6 @@ SIZES = (1, 7, 1000, 0)  # 0: the default
 
 def analyses(path: str, size: int, **kw: object) -> tuple[pd_analyze.Analysis, pd_analyze.Analysis]:
     """The capture analysed frame by frame and in batches of `size` frames."""
-    from pd_analyze.analysis.api import Analysis
     from pd_analyze.analysis.jobs import run
 
     out = []
@@ -129,11 +128,10 @@ def tables_of(frames: Sequence[RawFrame], size: int | None, settings: Settings) 
             run.feed(batch)
         run.finish()
         acc = run.totals()
-    tables = {name: frame_of(name, getattr(rows, name)) for name in TABLES}
-    summary = Summary()
-    for name in TABLES:
-        summary.add(name, getattr(rows, name))
-    return tables, (acc.read, acc.decoded, dict(acc.skipped), dict(acc.malformed), summary.text([]))
+    results[0].accounting = acc
+    analysis = Analysis(rows, results, settings.profile, settings.txn_timeout, settings.rpc_timeout)
+    tables = {name: getattr(analysis, name) for name in TABLES}
+    return tables, (acc.read, acc.decoded, dict(acc.skipped), dict(acc.malformed), summary(analysis))
 
 
 @pytest.fixture(scope="module")

@@ -44,19 +44,28 @@ class Analysis:
 
     @cached_property
     def transactions(self) -> pd.DataFrame:
-        return frame_of("transactions", self.rows.transactions)
+        return self._frame("transactions")
 
     @cached_property
     def parameters(self) -> pd.DataFrame:
-        return frame_of("parameters", self.rows.parameters)
+        return self._frame("parameters")
 
     @cached_property
     def findings(self) -> pd.DataFrame:
-        return frame_of("findings", self.rows.findings)
+        return self._frame("findings")
 
     @cached_property
     def changes(self) -> pd.DataFrame:
-        return frame_of("changes", self.rows.changes)
+        return self._frame("changes")
+
+    def _frame(self, name: str) -> pd.DataFrame:
+        """A table from its rows (the per-frame path's) and its pyarrow tables (the columns')."""
+        tables = self.rows.tables.get(name)
+        if not tables:
+            return frame_of(name, getattr(self.rows, name))
+        from pd_analyze.analysis.table_batches import frame_from_batches, rows_to_batch
+
+        return frame_from_batches(name, [rows_to_batch(name, getattr(self.rows, name)), *tables])
 
     @cached_property
     def accounting(self) -> pd.DataFrame:

@@ -59,12 +59,16 @@ def analyze_file(path: str, settings: Settings, progress: Progress | None = None
     return _way([path], settings).analyze_file(path, settings, progress, rows, offset)
 
 
+def uses_columns(files: list[str], settings: Settings) -> bool:
+    """Whether the captures are read in batches as columns (Settings.columns; by their size when None)."""
+    if settings.columns is None:
+        return "-" in files or _input_bytes(files) >= COLUMNS_MIN_BYTES
+    return settings.columns
+
+
 def _way(files: list[str], settings: Settings):  # noqa: ANN202 (the module: pipeline or columnar.files)
-    """Columns, or frame by frame (Settings.columns). The columnar modules are imported only when used."""
-    columns = settings.columns
-    if columns is None:
-        columns = "-" in files or _input_bytes(files) >= COLUMNS_MIN_BYTES
-    if not columns:
+    """Columns, or frame by frame. The columnar modules are imported only when used."""
+    if not uses_columns(files, settings):
         return pipeline
     from pd_analyze.analysis.columnar import files as columnar
 

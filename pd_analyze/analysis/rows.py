@@ -51,6 +51,8 @@ class Rows:
     parameters: list[ParameterRow] = field(default_factory=list)
     findings: list[FindingRow] = field(default_factory=list)
     changes: list[ChangeRow] = field(default_factory=list)
+    # rows the columnar path made as pyarrow tables (table_batches.batch_schema), by table, in arrival order
+    tables: dict[str, list] = field(default_factory=dict)
     _channels: dict[tuple, tuple[str, str, str, str]] = field(default_factory=dict)
 
     def extend(self, other: Rows, offset: int) -> None:
@@ -59,6 +61,19 @@ class Rows:
         self.parameters.extend(_shifted(other.parameters, offset))
         self.findings.extend(_shifted(other.findings, offset))
         self.changes.extend(_shifted(other.changes, offset))
+        for name, tables in other.tables.items():
+            for table in tables:
+                self.add_table(name, _shifted_table(table, offset))
+
+    def add_table(self, name: str, table: object) -> None:
+        """Rows of one table made as a pyarrow table (the columnar path)."""
+        self.tables.setdefault(name, []).append(table)
+
+    def batch_done(self) -> None:
+        """The columnar path finished a batch (a streaming end may pass its rows on now)."""
+
+    def channel_texts(self, v: tuple) -> tuple[str, str, str, str]:
+        return self._channel(v)
 
     def _channel(self, v: tuple) -> tuple[str, str, str, str]:
         """device, controller, ARUUID and index of a channel as text (the same few channels recur)."""
@@ -152,6 +167,16 @@ def _shifted(rows: list[Any], offset: int) -> list[Any]:
     if not offset:
         return rows
     return [r._replace(txn=r.txn + offset) if r.txn is not None else r for r in rows]
+
+
+def _shifted_table(table: object, offset: int) -> object:
+    """A table's transaction numbers shifted by `offset`."""
+    if not offset:
+        return table
+    import pyarrow.compute as pc
+
+    i = table.schema.get_field_index("txn")  # type: ignore[attr-defined]
+    return table.set_column(i, "txn", pc.add(table.column(i), offset))  # type: ignore[attr-defined]
 
 
 def _uuid(raw: bytes) -> str:

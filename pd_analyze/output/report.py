@@ -12,6 +12,7 @@ summary is counted from the batches as they come.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 import tempfile
@@ -29,6 +30,7 @@ if TYPE_CHECKING:
     from pd_analyze.analysis.api import Analysis
     from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings
     from pd_analyze.analysis.transaction import Transaction
+    from pd_analyze.model.rules import Finding
 
 __all__ = ["CHUNK_ROWS", "TABLES", "BatchReport", "Streamed", "neutralise", "stream", "stream_findings", "summary",
            "write_batches", "write_tables"]
@@ -49,11 +51,9 @@ def write_tables(analysis: Analysis, out_dir: str, fmt: str) -> list[str]:
     CSV and Parquet go the columnar way (each table one batch through `write_batches`); JSON Lines, which
     a batch would only turn back into rows, and which alone can hold a string Arrow cannot (a lone
     surrogate from an undecodable file name), stays on the rows."""
-    if fmt in ("csv", "parquet"):
-        from pd_analyze.analysis.table_batches import rows_to_batch
-
-        return write_batches(out_dir, fmt, {name: [rows_to_batch(name, getattr(analysis.rows, name))]
-                                            for name in TABLES}, count=False).written
+    if fmt in ("csv", "parquet") or any(analysis.rows.tables.values()):
+        return write_batches(out_dir, fmt, {name: _batches(analysis.rows, name) for name in TABLES},
+                             count=False).written
     os.makedirs(out_dir, exist_ok=True)
     written = []
     for name in TABLES:
@@ -70,7 +70,16 @@ def summary(analysis: Analysis, top: int = TOP) -> str:
     acc = Summary()
     for name in ("transactions", "parameters", "findings"):
         acc.add(name, getattr(analysis.rows, name))
+        for table in analysis.rows.tables.get(name, ()):
+            acc.add_batch(name, table)
     return acc.text(analysis.captures, top)
+
+
+def _batches(rows: Rows, name: str) -> list[Any]:
+    """A table's rows as pyarrow batches: the rows made one by one, then the columns' tables."""
+    from pd_analyze.analysis.table_batches import rows_to_batch
+
+    return [rows_to_batch(name, getattr(rows, name)), *rows.tables.get(name, ())]
 
 
 class BatchReport:
@@ -218,11 +227,23 @@ class Streamed:
 
 def stream(files: list[str], out_dir: str, fmt: str, settings: Settings,
            progress: Progress | None = None, jobs: int = 1, chain: bool = False,
-           chunk_rows: int = CHUNK_ROWS) -> Streamed:
+           chunk_rows: int | None = None) -> Streamed:
     """The report of `files` written to `out_dir` as csv / json / parquet without holding the tables:
-    the files equal `write_tables(analyze(files))`, and the summary equals `summary(analyze(files))`."""
-    from pd_analyze.analysis.jobs import run
+    the files equal `write_tables(analyze(files))`, and the summary equals `summary(analyze(files))`.
+    `chunk_rows`: the rows of a table held in memory before they spill to disk (None: the defaults,
+    table_sink.MAX_HELD, or CHUNK_ROWS for the rows' spools)."""
+    from pd_analyze.analysis.jobs import run, uses_columns
 
+    if uses_columns(files, settings) and all(_arrow_text(path) for path in files):
+        with BatchReport(out_dir, fmt, max_held=chunk_rows, chunk_rows=chunk_rows) as out:
+            rows = _ReportRows(out, chunk_rows or _ReportRows.ROWS_PER_BATCH)
+            captures = run(files, rows, settings, progress, jobs, chain)
+            rows.batch_done()
+            return out.close(captures)
+    # Small captures, read frame by frame (no numpy, pyarrow or pandas to import), or a capture name Arrow
+    # cannot hold (a lone surrogate from an undecodable file name): the rows through spools
+    settings = dataclasses.replace(settings, columns=False)
+    chunk_rows = chunk_rows or CHUNK_ROWS
     os.makedirs(out_dir, exist_ok=True)
     spill = tempfile.mkdtemp(prefix=".pd-analyze-", dir=out_dir)  # beside the output: room for big files
     writers = {name: open_table(out_dir, name, fmt) for name in TABLES}
@@ -248,6 +269,50 @@ def stream(files: list[str], out_dir: str, fmt: str, settings: Settings,
         shutil.rmtree(spill, ignore_errors=True)
 
 
+def _arrow_text(text: str) -> bool:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+class _ReportRows(Rows):
+    """Rows for the streaming report: the columns' tables go straight to the report's sinks, rows made one
+    by one (the per-frame path) follow as batches of ROWS_PER_BATCH rows, or when a batch of frames ends."""
+
+    ROWS_PER_BATCH = 4096
+
+    def __init__(self, out: BatchReport, rows_per_batch: int) -> None:
+        super().__init__()
+        self.out = out
+        self.size = min(rows_per_batch, self.ROWS_PER_BATCH)
+
+    def add(self, capture: str, txn: Transaction, offset: int = 0) -> None:
+        super().add(capture, txn, offset)
+        if len(self.parameters) >= self.size or len(self.findings) >= self.size or len(self.changes) >= self.size:
+            self.batch_done()
+
+    def add_finding(self, capture: str, f: Finding, txn: int | None = None) -> None:
+        super().add_finding(capture, f, txn)
+        if len(self.findings) >= self.size:
+            self.batch_done()
+
+    def add_table(self, name: str, table: object) -> None:
+        n = table.num_rows  # type: ignore[attr-defined]
+        for start in range(0, n, self.size) if n > self.size else (0,):  # (the sinks hold one batch whole)
+            self.out.add(name, table.slice(start, self.size) if n > self.size else table)  # type: ignore[attr-defined]
+
+    def batch_done(self) -> None:
+        from pd_analyze.analysis.table_batches import rows_to_batch
+
+        for name in TABLES:
+            rows = getattr(self, name)
+            if rows:
+                self.out.add(name, rows_to_batch(name, rows))
+                rows.clear()
+
+
 class _FindingsOnly(Rows):
     """Rows that keep only findings (audit): the other tables are not even built."""
 
@@ -258,6 +323,17 @@ class _FindingsOnly(Rows):
     def extend(self, other: Rows, offset: int) -> None:
         self.findings.extend(r[:2] + ((r[2] + offset if r[2] is not None else None),) + r[3:]
                              for r in other.findings)
+        for table in other.tables.get("findings", ()):
+            self.add_table("findings", table)
+            if offset:
+                self.findings[-table.num_rows:] = [  # type: ignore[attr-defined]
+                    r[:2] + ((r[2] + offset if r[2] is not None else None),) + r[3:]
+                    for r in self.findings[-table.num_rows:]]  # type: ignore[attr-defined]
+
+    def add_table(self, name: str, table: object) -> None:
+        """The columns' findings as rows (audit prints them); their other tables are not needed."""
+        if name == "findings" and table.num_rows:  # type: ignore[attr-defined]
+            self.findings.extend(zip(*(c.to_pylist() for c in table.columns), strict=True))  # type: ignore[attr-defined]
 
 
 def stream_findings(files: list[str], settings: Settings, jobs: int = 1, chain: bool = False,

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 from pd_analyze.analysis.schema import sort_key
 from pd_analyze.model.rules import SEVERITIES
 from pd_analyze.model.verdicts import VERDICTS
+from pd_analyze.protocol.frames import ranked
 
 if TYPE_CHECKING:
     from pd_analyze.analysis.capture_run import CaptureResult
@@ -179,8 +180,7 @@ class Summary:
             lines.append(line + (f"; ERROR {c.error}" if c.error else ""))
             for kind, reasons in (("skipped", acc.skipped), ("malformed", acc.malformed)):
                 if reasons:  # the invariant by reason: every frame is accounted for
-                    lines.append(f"  {kind}: " + "; ".join(f"{n} {why}" for why, n in
-                                                           sorted(reasons.items(), key=lambda item: -item[1])))
+                    lines.append(f"  {kind}: " + "; ".join(f"{n} {why}" for why, n in ranked(reasons)))
         lines.append("")
         if not self.transactions:
             lines.append("No PROFIdrive transactions found.")

@@ -85,11 +85,16 @@ class Accounting:
         skipped = sum(self.skipped.values())
         parts = [f"{self.read} frames read", f"{self.decoded} PNIO RPC decoded", f"{skipped} skipped"]
         if self.skipped:
-            parts[-1] += " (" + ", ".join(f"{n} {why}" for why, n in self.skipped.most_common()) + ")"
+            parts[-1] += " (" + ", ".join(f"{n} {why}" for why, n in ranked(self.skipped)) + ")"
         if self.malformed:
             parts.append(f"{sum(self.malformed.values())} malformed (" + ", ".join(
-                f"{n} {why}" for why, n in self.malformed.most_common()) + ")")
+                f"{n} {why}" for why, n in ranked(self.malformed)) + ")")
         return ", ".join(parts)
+
+
+def ranked(reasons: Counter) -> list[tuple[str, int]]:
+    """Reasons by count, most first, ties by name: the same whatever order the frames were counted in."""
+    return sorted(reasons.items(), key=lambda item: (-item[1], item[0]))
 
 
 def mark_checks(result: FrameResult, checked: frozenset[str]) -> None:

@@ -61,44 +61,23 @@ def _answered_log(view: BatchView, calls: Calls, good: list[bool], state: Column
         act_hi, act_lo, seq = p.act_hi[r].copy(), p.act_lo[r].copy(), p.seq[r].copy()
         group = view.group[r].copy()
         starts, lengths = p.body_start[r].astype(np.int64), p.body_len[r].astype(np.int64)
-        pieces: list[bytes] = []
-        buf = view.batch.buf
-        b = np.frombuffer(buf, np.uint8)
-        if inb.all():
-            idx = _ranges(starts, lengths)
-            pieces.append(b[idx].tobytes())
-            sizes = lengths
-        else:
-            sizes = np.zeros(len(k), np.int64)
-            for j in range(len(k)):
-                if inb[j]:
-                    s, n = int(starts[j]), int(lengths[j])
-                    pieces.append(buf[s:s + n])
-                else:
-                    carried = calls.carried[int(k[j])]
-                    q = carried.request
-                    act_hi[j], act_lo[j], seq[j] = carried.key
-                    group[j] = q.group
-                    pieces.append(q.frame.data[q.body_at:q.body_at + q.body_len])
-                sizes[j] = len(pieces[-1])
-        off = np.zeros(len(k) + 1, np.int64)
-        np.cumsum(sizes, out=off[1:])
+        bufs = [view.batch.buf]  # kept, not copied: the logs hold a few batches' buffers at most
+        buf_of = np.zeros(len(k), np.int32)
+        for j in np.flatnonzero(~inb).tolist():
+            carried = calls.carried[int(k[j])]
+            q = carried.request
+            act_hi[j], act_lo[j], seq[j] = carried.key
+            group[j] = q.group
+            buf_of[j], starts[j], lengths[j] = len(bufs), q.body_at, q.body_len
+            bufs.append(q.frame.data)
         answered = view.ts[res]
-        state.answered.append(Answered(act_hi, act_lo, seq, group, calls.frame[k], calls.ts[k], answered, off,
-                                       b"".join(pieces), float(answered.max())))
+        state.answered.append(Answered(act_hi, act_lo, seq, group, calls.frame[k], calls.ts[k], answered, buf_of,
+                                       starts, lengths, bufs, float(answered.max())))
     now = view.last_ts
     logs = [log for log in state.answered if log.last + rpc_timeout >= now]
     while len(logs) > 1 and sum(len(log.seq) for log in logs[1:]) >= ANSWERED_CALLS.count:
         logs.pop(0)
     state.answered = logs
-
-
-def _ranges(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
-    """The byte indices of every range, concatenated."""
-    total = int(lengths.sum())
-    offsets = np.zeros(len(lengths), np.int64)
-    np.cumsum(lengths[:-1], out=offsets[1:])
-    return np.repeat(starts - offsets, lengths) + np.arange(total)
 
 
 def near_caps(state: ColumnarState) -> bool:

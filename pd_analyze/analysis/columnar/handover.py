@@ -70,7 +70,8 @@ def _answered(d: Dissector, log: Answered, groups: set[int], now: float,
         return out
     keep = np.isin(log.group, np.fromiter(groups, np.uint64, len(groups))) & (log.answered + rpc_timeout >= now)
     for i in np.flatnonzero(keep):
-        body = log.bodies[int(log.body_off[i]):int(log.body_off[i + 1])]
+        start = int(log.body_start[i])
+        body = log.bufs[int(log.buf_of[i])][start:start + int(log.body_len[i])]
         call = rpc_calls.Call(int(log.frame[i]), float(log.req_ts[i]), b"", b"", b"", 0, body)
         call.answered = float(log.answered[i])
         d.adopt_answered((uuid_bytes(int(log.act_hi[i]), int(log.act_lo[i])), int(log.seq[i])), call)
@@ -106,8 +107,8 @@ def hand_back(state: ColumnarState, d: Dissector, engine: TransactionEngine, now
             np.array([key[1] for key, _ in calls], np.uint32),
             np.array([_group(c.src, c.dst) for _, c in calls], np.uint64),
             np.array([c.frame for _, c in calls], np.int64), np.array([c.ts for _, c in calls], np.float64),
-            np.array([c.answered for _, c in calls], np.float64), np.zeros(n + 1, np.int64), b"",
-            max(c.answered for _, c in calls), keys_only=True))
+            np.array([c.answered for _, c in calls], np.float64), np.zeros(n, np.int32), np.zeros(n, np.int64),
+            np.zeros(n, np.int64), [b""], max(c.answered for _, c in calls), keys_only=True))
     state.reference_groups -= quiet
 
 

@@ -37,6 +37,7 @@ from pd_analyze.analysis.columnar.txn_rows import (
     remember_read,
     snapshot,
 )
+from pd_analyze.analysis.columnar.txn_tables import TableBuilder
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.transaction import Transaction
 from pd_analyze.capture import CaptureError
@@ -69,6 +70,7 @@ class ColumnarRun:
         self.offset = offset
         self.state = ColumnarState()
         self.convert = Converter()
+        self.tables = TableBuilder(self.convert)
         self.accounting = Accounting()  # the frames the columns took; the dissector counts its own
         self.next_number = 1
         self.last_ts = float("-inf")  # the latest capture time seen
@@ -109,8 +111,7 @@ class ColumnarRun:
         state.reference_groups |= newly
         kept = [t for t in out.opened if t.group not in bad]
         self._base, self._col_opens, self._ref_opens = self.next_number, [t.write_frame for t in kept], []
-        closed: dict[int, Transaction] = {}
-        self._per_frame(view, bad, self._events(view, bad, kept, out), closed)
+        self._per_frame(view, bad, self._events(view, bad, kept, out))
         now = max(view.last_pnio, self.engine._now, self.last_pnio)
         machine.close_due(now)
         for txn in self.engine.advance(now):
@@ -123,11 +124,13 @@ class ColumnarRun:
         self.next_number = self._base + len(self._col_opens) + len(self._ref_opens)
         self._flagged(view, cv, calls, out, bad, q7_requests)
         self._expired(view, calls, bad)
-        for t in out.closed:
-            if t.group not in bad:
-                txn = closed.get(id(t)) or self.convert.transaction(t, view)
-                txn.txn = t.number
-                self._add(txn)
+        done = [t for t in out.closed if t.group not in bad]
+        for name, tables in self.tables.tables(view, done, self.capture_of, self.offset).items():
+            for table in tables:
+                self.rows.add_table(name, table)
+        for t in done:
+            self._count(self.capture_of(t.write_frame))
+        self.rows.batch_done()
         carry_over(view, cv, calls, out, machine, bad, state, settings.rpc_timeout)
         hand_back(state, self.d, self.engine, view.last_ts, settings.rpc_timeout)
         self.last_pnio = now
@@ -174,29 +177,26 @@ class ColumnarRun:
         events.sort(key=lambda e: (e[0], e[1]))
         return events
 
-    def _apply(self, view: BatchView, event: Event, closed: dict[int, Transaction]) -> None:
+    def _apply(self, view: BatchView, event: Event) -> None:
         _frame, kind, what = event
         if kind == READ:
             remember_read(read_elements(what, view, self.convert.channel(what.channel)[0], self.convert),
                           self.engine.read_values)
         elif kind == CHANGE:
-            t = what
-            if isinstance(t.request, int):
-                t.request = view.parsed_record(t.request)
-            snapshot(t, t.request, self.convert.channel(t.channel)[0], self.engine.read_values)
+            snapshot(what, view, self.convert.channel(what.channel)[0], self.engine.read_values)
         else:
             self.d.remember_activity(what)
 
-    def _per_frame(self, view: BatchView, bad: set[int], events: list[Event], closed: dict[int, Transaction]) -> None:
+    def _per_frame(self, view: BatchView, bad: set[int], events: list[Event]) -> None:
         """The per-frame path over its frames of the batch, in frame order, the columnar events taking their
-        turn between them (a read's Transaction is made then, into `closed`)."""
+        turn between them."""
         k = 0
         batch = view.batch
         acc = self.accounting
         for pos in view.frames_for_reference(bad).tolist():
             number = int(batch.number[pos])
             while k < len(events) and events[k][0] < number:
-                self._apply(view, events[k], closed)
+                self._apply(view, events[k])
                 k += 1
             acc.read -= 1  # the dissector counts it
             for res in self.d.feed(batch.raw_frame(pos)):
@@ -205,7 +205,7 @@ class ColumnarRun:
             if self.d.loose_findings or self.engine.loose:
                 self._drain()
         for event in events[k:]:
-            self._apply(view, event, closed)
+            self._apply(view, event)
 
     def _frames_only(self, batch: FrameBatch) -> None:
         """A batch read by the per-frame path alone."""
@@ -273,6 +273,9 @@ class ColumnarRun:
     def _add(self, txn: Transaction) -> None:
         path = self.capture_of(txn.write_req_frame)
         self.rows.add(path, txn, self.offset)
+        self._count(path)
+
+    def _count(self, path: str) -> None:
         next(r for r in self.results if r.path == path).transactions += 1
 
     def _add_reference(self, txn: Transaction) -> None:

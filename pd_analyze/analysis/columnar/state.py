@@ -103,8 +103,8 @@ class OpenCall:
 @dataclass(slots=True)
 class Answered:
     """Calls the columnar path saw answered in one batch (remembered rpc_timeout after their answer): the
-    keys to recognise a late copy, and their request bodies (the digest is made when a group is handed
-    over)."""
+    keys to recognise a late copy, and where their request bodies are (the digest is made when a group
+    is handed over)."""
 
     act_hi: np.ndarray  # uint64
     act_lo: np.ndarray  # uint64
@@ -113,8 +113,10 @@ class Answered:
     frame: np.ndarray  # int64 request frame
     req_ts: np.ndarray  # float64
     answered: np.ndarray  # float64
-    body_off: np.ndarray  # int64, one more than calls: call i's body is bodies[body_off[i]:body_off[i + 1]]
-    bodies: bytes
+    buf_of: np.ndarray  # int32: call i's body is bufs[buf_of[i]][body_start[i] : body_start[i] + body_len[i]]
+    body_start: np.ndarray  # int64
+    body_len: np.ndarray  # int64
+    bufs: list[bytes]
     last: float = float("-inf")  # the latest answer among them
     keys_only: bool = False  # calls the per-frame dissector answered and still remembers (no bodies here)
 

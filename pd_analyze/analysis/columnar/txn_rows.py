@@ -47,13 +47,14 @@ class Converter:
         return txn
 
 
-def snapshot(t: Txn, request: Parsed, device: bytes, read_values: CappedTable) -> None:
-    """A change opening: the values last read of the elements it writes (in place: its Transaction may
-    exist already)."""
-    if t.req_id != pt.REQ_CHANGE:
-        return
-    for addr in request.addresses:
-        keys = [(device, t.do, addr.pnu, addr.subindex + j) for j in range(max(addr.n_elems, 1))]
+def snapshot(t: Txn, view: BatchView, device: bytes, read_values: CappedTable) -> None:
+    """A change opening (its request a record of `view`): the values last read of the elements it writes,
+    per address (in place: its Transaction may exist already)."""
+    rc, a = view.records.records, view.records.addresses
+    first = int(rc.first_addr[t.request])
+    for row in range(first, first + int(rc.n_addr[t.request])):
+        pnu, sub = int(a.pnu[row]), int(a.subindex[row])
+        keys = [(device, t.do, pnu, sub + j) for j in range(max(int(a.n_elems[row]), 1))]
         t.values_before.append([read_values.get(k) for k in keys])
 
 

@@ -19,7 +19,7 @@ from pd_analyze.analysis.columnar.batch_view import BatchView
 from pd_analyze.analysis.columnar.state import Txn
 from pd_analyze.analysis.columnar.txn_rows import Converter
 from pd_analyze.analysis.rows import Rows, finding_row
-from pd_analyze.analysis.schema import COLUMNS
+from pd_analyze.analysis.schema import COLUMNS, micros
 from pd_analyze.analysis.table_batches import TIME_TYPE, batch_schema, rows_to_batch
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.verdicts import ANSWERED
@@ -107,10 +107,10 @@ class TableBuilder:
         wb = np.where(change[owner] & (j < rc.n_blocks[req][owner]), rc.first_block[req][owner] + j, -1)
         rb = np.where(has_res[owner] & (j < np.where(has_res, rc.n_blocks[s], 0)[owner]),
                       rc.first_block[s][owner] + j, -1)
-        err = np.where(rb >= 0, bc.error[np.maximum(rb, 0)], -1)
+        err = _at(bc.error, rb, -1)
         src = np.where(wb >= 0, wb, rb)
-        fmt = bc.format[np.maximum(src, 0)]
-        fmt_cell = np.where((src >= 0) & (fmt != pt.FMT_ERROR), fmt, -1)
+        fmt = _at(bc.format, src, -1)
+        fmt_cell = np.where(fmt != pt.FMT_ERROR, fmt, -1)
         count = np.maximum(elems, 1)
         ranged = (attr == pt.ATTR_VALUE) & (count > 1)
         labels = [f"P{p}[{a}..{a + c - 1}]" if r else f"P{p}[{a}]"
@@ -182,24 +182,46 @@ class TableBuilder:
     @staticmethod
     def _transactions(txns: list[Txn], numbers: list[int], captures: list[str], texts: list[tuple],
                       params: list[list[str]], errors: list[list[str]], resp_id: list[str]) -> pa.Table:
-        rows = []
-        for k, t in enumerate(txns):
-            device, controller, ar, index = texts[k]
-            ch = t.channel
-            res = t.t_write_res
-            reads = t.t_reads
-            done = t.t_read_res if t.closed_by == "response" else None
-            rows.append((
-                numbers[k], captures[k], device, controller, ar, index, ch[4], ch[5], ch[6],
-                t.ref if t.ref >= 0 else None, _hex(t.req_id), t.do if t.do >= 0 else None,
-                t.n_params if t.n_params >= 0 else None, " ".join(params[k]), resp_id[k], t.verdict,
-                " ".join(errors[k]), t.pnio_status, t.b5, len(t.read_frames), 0, t.write_frame,
-                t.write_res_frame or None, " ".join(map(str, t.read_frames)), t.read_res_frame or None,
-                " ".join(map(str, sorted(t.frames))), t.t_start,
-                None if res is None else res - t.t_start, None if done is None else done - t.t_start,
-                None if done is None or not reads else done - reads[-1],
-                None if res is None or not reads else reads[0] - res, t.capture_ended, t.closed_by))
-        return rows_to_batch("transactions", rows)
+        """The transactions' rows, a column at a time (the cells Rows.add makes)."""
+        res = [t.t_write_res for t in txns]
+        start = [t.t_start for t in txns]
+        done = [t.t_read_res if t.closed_by == "response" else None for t in txns]
+        first_read = [t.t_reads[0] if t.t_reads else None for t in txns]
+        last_read = [t.t_reads[-1] if t.t_reads else None for t in txns]
+        text, integer, real = pa.large_string(), pa.int64(), pa.float64()
+        columns = [
+            pa.array(numbers, integer), pa.array(captures, text),
+            *(pa.array([x[i] for x in texts], text) for i in range(4)),
+            *(pa.array([t.channel[i] for t in txns], integer) for i in (4, 5, 6)),
+            pa.array([t.ref if t.ref >= 0 else None for t in txns], integer),
+            pa.array([_hex(t.req_id) for t in txns], text),
+            pa.array([t.do if t.do >= 0 else None for t in txns], integer),
+            pa.array([t.n_params if t.n_params >= 0 else None for t in txns], integer),
+            pa.array([" ".join(p) for p in params], text), pa.array(resp_id, text),
+            pa.array([t.verdict for t in txns], text), pa.array([" ".join(e) for e in errors], text),
+            pa.array([t.pnio_status for t in txns], text), pa.array([t.b5 for t in txns], integer),
+            pa.array([len(t.read_frames) for t in txns], integer), pa.array([0] * len(txns), integer),
+            pa.array([t.write_frame for t in txns], integer),
+            pa.array([t.write_res_frame or None for t in txns], integer),
+            pa.array([" ".join(map(str, t.read_frames)) for t in txns], text),
+            pa.array([t.read_res_frame or None for t in txns], integer),
+            pa.array([" ".join(map(str, sorted(t.frames))) for t in txns], text),
+            pa.array([micros(v) for v in start], integer).cast(TIME_TYPE),
+            pa.array([None if r is None else r - s for r, s in zip(res, start, strict=True)], real),
+            pa.array([None if d is None else d - s for d, s in zip(done, start, strict=True)], real),
+            pa.array([None if d is None or r is None else d - r for d, r in zip(done, last_read, strict=True)], real),
+            pa.array([None if r is None or f is None else f - r for r, f in zip(res, first_read, strict=True)], real),
+            pa.array([t.capture_ended for t in txns], pa.bool_()), pa.array([t.closed_by for t in txns], text),
+        ]
+        return pa.Table.from_arrays(columns, schema=batch_schema("transactions"))
+
+
+def _at(column: np.ndarray, rows: np.ndarray, missing: int) -> np.ndarray:
+    """column[rows] as int64, `missing` where rows is -1."""
+    out = np.full(len(rows), missing, np.int64)
+    have = rows >= 0
+    out[have] = column[rows[have]]
+    return out
 
 
 def _texts(text: object) -> pa.Array:
@@ -208,8 +230,8 @@ def _texts(text: object) -> pa.Array:
 
 def _take(text: pa.Array, rows: np.ndarray) -> pa.Array:
     """text[rows], "" where rows is -1."""
-    if not len(rows):
-        return pa.array([], pa.large_string())
+    if not len(rows) or not len(text):
+        return pa.array([""] * len(rows), pa.large_string())
     taken = text.take(pa.array(np.maximum(rows, 0)))
     if text.type != pa.large_string():
         taken = taken.cast(pa.large_string())
