@@ -306,8 +306,8 @@ def _files(captures: tuple[str, ...], read: str | None, profile: str) -> list[st
 
 def _timeouts(func: Callable) -> Callable:
     func = click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
-                        help="Analyse files in N parallel processes, or one large uncompressed pcap in N parts "
-                             "(same tables as one process; each worker returns its file's rows whole).")(func)
+                        help="Analyse files in N parallel processes (same tables as one process; each worker "
+                             "returns its file's rows whole). One file is always one process.")(func)
     func = click.option("--chain", is_flag=True,
                         help="The files continue one another (ring buffer): pair across file boundaries.")(func)
     func = click.option("--timeout", type=SECONDS, default=10.0, show_default=True,

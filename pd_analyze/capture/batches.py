@@ -47,6 +47,13 @@ class FrameBatch:
     def __len__(self) -> int:
         return len(self.number)
 
+    def part(self, start: int, stop: int) -> FrameBatch:
+        """Frames start..stop-1, over the same buffer."""
+        if start == 0 and stop >= len(self):
+            return self
+        return FrameBatch(self.buf, self.number[start:stop], self.ts[start:stop], self.linktype[start:stop],
+                          self.start[start:stop], self.caplen[start:stop], self.iface[start:stop])
+
     def raw_frame(self, i: int) -> RawFrame:
         """Frame i as the per-frame dissector takes it."""
         start = int(self.start[i])
@@ -71,7 +78,7 @@ def batches(path: str, size: int = BATCH_FRAMES, info: CaptureInfo | None = None
                 for columns in pcapng_columns(path, stream, info):
                     chunk = FrameBatch(*columns)
                     for i in range(0, len(chunk), size):
-                        yield _rows(chunk, i, i + size)
+                        yield chunk.part(i, i + size)
         except CaptureError as exc:
             if not info.compressed or exc.offset is None:
                 raise
@@ -105,7 +112,7 @@ def _pcap_batches(path: str, stream: BinaryIO, info: CaptureInfo, size: int, hea
             chunk = _columns(buf, starts[:good], caplen[:good], word, divisor, linktype, number)
             number += good
             for i in range(0, good, size):
-                yield base, _rows(chunk, i, i + size)
+                yield base, chunk.part(i, i + size)
         if too_long.size:
             raise _too_long(path, int(caplen[good]), base + int(starts[good]))
         pos = int(starts[complete])  # the first record not complete in buf, or its end
@@ -173,13 +180,6 @@ def _columns(buf: bytes, starts: np.ndarray, caplen: np.ndarray, word: np.dtype,
 
 
 _STAMP_BYTES = np.arange(8, dtype=np.int64)  # a record header's seconds and fraction of a second
-
-
-def _rows(batch: FrameBatch, start: int, stop: int) -> FrameBatch:
-    if start == 0 and stop >= len(batch):
-        return batch
-    return FrameBatch(batch.buf, batch.number[start:stop], batch.ts[start:stop], batch.linktype[start:stop],
-                      batch.start[start:stop], batch.caplen[start:stop], batch.iface[start:stop])
 
 
 def _too_long(path: str, caplen: int, at: int) -> CaptureError:

@@ -38,7 +38,8 @@ import pyarrow as pa
 from pd_analyze.analysis.table_batches import SEQ, arrival_numbers, batch_schema, conform, order_keys
 from pd_analyze.output.table_runs import Block, Key, Run, below, number, sort_order, sorted_rows, taken
 
-MAX_HELD = 250_000  # rows held in memory before the sink spills (about 100 MB of transaction rows)
+MAX_HELD = 16_384  # rows held in memory before the sink spills (about 5 MB of transaction rows: four
+# tables of them, 1.5 x each, stay well inside the flood budget of 200 MiB)
 CHUNK_ROWS = 65_536  # rows per write_batch call at most
 FORMAT_ROWS = 16_384  # rows gathered before they are formatted (a column at a time costs per call, too)
 TEXT = "__text"  # the column of formatted rows

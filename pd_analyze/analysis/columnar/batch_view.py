@@ -9,6 +9,8 @@ machine find something unusual (`calls`, `channels`).
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +32,10 @@ from pd_analyze.protocol.profidrive import Parsed
 from pd_analyze.protocol.profidrive_checks import Checker
 
 _PD_INDICES = np.array(sorted(PROFIDRIVE_INDICES))
+# Parameters one batch's records may declare (No. of parameters summed) before the batch is decoded in
+# parts: the parameter and block columns take some 160 bytes a parameter, so this bounds them near 20 MB,
+# where 8 MiB of 39-parameter change requests would explode into 600,000 parameters.
+PARAMETERS_PER_DECODE = 131_072
 _IP_ETHERTYPES = np.array(sorted(int.from_bytes(t, "big") for t in IP_ETHERTYPES))
 
 
@@ -94,7 +100,31 @@ class BatchView:
     @staticmethod
     def of(batch: FrameBatch, checker: Checker) -> BatchView:
         """The batch decoded (pnio_batch, profidrive_batch): what needs no state across batches."""
+        return BatchView._of(batch, pnio_batch.decode(batch, checker), checker)
+
+    @staticmethod
+    def parts(batch: FrameBatch, checker: Checker) -> Iterator[tuple[FrameBatch, BatchView]]:
+        """The batch decoded, in consecutive parts when its records declare more than
+        PARAMETERS_PER_DECODE parameters (memory stays flat whatever the records hold)."""
         decoded = pnio_batch.decode(batch, checker)
+        p = decoded.pdus
+        has_record = p.has_block & (p.rec_len >= 4)
+        declared = np.zeros(len(batch), np.int64)
+        at = p.rec_start[has_record] + 3  # No. of parameters, in requests and responses alike
+        np.add.at(declared, p.pos[has_record], np.frombuffer(batch.buf, np.uint8)[at])
+        if len(batch) == 1 or int(declared.sum()) <= PARAMETERS_PER_DECODE:
+            yield batch, BatchView._of(batch, decoded, checker)
+            return
+        del decoded, p  # the parts decode again, each its own frames
+        total = np.cumsum(declared)
+        cuts = np.searchsorted(total, np.arange(PARAMETERS_PER_DECODE, int(total[-1]), PARAMETERS_PER_DECODE),
+                               "right")
+        edges = [0, *sorted({min(max(int(c), 1), len(batch) - 1) for c in cuts.tolist()}), len(batch)]
+        for start, stop in itertools.pairwise(edges):
+            yield from BatchView.parts(batch.part(start, stop), checker)
+
+    @staticmethod
+    def _of(batch: FrameBatch, decoded: DecodedBatch, checker: Checker) -> BatchView:
         p = decoded.pdus
         route = decoded.frames.route[p.pos]
         pnio = route == ROUTE_PNIO

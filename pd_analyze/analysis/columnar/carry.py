@@ -80,6 +80,26 @@ def _answered_log(view: BatchView, calls: Calls, good: list[bool], state: Column
     state.answered = logs
 
 
+def calls_overflow(view: BatchView, calls: Calls, bad: set[int], state: ColumnarState) -> bool:
+    """Carrying this batch's open calls would take the columnar memory past half the per-frame path's
+    cap (a flood of calls never answered): the batch then goes to the per-frame path, whose caps and
+    evictions are the reference's. Asked before the channel machine, which would hold a transaction
+    per call."""
+    p = view.p
+    new = np.flatnonzero((calls.req >= 0) & (calls.res < 0) & ~calls.expired)
+    new = new[~view.good(bad)[calls.req[new]]] if bad else new
+    if len(new) + len(state.open_calls) > OPEN_CALLS.count // 2:
+        return True
+    held = int(view.batch.caplen[p.pos[calls.req[new]]].sum()) + sum(
+        len(c.request.frame.data) for c in state.open_calls.values())
+    return held > OPEN_CALLS.bytes // 4
+
+
+def pending_overflow(out: Outcome, bad: set[int]) -> bool:
+    """Carrying the pending transactions would pass half the per-frame path's cap (channels never closed)."""
+    return sum(1 for t in out.pending.values() if t.group not in bad) > PENDING_TRANSACTIONS.count // 2
+
+
 def near_caps(state: ColumnarState) -> bool:
     """The columnar memory has grown to half a cap of the per-frame path: from here on everything goes
     there, whose caps and evictions are the reference's."""

@@ -13,9 +13,8 @@ what is still open to the next batch.
 from __future__ import annotations
 
 from bisect import bisect_left
-from collections import Counter, deque
-from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
+from collections import Counter
+from collections.abc import Callable, Iterable
 
 import numpy as np
 
@@ -23,7 +22,7 @@ from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings, e
 from pd_analyze.analysis.columnar import call_view
 from pd_analyze.analysis.columnar.batch_view import BatchView, fed
 from pd_analyze.analysis.columnar.calls import Calls, pair
-from pd_analyze.analysis.columnar.carry import carry_over, near_caps
+from pd_analyze.analysis.columnar.carry import calls_overflow, carry_over, near_caps, pending_overflow
 from pd_analyze.analysis.columnar.channels import CallView, ChannelMachine, Outcome
 from pd_analyze.analysis.columnar.frame_findings import findings_of
 from pd_analyze.analysis.columnar.handover import group_of, hand_back, hand_over, uuid_bytes
@@ -47,7 +46,6 @@ from pd_analyze.protocol.frames import Accounting
 from pd_analyze.protocol.link import SKIP_NOT_IPV4
 from pd_analyze.protocol.pnio_batch import SKIP_REASONS
 from pd_analyze.protocol.profidrive import Parsed
-from pd_analyze.protocol.profidrive_checks import Checker
 from pd_analyze.protocol.rpc_calls import unanswered_finding
 
 Event = tuple[int, int, object]  # (frame, READ/CHANGE/ACTIVITY, what)
@@ -80,8 +78,8 @@ class ColumnarRun:
         self._base = 1
 
     # --- the loop -----------------------------------------------------------------------------------
-    def feed(self, batch: FrameBatch, view: BatchView | None = None) -> None:
-        """The next batch of frames (`view`: its decode, when made ahead, e.g. by `decoded`)."""
+    def feed(self, batch: FrameBatch) -> None:
+        """The next batch of frames."""
         if not len(batch):
             return
         ts = batch.ts
@@ -90,7 +88,12 @@ class ColumnarRun:
         if self.state.all_reference:
             self._frames_only(batch)
         else:
-            self._columns(batch, view or BatchView.of(batch, self.checker))
+            for part, view in BatchView.parts(batch, self.checker):
+                if self.state.all_reference:
+                    self._frames_only(part)
+                else:
+                    self._columns(part, view)
+                del view  # (the next part's decode does not wait for this one's memory)
         self.last_ts = max(self.last_ts, float(ts.max()))
         if self.progress is not None and self.results:
             self.progress(self.results[-1].path, self.read)
@@ -102,9 +105,19 @@ class ColumnarRun:
         bad = view.reference_groups(state)
         calls = pair(view.p, view.candidates(bad), view.frame_no, view.ts, state.open_calls, state.answered,
                      settings.rpc_timeout, max(view.last_fed_ts, self.d._now), bad)
+        if calls_overflow(view, calls, bad, state):  # (nothing of the batch is kept yet)
+            del view, calls  # the per-frame path takes the batch: its columns are not needed any more
+            self._all_to_frames()
+            self._frames_only(batch)
+            return
         cv, q7_requests = call_view.build(view, calls, bad, state)
         machine = ChannelMachine(state.pending, state.last_done, settings.txn_timeout, self.engine.b5_threshold, bad)
         out = machine.run(cv)
+        if pending_overflow(out, bad):
+            del view, calls, cv, q7_requests, machine, out
+            self._all_to_frames()
+            self._frames_only(batch)
+            return
         # bad is final from here on
         newly = bad - state.reference_groups
         hand_over(newly, state, self.d, self.engine, view.first_ts, settings.rpc_timeout)
@@ -307,39 +320,14 @@ class ColumnarRun:
                   self.settings.rpc_timeout)
 
 
-def decoded(source: Iterable[FrameBatch], checker: Checker, threads: int) -> Iterator[tuple[FrameBatch, BatchView]]:
-    """The batches with their decode, made `threads` batches ahead by as many threads (numpy lets go of
-    the interpreter in its loops, so decoding overlaps the state machine's Python). At most 2 x threads
-    batches are held beyond the one being analysed."""
-    with ThreadPoolExecutor(threads, thread_name_prefix="pd-analyze-decode") as pool:
-        ahead: deque[tuple[FrameBatch, Future[BatchView]]] = deque()
-        try:
-            for batch in source:
-                ahead.append((batch, pool.submit(BatchView.of, batch, checker)))
-                if len(ahead) > 2 * threads:
-                    done, view = ahead.popleft()
-                    yield done, view.result()
-            while ahead:
-                done, view = ahead.popleft()
-                yield done, view.result()
-        finally:
-            for _batch, view in ahead:
-                view.cancel()
-
-
 def run_batches(source: Iterable[FrameBatch], settings: Settings, rows: Rows, capture_of: Callable[[int], str],
-                results: list[CaptureResult], progress: Progress | None, offset: int = 0,
-                threads: int = 0) -> Accounting:
-    """The columnar loop over batches (decoded by `threads` threads ahead of it, when > 0); the frames'
-    accounting when done (also after a CaptureError, which is recorded in the last result)."""
+                results: list[CaptureResult], progress: Progress | None, offset: int = 0) -> Accounting:
+    """The columnar loop over batches; the frames' accounting when done (also after a CaptureError, which
+    is recorded in the last result)."""
     run = ColumnarRun(settings, rows, capture_of, results, progress, offset)
     try:
-        if threads:
-            for batch, view in decoded(source, run.checker, threads):
-                run.feed(batch, view)
-        else:
-            for batch in source:
-                run.feed(batch)
+        for batch in source:
+            run.feed(batch)
     except CaptureError as exc:
         results[-1].error = error_text(exc)
     run.finish()
