@@ -85,6 +85,21 @@ def test_short_timeouts_expire_calls_and_transactions_as_the_reference(generated
     assert_same(*analyses(str(generated["dense"]), size, txn_timeout=0.004, rpc_timeout=0.003))
 
 
+def test_batches_decoded_in_parts_give_the_reference_tables(generated: dict[str, Path],
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """A batch whose records declare more parameters than one decode may hold is decoded in parts (here
+    parts of about 50 parameters), with the same tables; and the parts really are made."""
+    from pd_analyze.analysis.columnar import batch_view
+    from pd_analyze.capture.batches import batches
+
+    monkeypatch.setattr(batch_view, "PARAMETERS_PER_DECODE", 50)
+    batch = next(batches(str(generated["dense"]), 5000))
+    parts = [part for part, _view in batch_view.BatchView.parts(batch, Settings().checker())]
+    assert len(parts) > 10 and sum(len(p) for p in parts) == len(batch)
+    assert np.array_equal(np.concatenate([p.number for p in parts]), batch.number)
+    assert_same(*analyses(str(generated["dense"]), 5000))
+
+
 def test_the_columns_take_the_ordinary_groups(generated: dict[str, Path]) -> None:
     """The differential tests are not vacuous: on the generated capture nearly every frame is analysed by
     the columns, not handed to the per-frame dissector."""
