@@ -25,7 +25,7 @@ from pd_analyze.capture.pcapng_write import (
 )
 from pd_analyze.capture.records import PCAP_RECORD, CaptureCopy
 from pd_analyze.output import frame_notes
-from pd_analyze.output.capture_copy import Copied, check_paths, frames, output
+from pd_analyze.output.capture_copy import Copied, check_paths, dissector_for, frames, output
 from pd_analyze.output.display_filter import DisplayFilter
 
 
@@ -41,7 +41,7 @@ def annotate(capture: str, out: str, settings: Settings, flt: DisplayFilter | No
                 stream.write(section_header(f"pd-analyze {__version__}")
                              + interface_description(copy.linktype, copy.snaplen, copy.resolution))
             try:
-                for block, view in frames(copy, settings, flt, notes):
+                for block, view in frames(copy, dissector_for(settings, flt), notes):
                     if view is None:
                         stream.write(block.raw)
                         continue

@@ -69,14 +69,11 @@ def output(path: str) -> Iterator[BinaryIO]:
         raw.close()
 
 
-def frames(copy: CaptureCopy, settings: Settings, flt: DisplayFilter | None,
+def frames(copy: CaptureCopy, dissector: Dissector | None,
            notes: Notes | None) -> Iterator[tuple[Block, FrameView | None]]:
-    """Every block of the capture; a packet's with its frame view (None for other blocks). The dissector
-    runs beside the records only when the filter names dissected fields."""
-    results = None
-    if flt is not None and any(r.kind == LAYERS for r in flt.refs):
-        dissector = Dissector(annotate=True, rpc_timeout=settings.rpc_timeout, checker=settings.checker())
-        results = Cursor(dissect(copy.path, dissector=dissector))
+    """Every block of the capture; a packet's with its frame view (None for other blocks). `dissector`,
+    when given, reads the capture beside the records and gives each PNIO RPC frame its fields."""
+    results = Cursor(dissect(copy.path, dissector=dissector)) if dissector is not None else None
     for block in copy.blocks():
         if not block.number:
             yield block, None
@@ -84,3 +81,10 @@ def frames(copy: CaptureCopy, settings: Settings, flt: DisplayFilter | None,
         number = block.number
         yield block, FrameView(number, block.ts, results.at(number) if results is not None else None, block,
                                notes.at(number) if notes is not None else None)
+
+
+def dissector_for(settings: Settings, flt: DisplayFilter | None, always: bool = False) -> Dissector | None:
+    """The dissector to read the capture with when the filter names dissected fields (or `always`)."""
+    if not always and (flt is None or not any(r.kind == LAYERS for r in flt.refs)):
+        return None
+    return Dissector(annotate=True, rpc_timeout=settings.rpc_timeout, checker=settings.checker())
