@@ -445,9 +445,8 @@ def fields_command(fmt: str) -> None:
             click.echo(f"{f.name:<24} {f.type:<6} {f.tshark or '-':<44} {f.description}")
 
 
-if __name__ == "__main__":
-    main()
-
-
 for _command in (cli_wireshark.annotate_command, cli_wireshark.extract_command):
     main.add_command(_command)
+
+if __name__ == "__main__":
+    main()

@@ -9,15 +9,17 @@ the occurrences as tshark 4.0 prints them in `-T fields`.
 from __future__ import annotations
 
 import re
+import struct
 import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
-from decimal import Decimal
+from decimal import ROUND_HALF_EVEN, Decimal
 from functools import lru_cache
 from typing import Generic, TypeVar
 
 from pd_analyze.capture import CaptureError
 from pd_analyze.capture.pcapng import Block
+from pd_analyze.capture.pcapng_write import BT_SPB
 from pd_analyze.model import fields as registry
 from pd_analyze.model.layout import Field
 from pd_analyze.output.frame_notes import FrameNote
@@ -142,7 +144,7 @@ class FrameView:
         if name == "frame.no":
             return [self.number]
         if name == "frame.ts":
-            return [self.ts]
+            return [] if self.block is not None and self.block.btype == BT_SPB else [self.ts]
         block = self.block
         if block is None:
             return []
@@ -165,7 +167,10 @@ class FrameView:
         if ref.kind == LAYERS:
             return [text for f in self.fields(ref) for text in _tshark_text(f, self.ts)]
         if ref.names[0] == "frame.ts":
-            return [epoch_text(self.ts)]
+            if self.block is None:
+                return [epoch_text(self.ts)]
+            exact = record_time(self.block)
+            return [exact] if exact else []
         return [str(v) for v in self.values(ref)]
 
 
@@ -195,6 +200,20 @@ def _tshark_text(f: Field, ts: float) -> list[str]:
     if shown == registry.SHOWN_DATE:
         return [time.strftime("%b %e, %Y %H:%M:%S", time.gmtime(value)) + ".000000000 UTC"]
     return [str(value)]
+
+
+def record_time(block: Block) -> str:
+    """A record's time as tshark prints frame.time_epoch, exactly from its timestamp units (a float holds
+    no more than ~0.2 us of a nanosecond stamp); '' for a Simple Packet Block, which has none."""
+    if block.btype == BT_SPB:
+        return ""
+    stamp = block.stamp
+    if stamp < 0:  # a pcapng (Enhanced) Packet Block: 32 + 32 bits after the interface id (and drops count)
+        high, low = struct.unpack_from("<II" if block.little else ">II", block.raw, 12)
+        stamp = (high << 32) | low
+    seconds = Decimal(stamp) / Decimal(block.divisor) + block.ts_offset
+    whole, _, frac = format(seconds.quantize(Decimal("1e-9"), ROUND_HALF_EVEN), "f").partition(".")
+    return f"{whole}.{(frac + '0' * 9)[:9]}"
 
 
 def epoch_text(ts: float) -> str:
