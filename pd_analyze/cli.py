@@ -33,8 +33,7 @@ Examples:
   pd-analyze dump capture.pcap.gz --findings-only
   pd-analyze dump capture.pcapng --format json | jq .summary
   tcpdump -w - udp | pd-analyze dump -
-  pd-analyze dump trace.pcap -Y 'pd.addr.pnu == 964 and txn.verdict == "nak"'
-  pd-analyze dump trace.pcap -T fields -e frame.number -e pd.ref -E header=y -E separator=,
+  pd-analyze dump trace.pcap -Y 'pd.addr.pnu == 964 and txn.verdict == "nak"' -T fields -e frame.number -e pd.ref
 """
 
 
@@ -138,9 +137,8 @@ def profile_option(func: Callable) -> Callable:
 @click.option("-r", "--read", "read", metavar="FILE", help="Capture to read (as tshark -r); - for stdin.")
 @click.option("--frames", "frames", metavar="LIST", help="Only these frames, e.g. 1,5-9,20-.")
 @click.option("--findings-only", is_flag=True, help="Only frames with findings, and only the findings.")
-@click.option("--format", "-T", "fmt", type=click.Choice(["text", "json", "fields"]), default="text",
-              show_default=True, help="text: indented tree; json: JSON Lines, one object per PNIO RPC frame; "
-                                      "fields: the -e fields, one line per frame (tshark -T fields).")
+@click.option("--format", "-T", "fmt", type=click.Choice(["text", "json", "fields"]), default="text", show_default=True,
+              help="text: indented tree; json: JSON Lines, one object per PNIO RPC frame; fields: see -e.")
 @cli_wireshark.dump_options
 @click.option("--color/--no-color", default=None, help="Colour the text output (default: on a terminal).")
 @click.option("--rpc-timeout", type=SECONDS, default=DEFAULT_RPC_TIMEOUT,
@@ -159,10 +157,9 @@ def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None
     colour = sys.stdout.isatty() if color is None else color
     style = _style(colour and fmt == "text")
     if flt is not None or fmt == "fields" or field_names:  # the frames a filter selects, or -T fields
-        sys.exit(cli_wireshark.fields_dump(paths, Settings(profile, rpc_timeout=rpc_timeout), lambda: Dissector(
-            annotate=True, rpc_timeout=rpc_timeout, checker=checker), flt, fmt, field_names, field_options,
-            lambda results: dump.render(results, fmt, _lines(colour and fmt == "text"), style, findings_only),
-            wanted))
+        out = _lines(colour and fmt == "text")
+        sys.exit(cli_wireshark.fields_dump(paths, Settings(profile, rpc_timeout=rpc_timeout), checker, flt, fmt,
+                 field_names, field_options, wanted, lambda found: dump.render(found, fmt, out, style, findings_only)))
     status = EXIT_OK
     for path in paths:
         if len(paths) > 1 and fmt == "text":

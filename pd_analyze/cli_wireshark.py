@@ -20,6 +20,7 @@ from pd_analyze.output.display_filter import DisplayFilter, FilterError, parse
 from pd_analyze.protocol import profiles
 from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT, Dissector
 from pd_analyze.protocol.frames import FrameResult
+from pd_analyze.protocol.profidrive_checks import Checker
 
 ANNOTATE_EXAMPLES = """\b
 Examples:
@@ -143,9 +144,9 @@ def extract_command(capture: str, out: str, flt: str | None, profile: str, timeo
     _finish(result, f"{result.frames} frames of {result.transactions} transactions written")
 
 
-def fields_dump(paths: list[str], settings: Settings, make_dissector: Callable[[], Dissector], flt: str | None,
-                out_type: str, names: tuple[str, ...], options: tuple[str, ...],
-                render: Callable[[Iterator[FrameResult]], object], wanted: Callable[[int], bool]) -> int:
+def fields_dump(paths: list[str], settings: Settings, checker: Checker, flt: str | None, out_type: str,
+                names: tuple[str, ...], options: tuple[str, ...], wanted: Callable[[int], bool],
+                render: Callable[[Iterator[FrameResult]], object]) -> int:
     """`dump -Y` and `dump -T fields` (of the frames `wanted`, --frames): the exit code. `render(results)`
     writes the text or JSON dump of the frames kept."""
     from pd_analyze.output import frame_select
@@ -164,7 +165,7 @@ def fields_dump(paths: list[str], settings: Settings, make_dissector: Callable[[
     if out_type == "fields" and fmt.header:
         click.echo(frame_select.header_line(names, fmt))
     for path in paths:
-        d = make_dissector()
+        d = Dissector(annotate=True, rpc_timeout=settings.rpc_timeout, checker=checker)
         try:
             views = frame_select.views(path, settings, d, parsed, refs, every_frame=out_type == "fields")
             if out_type == "fields":
