@@ -214,6 +214,7 @@ FILTERS = [  # (capture, expression, frames it selects among the PNIO RPC frames
     (WORKED, "ip.dst == 192.168.0.0/24 and frame.number > 4", [5, 6]),
     (WORKED, "txn.id == 1 and txn.verdict == \"ok\"", [1, 2, 3, 4, 5, 6]),
     (WORKED, "pd.val.value", [6]),
+    (WORKED, "pd.req_id == \"request parameter (read)\"", [1]),  # a value name
     (FAULT, "pd.addr.pnu == 964 and txn.verdict == \"nak\"", [97]),  # txn 17's request
     (FAULT, "finding.rule == \"T4\"", [291]),
     (FAULT, "finding.severity == \"info\"", [291]),
@@ -305,3 +306,17 @@ def test_fields_options_and_analysis_fields() -> None:
     assert r.returncode == 2 and b"needs at least one -e FIELD" in r.stderr
     r = run("dump", WORKED, "-T", "fields", "-e", "pd.ref", "-E", "colour=y")
     assert r.returncode == 2 and b"-E colour=y" in r.stderr
+
+
+@pytest.mark.parametrize("name", ["fault_trace.pcap", "pd_retries_and_duplicates.pcap", "pd_out_of_range.pcap",
+                                  "ip_fragments.pcap", "truncated_snaplen.pcap"])
+def test_comments_are_the_same_whichever_path_reads_the_capture(name: str) -> None:
+    """The notes come from the report's rows: the columnar path's tables say what the per-frame path says."""
+    from pd_analyze.output import frame_notes
+
+    said = []
+    for columns in (False, True):
+        notes = frame_notes.collect(str(SAMPLES / name), Settings(columns=columns))
+        said.append([(note.frame, note.comment()) for note in notes])
+        notes.close()
+    assert said[0] == said[1] and said[0]
