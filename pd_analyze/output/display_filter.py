@@ -28,7 +28,7 @@ from typing import NamedTuple
 from pd_analyze.model import fields as registry
 from pd_analyze.model.rules import RULES, SEVERITIES
 from pd_analyze.model.verdicts import VERDICTS
-from pd_analyze.output.frame_view import ANALYSIS, RECORD_FIELDS, FieldRef, FrameView, resolve
+from pd_analyze.output.frame_view import ANALYSIS, FieldRef, FrameView, resolve
 
 RELATIONS = {"==": "eq", "eq": "eq", "any_eq": "eq", "!=": "all_ne", "ne": "all_ne", "all_ne": "all_ne",
              "~=": "any_ne", "any_ne": "any_ne", "===": "all_eq", "all_eq": "all_eq", "<": "lt", "lt": "lt",
@@ -122,8 +122,8 @@ Predicate = Callable[[FrameView], bool]
 
 @dataclass(frozen=True)
 class DisplayFilter:
-    """A parsed filter: `matches(view)`; which kinds of fields it needs read (`needs_analysis`: the report's
-    analysis first; `needs_record`: the capture's records beside the dissector)."""
+    """A parsed filter: `matches(view)`; `needs_analysis`: it names txn.* or finding.* (the report's analysis
+    is read first)."""
 
     text: str
     matches: Predicate
@@ -132,10 +132,6 @@ class DisplayFilter:
     @property
     def needs_analysis(self) -> bool:
         return any(r.kind == ANALYSIS for r in self.refs)
-
-    @property
-    def needs_record(self) -> bool:
-        return any(r.names[0] in RECORD_FIELDS for r in self.refs)
 
 
 def parse(text: str) -> DisplayFilter:

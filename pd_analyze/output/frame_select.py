@@ -89,7 +89,7 @@ def views(path: str, settings: Settings, dissector: Dissector, flt: DisplayFilte
           refs: list[FieldRef], every_frame: bool) -> Iterator[FrameView]:
     """The frames of one capture the filter keeps, in frame order: every frame (`every_frame`) or only
     PNIO RPC frames. The analysis is read first when the filter or the fields name analysis fields."""
-    needs_notes = any(r.kind == ANALYSIS for r in [*refs, *(flt.refs if flt is not None else ())])
+    needs_notes = any(r.kind == ANALYSIS for r in refs) or (flt is not None and flt.needs_analysis)
     if path == "-":
         if needs_notes:
             raise UsageError("txn.* and finding.* need the capture read twice: give a file, not - (standard "

@@ -28,7 +28,6 @@ from pd_analyze.protocol.frames import FrameResult
 LAYERS, FRAME, ANALYSIS = "layers", "frame", "analysis"
 # the frame's own fields: from the result or the record, not from a layer
 FRAME_FIELDS = frozenset({"frame.no", "frame.ts", "frame.iface", "frame.linktype", "frame.caplen"})
-RECORD_FIELDS = frozenset({"frame.iface", "frame.linktype", "frame.caplen"})  # known from the record only
 _INDEXES = re.compile(r"\[(?:\d+|[ijk])\]")
 
 
