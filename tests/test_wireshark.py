@@ -320,3 +320,15 @@ def test_comments_are_the_same_whichever_path_reads_the_capture(name: str) -> No
         said.append([(note.frame, note.comment()) for note in notes])
         notes.close()
     assert said[0] == said[1] and said[0]
+
+
+def test_companion_pdus_share_their_calls_key() -> None:
+    """extract writes the FACK, ping, working and ack PDUs of a kept call by its (activity, sequence number):
+    on a CL-fragmented write and read, every FACK and the retransmitted fragment carry their call's key."""
+    from pd_analyze.output.extract import _call
+    from pd_analyze.protocol.dissector import dissect
+
+    activity = "000000ac-0000-1000-8000-000000000001"
+    keys = {r.frame: _call(r) for r in dissect(str(SAMPLES / "cl_fragments_fack.pcapng"),
+                                                  dissector=Dissector(annotate=True))}
+    assert keys == {n: (activity, 1 if n <= 7 else 2) for n in range(1, 12)}
