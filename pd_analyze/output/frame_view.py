@@ -37,8 +37,17 @@ def plain(name: str) -> str:
     return _INDEXES.sub("", name) if "[" in name else name
 
 
-def _own_names() -> dict[str, str]:
-    return {plain(name): name for name in registry.FIELDS}
+@lru_cache(maxsize=65_536)
+def template_of(name: str) -> str:
+    """registry.template, cached: concrete names repeat frame after frame."""
+    return registry.template(name)
+
+
+def _own_names() -> dict[str, tuple[str, ...]]:
+    out: dict[str, list[str]] = {}
+    for name in registry.FIELDS:  # pd.val[i].value[j] and pd.val[i].value are both pd.val.value
+        out.setdefault(plain(name), []).append(name)
+    return {name: tuple(names) for name, names in out.items()}
 
 
 def _tshark_names() -> dict[str, tuple[str, ...]]:
@@ -46,12 +55,12 @@ def _tshark_names() -> dict[str, tuple[str, ...]]:
     for name, fdef in registry.FIELDS.items():
         for alias in (fdef.tshark or "").split("|"):
             if alias:
-                out.setdefault(alias, []).append(plain(name))
+                out.setdefault(alias, []).append(name)
     return {alias: tuple(names) for alias, names in out.items()}
 
 
-OWN = _own_names()  # plain name -> registry (template) name
-TSHARK = _tshark_names()  # tshark name -> plain registry names
+OWN = _own_names()  # name without indexes -> registry (template) names
+TSHARK = _tshark_names()  # tshark name -> registry (template) names
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,7 +69,7 @@ class FieldRef:
 
     text: str
     kind: str  # LAYERS, FRAME or ANALYSIS
-    names: tuple[str, ...]  # plain registry names it covers
+    names: tuple[str, ...]  # registry (template) names it covers
     fdef: registry.FieldDef  # the (first) registry entry: its type decides what a literal may be
     exact: str = ""  # a concrete indexed name (pd.addr[1].pnu): only that occurrence
     width: int = -1  # a tshark name that takes the values of one width in bytes (0: floats); -1 all
@@ -71,19 +80,19 @@ def resolve(name: str) -> FieldRef | None:
     4.0 name of a registry field; None when it is neither."""
     if "[" in name:
         if name in registry.FIELDS:  # the template itself: every occurrence
-            return resolve(plain(name))
+            return FieldRef(name, LAYERS, (name,), registry.FIELDS[name])
         template = registry.template(name)
         if template not in registry.FIELDS:
             return None
-        return FieldRef(name, LAYERS, (plain(name),), registry.FIELDS[template], exact=name)
-    own = OWN.get(name)
-    if own is not None:
-        return FieldRef(name, _kind(name), (name,), registry.FIELDS[own])
-    names = TSHARK.get(name)
+        return FieldRef(name, LAYERS, (template,), registry.FIELDS[template], exact=name)
+    names = OWN.get(name)
+    width = -1
     if names is None:
-        return None
-    return FieldRef(name, _kind(names[0]), names, registry.FIELDS[OWN[names[0]]],
-                    width=registry.TSHARK_VALUE_WIDTH.get(name, -1))
+        names = TSHARK.get(name)
+        if names is None:
+            return None
+        width = registry.TSHARK_VALUE_WIDTH.get(name, -1)
+    return FieldRef(name, _kind(names[0]), names, registry.FIELDS[names[0]], width=width)
 
 
 def _kind(plain_name: str) -> str:
@@ -122,7 +131,7 @@ class FrameView:
         if self._index is None:
             self._index = {}
             for f in self.result.fields():  # type: ignore[union-attr]
-                self._index.setdefault(plain(f.name), []).append(f)
+                self._index.setdefault(template_of(f.name), []).append(f)
         return self._index
 
     def values(self, ref: FieldRef) -> list[object]:
