@@ -332,3 +332,12 @@ def test_companion_pdus_share_their_calls_key() -> None:
     keys = {r.frame: _call(r) for r in dissect(str(SAMPLES / "cl_fragments_fack.pcapng"),
                                                   dissector=Dissector(annotate=True))}
     assert keys == {n: (activity, 1 if n <= 7 else 2) for n in range(1, 12)}
+
+
+def test_value_str_names_only_the_string_values() -> None:
+    """pd.val[i].value (strings, octet strings) and pd.val[i].value[j] (numbers) share the indexless name
+    pd.val.value; tshark's value_str is only the first (tshark itself misreads frame 16: protocol.md 8.3 #1)."""
+    r = run("dump", SAMPLES / "pd_commissioning.pcap", "-T", "fields", "-e", "pn_io.profidrive.parameter.value_str",
+            "-e", "pd.val.value", "--frames", "16")
+    assert r.stdout.decode().split("\t")[0] == "SINAMICS G120,deadbeef01,Pump 1"
+    assert r.stdout.decode().split("\t")[1].startswith("SINAMICS G120,deadbeef01,Pump 1,0x02b32c953bed,")
