@@ -14,6 +14,7 @@ import click
 
 from pd_analyze.analysis.capture_run import Settings
 from pd_analyze.capture import CaptureError
+from pd_analyze.model.verdicts import VERDICTS
 from pd_analyze.output import dump
 from pd_analyze.output.capture_copy import Copied, UsageError
 from pd_analyze.output.display_filter import DisplayFilter, FilterError, parse
@@ -120,7 +121,7 @@ def annotate_command(capture: str, out: str, flt: str | None, profile: str, time
 @click.command("extract", epilog=EXTRACT_EXAMPLES)
 @_common
 @click.option("--verdict", metavar="LIST", default="", help="Transactions with one of these verdicts, e.g. "
-              "nak,timeout,pnio_error (ok, nak, reference_mismatch, timeout, pnio_error, malformed).")
+              f"nak,timeout,pnio_error ({', '.join(VERDICTS)}).")
 @click.option("--pnu", metavar="LIST", default="", help="Transactions addressing one of these parameters, "
               "e.g. 964,2000.")
 @click.option("--device", metavar="LIST", default="", help="Transactions with one of these devices (IP).")

@@ -14,6 +14,7 @@ from types import MappingProxyType
 
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model import values as t
+from pd_analyze.model.verdicts import VERDICTS
 
 # Field types: how a value is held and shown.
 UINT, HEX, INT, BYTES, UUID, IPV4, FLOAT, TIME, TEXT, FLAGS, FRAMEREF, LIST = (
@@ -199,7 +200,7 @@ _FIELDS = _defs(
     # what the analysis says of a frame (display filters, `-T fields`): of the transactions it belongs to
     # and of the findings at it, as the report's tables hold them
     F("txn.id", UINT, "Transaction the frame belongs to (the tables' txn)"),
-    F("txn.verdict", TEXT, "Verdict of that transaction: ok, nak, reference_mismatch, timeout, pnio_error, malformed"),
+    F("txn.verdict", TEXT, f"Verdict of that transaction: {', '.join(VERDICTS)}"),
     F("finding.rule", TEXT, "Rule id of a finding at the frame (protocol.md 6), e.g. H5"),
     F("finding.severity", TEXT, "Severity of a finding at the frame: error, warning or info"),
 )
