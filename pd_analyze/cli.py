@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import click
 
-from pd_analyze import __version__
+from pd_analyze import __version__, cli_wireshark
 from pd_analyze.analysis.capture_run import Settings
 from pd_analyze.capture import CaptureError
 from pd_analyze.model.fields import FIELDS
@@ -33,6 +33,7 @@ Examples:
   pd-analyze dump capture.pcap.gz --findings-only
   pd-analyze dump capture.pcapng --format json | jq .summary
   tcpdump -w - udp | pd-analyze dump -
+  pd-analyze dump trace.pcap -Y 'pd.addr.pnu == 964 and txn.verdict == "nak"' -T fields -e frame.number -e pd.ref
 """
 
 
@@ -136,14 +137,16 @@ def profile_option(func: Callable) -> Callable:
 @click.option("-r", "--read", "read", metavar="FILE", help="Capture to read (as tshark -r); - for stdin.")
 @click.option("--frames", "frames", metavar="LIST", help="Only these frames, e.g. 1,5-9,20-.")
 @click.option("--findings-only", is_flag=True, help="Only frames with findings, and only the findings.")
-@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
-              help="text: indented tree; json: JSON Lines, one object per PNIO RPC frame.")
+@click.option("--format", "-T", "fmt", type=click.Choice(["text", "json", "fields"]), default="text", show_default=True,
+              help="text: indented tree; json: JSON Lines, one object per PNIO RPC frame; fields: see -e.")
+@cli_wireshark.dump_options
 @click.option("--color/--no-color", default=None, help="Colour the text output (default: on a terminal).")
 @click.option("--rpc-timeout", type=SECONDS, default=DEFAULT_RPC_TIMEOUT,
               show_default=True, help="Seconds of capture time before a request counts as unanswered.")
 @profile_option
 def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None, findings_only: bool,
-                 fmt: str, color: bool | None, rpc_timeout: float, profile: str) -> None:
+                 fmt: str, flt: str | None, field_names: tuple[str, ...], field_options: tuple[str, ...],
+                 color: bool | None, rpc_timeout: float, profile: str) -> None:
     """Every PNIO RPC frame as a tree of layers and fields: offset, bytes, value, meaning, check."""
     paths = _inputs(captures, read)
     checker = _checker(profile)
@@ -153,6 +156,10 @@ def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None
         raise click.BadParameter(str(exc), param_hint="--frames") from None
     colour = sys.stdout.isatty() if color is None else color
     style = _style(colour and fmt == "text")
+    if flt is not None or fmt == "fields" or field_names:  # the frames a filter selects, or -T fields
+        out = _lines(colour and fmt == "text")
+        sys.exit(cli_wireshark.fields_dump(paths, Settings(profile, rpc_timeout=rpc_timeout), checker, flt, fmt,
+                 field_names, field_options, wanted, lambda found: dump.render(found, fmt, out, style, findings_only)))
     status = EXIT_OK
     for path in paths:
         if len(paths) > 1 and fmt == "text":
@@ -434,6 +441,9 @@ def fields_command(fmt: str) -> None:
         else:
             click.echo(f"{f.name:<24} {f.type:<6} {f.tshark or '-':<44} {f.description}")
 
+
+for _command in (cli_wireshark.annotate_command, cli_wireshark.extract_command):
+    main.add_command(_command)
 
 if __name__ == "__main__":
     main()

@@ -124,3 +124,27 @@ def _read(path: str, stream: BinaryIO, size: int, offset: int) -> bytes:
         return stream.read(size)
     except (OSError, EOFError, zlib.error) as exc:
         raise CaptureError(path, f"read failed ({read_failure(exc)})", offset) from None
+
+
+def pcap_records(path: str, stream: BinaryIO, head: bytes) -> Iterator[tuple[bytes, int, int, int, int]]:
+    """Every record of a classic pcap whose 24-byte file header `head` was read, as it is in the file:
+    (record bytes with their 16-byte header, seconds, fraction, caplen, original length). For writing a
+    copy (annotate, extract): frame numbers are the records' order, as `pcap_frames` counts them."""
+    little = pcap_header(path, head)[0]
+    unpack = struct.Struct("<IIII" if little else ">IIII").unpack
+    pos = 24
+    while True:
+        hdr = _read(path, stream, 16, pos)
+        if not hdr:
+            return
+        if len(hdr) < 16:
+            raise CaptureError(path, f"record header truncated ({len(hdr)} of 16 bytes present)", pos)
+        sec, frac, caplen, orig = unpack(hdr)
+        if caplen > MAX_CAPLEN:
+            raise CaptureError(path, f"record length {caplen} exceeds {MAX_CAPLEN} bytes (corrupt record header)",
+                               pos)
+        data = _read(path, stream, caplen, pos + 16)
+        if len(data) < caplen:
+            raise CaptureError(path, f"record data truncated ({len(data)} of {caplen} bytes present)", pos)
+        yield hdr + data, sec, frac, caplen, orig
+        pos += 16 + caplen

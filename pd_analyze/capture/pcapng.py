@@ -168,3 +168,48 @@ def _packet_header(order: str, btype: int, buf: bytes, at: int) -> tuple[int, in
     # obsolete Packet Block: interface id and drops count are 16-bit each
     iface_id, _drops, ts_high, ts_low, caplen = struct.unpack_from(order + "HHIII", buf, at + 8)
     return iface_id, ts_high, ts_low, caplen
+
+
+class Block(NamedTuple):
+    """One pcapng block as it is in the file, for writing a copy (annotate, extract). `number` is the frame
+    number of a packet block (as `pcapng_frames` counts them), 0 for any other block."""
+
+    raw: bytes
+    btype: int
+    little: bool
+    number: int = 0
+    ts: float = 0.0
+    linktype: int = 0
+    data_at: int = 0  # where the frame's bytes start in raw
+    caplen: int = 0
+    iface: int = 0
+    divisor: float = 1e6  # the interface's timestamp units per second
+    ts_offset: int = 0  # and its if_tsoffset, seconds
+    stamp: int = -1  # a classic pcap record's time in those units (records.py); -1 for pcapng blocks
+    orig_len: int = 0  # a classic pcap record's original length (records.py)
+
+
+def pcapng_blocks(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[Block]:
+    """Every block of a pcapng file, checked and counted as `pcapng_frames` reads them."""
+    pos = 0
+    section = Section()
+    while True:
+        head = _read_exact(path, stream, 8, pos, allow_eof=True)
+        if not head:
+            return
+        if struct.unpack("<I", head[:4])[0] == PCAPNG_SHB:
+            section.little = _shb_little(path, stream, pos)
+            section.ifaces = []
+        blen = block_length(path, head, 0, section.little, pos)
+        block = head + _read_exact(path, stream, blen - 8, pos)
+        packet = read_block(path, section, info, block, 0, pos)
+        btype = struct.unpack_from("<I" if section.little else ">I", block)[0]
+        if packet is None:
+            yield Block(block, btype, section.little)
+        else:
+            ts, linktype, start, caplen, iface_id = packet
+            iface = section.ifaces[iface_id]
+            yield Block(block, btype, section.little, section.number, ts, linktype, start, caplen, iface_id,
+                        iface.divisor, iface.offset)
+        pos += blen
+

@@ -14,6 +14,7 @@ from types import MappingProxyType
 
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model import values as t
+from pd_analyze.model.verdicts import VERDICTS
 
 # Field types: how a value is held and shown.
 UINT, HEX, INT, BYTES, UUID, IPV4, FLOAT, TIME, TEXT, FLAGS, FRAMEREF, LIST = (
@@ -28,12 +29,17 @@ class FieldDef:
     values: Mapping[int, str] | None = None
     tshark: str | None = None
     flags: Mapping[int, str] | None = None  # bit names for FLAGS fields
+    # how tshark 4.0 prints the field's value in `-T fields` where it differs from what the type says
+    # (its own base: SHOWN_HEX, SHOWN_DEC, SHOWN_DATE, SHOWN_RELTIME); "" as the type says
+    tshark_shown: str = ""
 
 
 def _defs(*defs: FieldDef) -> dict[str, FieldDef]:
     return {d.name: d for d in defs}
 
 
+# tshark's bases where they differ from the registry type (seen in `tshark -T fields` output, 4.0.17)
+SHOWN_HEX, SHOWN_DEC, SHOWN_DATE, SHOWN_RELTIME = "hex", "dec", "date", "reltime"
 F = FieldDef
 _PD = "pn_io.profidrive.parameter"
 _FIELDS = _defs(
@@ -87,12 +93,13 @@ _FIELDS = _defs(
     F("rpc.flags2", FLAGS, "Flags2", tshark="dcerpc.dg_flags2", flags=t.RPC_FLAGS2),
     F("rpc.drep", BYTES, "Data representation: integer order/charset, float, reserved",
       tshark="dcerpc.drep"),
-    F("rpc.serial_hi", UINT, "Serial number, high byte", tshark="dcerpc.dg_serial_hi"),
+    F("rpc.serial_hi", UINT, "Serial number, high byte", tshark="dcerpc.dg_serial_hi", tshark_shown=SHOWN_HEX),
     F("rpc.object", UUID, "Object UUID (dea00000-...-IIIIDDDDVVVV for PNIO)", tshark="dcerpc.obj_id"),
     F("rpc.interface", UUID, "Interface UUID", tshark="dcerpc.dg_if_id"),
     F("rpc.activity", UUID, "Activity UUID (client's; same in request and response)",
       tshark="dcerpc.dg_act_id"),
-    F("rpc.boot_time", UINT, "Server boot time", tshark="dcerpc.dg_server_boot"),
+    F("rpc.boot_time", UINT, "Server boot time", tshark="dcerpc.dg_server_boot",
+      tshark_shown=SHOWN_DATE),
     F("rpc.if_version", UINT, "Interface version", tshark="dcerpc.dg_if_ver"),
     F("rpc.seq", UINT, "Sequence number", tshark="dcerpc.dg_seqnum"),
     F("rpc.opnum", UINT, "Operation number", t.PNIO_OPNUM, tshark="dcerpc.opnum"),
@@ -101,12 +108,12 @@ _FIELDS = _defs(
     F("rpc.frag_len", UINT, "Fragment body length", tshark="dcerpc.dg_frag_len"),
     F("rpc.frag_num", UINT, "Fragment number", tshark="dcerpc.dg_frag_num"),
     F("rpc.auth_proto", UINT, "Authentication protocol (0 none)", tshark="dcerpc.dg_auth_proto"),
-    F("rpc.serial_lo", UINT, "Serial number, low byte", tshark="dcerpc.dg_serial_lo"),
+    F("rpc.serial_lo", UINT, "Serial number, low byte", tshark="dcerpc.dg_serial_lo", tshark_shown=SHOWN_HEX),
     F("rpc.fault_status", HEX, "NCA status of a fault/reject", t.NCA_STATUS, tshark="dcerpc.dg_status"),
     F("rpc.body", BYTES, "PDU body not decoded further"),
     F("rpc.request_frame", FRAMEREF, "Frame of the request this PDU answers", tshark="dcerpc.request_in"),
     F("rpc.response_frame", FRAMEREF, "Frame of the response to this request", tshark="dcerpc.response_in"),
-    F("rpc.rtt", FLOAT, "Seconds from request to response", tshark="dcerpc.time"),
+    F("rpc.rtt", FLOAT, "Seconds from request to response", tshark="dcerpc.time", tshark_shown=SHOWN_RELTIME),
     F("rpc.reassembled_in", FRAMEREF, "Frame in which this fragment's PDU is reassembled",
       tshark="dcerpc.reassembled_in"),
     F("rpc.fragments", LIST, "Frames of the fragments of a reassembled body"),
@@ -115,8 +122,8 @@ _FIELDS = _defs(
     F("ndr.args_max", UINT, "ArgsMaximum: largest response args the client accepts", tshark="pn_io.args_max"),
     F("ndr.status.code", HEX, "PNIOStatus ErrorCode", t.PNIO_ERROR_CODE, tshark="pn_io.error_code"),
     F("ndr.status.decode", HEX, "PNIOStatus ErrorDecode", t.PNIO_ERROR_DECODE, tshark="pn_io.error_decode"),
-    F("ndr.status.code1", HEX, "PNIOStatus ErrorCode1", tshark="pn_io.error_code1"),
-    F("ndr.status.code2", HEX, "PNIOStatus ErrorCode2", tshark="pn_io.error_code2"),
+    F("ndr.status.code1", HEX, "PNIOStatus ErrorCode1", tshark="pn_io.error_code1", tshark_shown=SHOWN_DEC),
+    F("ndr.status.code2", HEX, "PNIOStatus ErrorCode2", tshark="pn_io.error_code2", tshark_shown=SHOWN_DEC),
     F("ndr.args_len", UINT, "ArgsLength = stub length - 20", tshark="pn_io.args_len"),
     F("ndr.max_count", UINT, "Array MaximumCount", tshark="pn_io.array_max_count"),
     F("ndr.offset", UINT, "Array Offset", tshark="pn_io.array_offset"),
@@ -130,7 +137,7 @@ _FIELDS = _defs(
     F("iod.seq", UINT, "SeqNumber", tshark="pn_io.seq_number"),
     F("iod.ar_uuid", UUID, "ARUUID", tshark="pn_io.ar_uuid"),
     F("iod.api", HEX, "API", t.API, tshark="pn_io.api"),
-    F("iod.slot", UINT, "SlotNumber", tshark="pn_io.slot_nr"),
+    F("iod.slot", UINT, "SlotNumber", tshark="pn_io.slot_nr", tshark_shown=SHOWN_HEX),
     F("iod.subslot", HEX, "SubslotNumber", tshark="pn_io.subslot_nr"),
     F("iod.pad", HEX, "Padding", tshark="pn.padding"),
     F("iod.index", HEX, "Index", t.RECORD_INDEX, tshark="pn_io.index"),
@@ -140,14 +147,17 @@ _FIELDS = _defs(
     F("iod.status.code", HEX, "PNIOStatus ErrorCode (block)", t.PNIO_ERROR_CODE, tshark="pn_io.error_code"),
     F("iod.status.decode", HEX, "PNIOStatus ErrorDecode (block)", t.PNIO_ERROR_DECODE,
       tshark="pn_io.error_decode"),
-    F("iod.status.code1", HEX, "PNIOStatus ErrorCode1 (block)", tshark="pn_io.error_code1"),
-    F("iod.status.code2", HEX, "PNIOStatus ErrorCode2 (block)", tshark="pn_io.error_code2"),
+    F("iod.status.code1", HEX, "PNIOStatus ErrorCode1 (block)", tshark="pn_io.error_code1",
+      tshark_shown=SHOWN_DEC),
+    F("iod.status.code2", HEX, "PNIOStatus ErrorCode2 (block)", tshark="pn_io.error_code2",
+      tshark_shown=SHOWN_DEC),
     F("iod.target_ar_uuid", UUID, "TargetARUUID (implicit read)", tshark="pn_io.target_ar_uuid"),
     F("iod.rw_pad", BYTES, "RWPadding", tshark="pn.padding"),
     F("iod.multi_pad", BYTES, "Write-Multiple alignment padding"),
     F("record.data", BYTES, "Record data (not decoded)"),
     # PROFIdrive parameter request / response (protocol.md 3; tshark prefix pn_io.profidrive.parameter)
-    F("pd.ref", UINT, "Request Reference (response: mirrored)", tshark=f"{_PD}.request_reference"),
+    F("pd.ref", UINT, "Request Reference (response: mirrored)", tshark=f"{_PD}.request_reference",
+      tshark_shown=SHOWN_HEX),
     F("pd.req_id", HEX, "Request ID", pt.REQUEST_ID, tshark=f"{_PD}.request_id"),
     F("pd.resp_id", HEX, "Response ID", pt.RESPONSE_ID, tshark=f"{_PD}.response_id"),
     F("pd.do", UINT, "DO-ID (axis / drive object)", tshark=f"{_PD}.do"),
@@ -159,13 +169,14 @@ _FIELDS = _defs(
     F("pd.val[i].format", HEX, "Format (data type)", pt.FORMAT_NAME, tshark=f"{_PD}.format"),
     F("pd.val[i].n_values", UINT, "No. of values (strings: characters)", tshark=f"{_PD}.no_of_values"),
     F("pd.val[i].value[j]", TEXT, "One value, decoded by its format",
-      tshark=f"{_PD}.value_b|{_PD}.value_w|{_PD}.value_dw|{_PD}.value_float"),
+      tshark=f"{_PD}.value_b|{_PD}.value_w|{_PD}.value_dw|{_PD}.value_float", tshark_shown=SHOWN_HEX),
     F("pd.val[i].value", TEXT, "String/octet-string value of No.-of-values characters or bytes",
       tshark=f"{_PD}.value_str"),
     F("pd.val[i].pad", HEX, "Word-alignment pad byte after an odd value list"),
     F("pd.val[i].error", HEX, "Error number", MappingProxyType({k: v.text for k, v in pt.ERRORS.items()}),
       tshark=f"{_PD}.error_num"),
-    F("pd.val[i].error_subindex", UINT, "Subindex of the first faulty element", tshark=f"{_PD}.error_subindex"),
+    F("pd.val[i].error_subindex", UINT, "Subindex of the first faulty element", tshark=f"{_PD}.error_subindex",
+      tshark_shown=SHOWN_HEX),
     F("pd.val[i].desc.identifier", HEX, "Description: identifier (data type and flags)"),
     F("pd.val[i].desc.elements", UINT, "Description: number of array elements / string length"),
     F("pd.val[i].desc.standardisation_factor", FLOAT, "Description: standardisation factor"),
@@ -186,8 +197,19 @@ _FIELDS = _defs(
     F("pd.echo", BYTES, "Parameter address echoed before the first block (AKD manual layout)"),
     F("pd.trailing", BYTES, "Bytes after the parsed parameter request/response"),
     F("record.trailing", BYTES, "Bytes after the record that RecordDataLength does not cover"),
+    # what the analysis says of a frame (display filters, `-T fields`): of the transactions it belongs to
+    # and of the findings at it, as the report's tables hold them
+    F("txn.id", UINT, "Transaction the frame belongs to (the tables' txn)"),
+    F("txn.verdict", TEXT, f"Verdict of that transaction: {', '.join(VERDICTS)}"),
+    F("finding.rule", TEXT, "Rule id of a finding at the frame (protocol.md 6), e.g. H5"),
+    F("finding.severity", TEXT, "Severity of a finding at the frame: error, warning or info"),
 )
 FIELDS: Mapping[str, FieldDef] = MappingProxyType(_FIELDS)
+ANALYSIS_FIELDS = frozenset({"txn.id", "txn.verdict", "finding.rule", "finding.severity"})
+
+# tshark names one registry field splits by the value's width in bytes (0: a float value)
+TSHARK_VALUE_WIDTH: Mapping[str, int] = MappingProxyType({
+    f"{_PD}.value_b": 1, f"{_PD}.value_w": 2, f"{_PD}.value_dw": 4, f"{_PD}.value_float": 0})
 
 
 _INDEX = re.compile(r"\[\d+\]")
