@@ -15,6 +15,7 @@ from pd_analyze.analysis.schema import ChangeRow, FindingRow, ParameterRow, Tran
 from pd_analyze.analysis.transaction import Element, Transaction, elements, param_label
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.rules import Finding
+from pd_analyze.model.values import status_text
 from pd_analyze.model.verdicts import ANSWERED
 from pd_analyze.protocol.link import ip_text
 from pd_analyze.protocol.profidrive import Address, Block
@@ -118,6 +119,7 @@ class Rows:
             number, capture, device, controller, ar, index, v[3], v[4], v[5],
             _int(txn.ref), _hex(txn.req_id), _int(txn.do), _int(txn.n_params), param_label(txn),
             _hex(response.ident) if response is not None else "", txn.verdict, " ".join(errors), txn.pnio_status,
+            status_text(txn.pnio_status),
             txn.b5_retries, len(txn.read_req_frames), txn.rpc_retransmissions, txn.write_req_frame,
             txn.write_res_frame or None, " ".join(map(str, txn.read_req_frames)), txn.read_res_frame or None,
             " ".join(map(str, sorted(txn.frames))),

@@ -54,6 +54,8 @@ COLUMNS: Mapping[str, tuple[Column, ...]] = MappingProxyType({
         ("verdict", VERDICT, "malformed, pnio_error, timeout, reference_mismatch, nak or ok"),
         ("errors", "string", "PROFIdrive errors per parameter, e.g. P964[0]:0x02"),
         ("pnio_status", "string", "PNIOStatus that closed the transaction (8 hex digits), empty when none"),
+        ("pnio_error_text", "string", "that status in words, e.g. DF80C300 write: resource unavailable "
+                                      "(an RPC fault's NCA status likewise)"),
         ("b5_retries", "Int64", "reads answered B5 (state conflict: not ready)"),
         ("reads", "Int64", "read calls"),
         ("rpc_retransmissions", "Int64", "duplicate request PDUs"),

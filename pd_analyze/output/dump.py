@@ -152,6 +152,8 @@ def _check_role(check: str) -> str:
     for sev in (ERROR, WARNING, INFO):
         if f" {sev}:" in check:
             return sev
+    if check.startswith("failed: "):  # a PNIOStatus reporting a failed record service
+        return ERROR
     return "warning" if "BREAKS" in check else "dim"
 
 

@@ -22,6 +22,7 @@ from pd_analyze.analysis.rows import Rows, finding_row
 from pd_analyze.analysis.schema import COLUMNS, micros
 from pd_analyze.analysis.table_batches import TIME_TYPE, batch_schema, rows_to_batch
 from pd_analyze.model import pd_values as pt
+from pd_analyze.model.values import status_text
 from pd_analyze.model.verdicts import ANSWERED
 
 _NAMES = ("transactions", "parameters", "findings", "changes")
@@ -199,7 +200,8 @@ class TableBuilder:
             pa.array([t.n_params if t.n_params >= 0 else None for t in txns], integer),
             pa.array([" ".join(p) for p in params], text), pa.array(resp_id, text),
             pa.array([t.verdict for t in txns], text), pa.array([" ".join(e) for e in errors], text),
-            pa.array([t.pnio_status for t in txns], text), pa.array([t.b5 for t in txns], integer),
+            pa.array([t.pnio_status for t in txns], text),
+            pa.array([status_text(t.pnio_status) for t in txns], text), pa.array([t.b5 for t in txns], integer),
             pa.array([len(t.read_frames) for t in txns], integer), pa.array([0] * len(txns), integer),
             pa.array([t.write_frame for t in txns], integer),
             pa.array([t.write_res_frame or None for t in txns], integer),
