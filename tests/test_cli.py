@@ -114,7 +114,7 @@ def test_profiles_and_fields_listing():
     r = run("profiles")
     out = r.stdout.decode()
     assert r.returncode == 0 and out.splitlines()[0].split() == ["limit", "generic", "akd", "sinamics", "yaskawa"]
-    assert "000_8871e7857f299724.txt" in out
+    assert "Yaskawa SI-EP3 PROFINET Technical Manual SIEP C730600 89E, p. 38" in out
     r = run("fields")
     assert "pd.addr[i].pnu" in r.stdout.decode() and "pn_io.profidrive.parameter.number" in r.stdout.decode()
 

@@ -258,7 +258,7 @@ def test_vendor_limits_name_their_seed():
     p, found = req(read_request(1, 0, [ParamAddress(5, attr=0x20), ParamAddress(6)]), yaskawa)
     assert names(found) == ["vendor_limit"] * 3
     assert {f.field for f in found} == {"pd.do", "pd.n_params", "pd.addr[0].attr"}
-    assert all(f.source.startswith("000_8871e7857f299724.txt") for f in found)
+    assert all(f.source.startswith("Yaskawa SI-EP3 PROFINET Technical Manual SIEP C730600 89E, p. 38") for f in found)
     assert all(f.severity == "warning" for f in found)
     assert yaskawa.describe("request.n_params", 2) == "generic 1 ... 39: ok; yaskawa 1: BREAKS (vendor_limit)"
 

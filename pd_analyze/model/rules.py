@@ -21,9 +21,9 @@ MALFORMED, PROTOCOL, SEQUENCE, COMMENT = "malformed", "protocol", "sequence", "c
 IEC = "IEC 61158-6-10"
 DCE = "DCE 1.1 CL-RPC"
 PCAP = "pcap/pcapng file format"
-YASKAWA_EP3 = "000_8871e7857f299724.txt"
-AKD = "003_8e0163ef8c5e11f4.txt"
-PD = "PROFIdrive profile V4.2"
+YASKAWA_EP3 = "Yaskawa SI-EP3 PROFINET Technical Manual SIEP C730600 89E, p. 38"
+AKD = "Kollmorgen AKD PROFINET manual, parameter request/response tables"
+PD = "PROFIdrive profile V4.2, Base Mode Parameter Access"
 
 
 @dataclass(frozen=True, slots=True)

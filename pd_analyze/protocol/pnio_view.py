@@ -7,8 +7,8 @@ from pd_analyze.model.layout import Field, plain
 from pd_analyze.model.values import (
     INDEX_WRITE_MULTIPLE,
     PNIO_ERROR_CODE,
-    PNIO_SERVICE,
     PNIO_OPNUM,
+    PNIO_SERVICE,
     PNIORW_STATE_CONFLICT,
     PROFIDRIVE_INDICES,
     PTYPE_RESPONSE,
