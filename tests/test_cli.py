@@ -72,8 +72,8 @@ def test_decode_sinamics_style_multi_parameter_change():
             "--profile", "sinamics")
     out = r.stdout.decode()
     assert r.returncode == 0
-    for text in ("pd.ref = 64", "pd.n_params = 4", "Parameter address 3: P1057[1..2]",
-                 "Parameter 3: P1057[1..2] FloatingPoint32 x 2", "pd.val[2].value[1] = 2", "no findings"):
+    for text in ("pd.ref = 64", "pd.n_params = 4", "Parameter address [2]: P1057[1..2]",
+                 "Parameter [2]: P1057[1..2] FloatingPoint32 x 2", "pd.val[2].value[1] = 2", "no findings"):
         assert text in out, text
 
 

@@ -171,7 +171,7 @@ def elements_read(txn: Transaction) -> list[tuple[Element, str]]:
         if addr.attr != pt.ATTR_VALUE or block.is_error:
             continue
         keys = elements(txn, addr)
-        values = [cell_text(v) for _, _, v, _ in values_of(block)]
+        values = [cell_text(v, size) for _, size, v, _ in values_of(block)]
         if len(values) == len(keys):
             out += zip(keys, values, strict=True)
         elif len(values) == 1:

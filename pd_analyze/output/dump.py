@@ -154,6 +154,8 @@ def _check_role(check: str) -> str:
             return sev
     if check.startswith("failed: "):  # a PNIOStatus reporting a failed record service
         return ERROR
+    if check.startswith("not ready: "):  # B5 polling: normal while the drive works on the request
+        return WARNING
     return "warning" if "BREAKS" in check else "dim"
 
 

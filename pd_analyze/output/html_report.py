@@ -56,7 +56,7 @@ TRANSACTION_COLS = (
     Col("txn", "txn", "num"), Col("t_start", "time (UTC)", "time"), Col("capture", "capture", "str"),
     Col("device", "device", "str"), Col("controller", "controller", "str"), Col("index", "index", "str"),
     Col("do", "DO", "num"), Col("ref", "ref", "num"), Col("req_id", "req", "str"), Col("params", "parameters", "str"),
-    Col("verdict", "verdict", "verdict"), Col("errors", "errors", "str"), Col("pnio_status", "PNIOStatus", "str"),
+    Col("verdict", "verdict", "verdict"), Col("errors", "errors", "str"), Col("pnio_error_text", "PNIOStatus", "str"),
     Col("b5_retries", "B5", "num"), Col("reads", "reads", "num"), Col("t_write_rtt", "write rtt ms", "ms"),
     Col("t_total", "total ms", "ms"), Col("closed_by", "closed by", "str"), Col("frames", "frames", "str"),
 )
@@ -348,7 +348,7 @@ def _drill_section(failed: pd.DataFrame, shown: pd.DataFrame, drill: dict[int, l
                 "use <code>pd-analyze dump --frames</code> or <code>Analysis.fields(txn)</code> for the others.</p>")
     items = []
     for row in shown.itertuples():
-        what = row.errors or row.pnio_status or ""
+        what = row.errors or row.pnio_error_text or ""
         frames = len(str(row.frames).split())
         items.append(
             f"<details id=\"txn-{int(row.txn)}\" data-txn=\"{int(row.txn)}\"><summary>"

@@ -29,7 +29,10 @@ from pd_analyze.analysis.schema import COLUMNS, FIXED_CATEGORIES, TIME, float_ce
 from pd_analyze.analysis.schema import cell_value as value_of
 
 _FORMULA = re.compile(r"^[=+\-@\t\r]")
-_NUMBER = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$")
+# A number, or a list of numbers separated by single spaces (values_written "-775.375 2225.25"): data a
+# spreadsheet cannot run, so never prefixed; the formula guard is for free text only.
+_NUMBER_TOKEN = r"([+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?|[+-]?inf|nan)"
+_NUMBER = re.compile(rf"^{_NUMBER_TOKEN}( {_NUMBER_TOKEN})*$")
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 _EPOCH_NAIVE = datetime(1970, 1, 1)
 CSV_BATCH_ROWS = 65_536  # rows formatted a column at a time at once (each call costs some microseconds)

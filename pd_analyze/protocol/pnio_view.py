@@ -5,10 +5,11 @@ from __future__ import annotations
 
 from pd_analyze.model.layout import Field, plain
 from pd_analyze.model.values import (
+    ERROR_CODE_READ,
+    ERROR_DECODE_PNIORW,
     INDEX_WRITE_MULTIPLE,
     PNIO_ERROR_CODE,
     PNIO_OPNUM,
-    PNIO_SERVICE,
     PNIORW_STATE_CONFLICT,
     PROFIDRIVE_INDICES,
     PTYPE_RESPONSE,
@@ -29,9 +30,7 @@ def pdu_summary(ptype: int, seq: int, stub: rec.Stub, fragments: int, opnum: int
     kind = "response" if ptype == PTYPE_RESPONSE else "request"
     parts = [f"{op} {kind}", f"seq {seq}"]
     if stub.status is not None and not stub.status.ok:
-        status = stub.status.text()
-        parts.append(f"PNIOStatus {status}" + (" (state conflict: not ready)"
-                                               if stub.status.code1 == PNIORW_STATE_CONFLICT else ""))
+        parts.append(f"PNIOStatus {status_text(stub.status.text())}")
     for block in stub.blocks[:4]:
         text = f"{block.layout.title.split(' ')[0]} api {block.values[rec.B_API]:#x} slot " \
                f"{block.values[rec.B_SLOT]}/{block.values[rec.B_SUBSLOT]:#x} index {block.index:#06x}"
@@ -95,14 +94,21 @@ def explain_status(fields: list[Field], status: rec.Status | None) -> list[Field
             meaning = code2_name(status.decode, status.code1, status.code2)
         elif part == "code" and ".status." in f.name:
             meaning = PNIO_ERROR_CODE.get(status.code, "")
-            service = PNIO_SERVICE.get(status.code)
-            f.check = f"failed: record {service} refused ({status.text()})" if service else \
-                f"failed: {status_text(status.text())}"
+            f.check = status_check(status)
         else:
             continue
         f.show = f"0x{f.value:02x} ({meaning})" if meaning and isinstance(f.value, int) else f.show
         f.shared = None  # shown for this status only: not the Layout's shared text
     return fields
+
+
+def status_check(status: rec.Status) -> str:
+    """The check text of a status that is not OK: B5 on a read is the device saying "not ready yet"
+    (the controller reads again, protocol.md 7.3), anything else a refused record service."""
+    if status.code == ERROR_CODE_READ and status.decode == ERROR_DECODE_PNIORW \
+            and status.code1 == PNIORW_STATE_CONFLICT:
+        return f"not ready: {status_text(status.text())}; the controller reads again"
+    return f"failed: {status_text(status.text())}"
 
 
 def record_layers(block: rec.Block, base: int, depth: int, describe: Describe) -> list[Layer]:

@@ -109,6 +109,7 @@ class TableBuilder:
         rb = np.where(has_res[owner] & (j < np.where(has_res, rc.n_blocks[s], 0)[owner]),
                       rc.first_block[s][owner] + j, -1)
         err = _at(bc.error, rb, -1)
+        err_sub = np.where(err >= 0, _at(bc.error_subindex, rb, -1), -1)
         src = np.where(wb >= 0, wb, rb)
         fmt = _at(bc.format, src, -1)
         fmt_cell = np.where(fmt != pt.FMT_ERROR, fmt, -1)
@@ -127,11 +128,12 @@ class TableBuilder:
             pa.array([numbers[o] for o in owners], pa.int64()),
             pa.array([captures[o] for o in owners], pa.large_string()),
             pa.array(devices, pa.large_string()), pa.array(dos, pa.int64()), pa.array(labels, pa.large_string()),
-            pa.array(pnu, pa.int64()), pa.array(sub, pa.int64()), pa.array(elems, pa.int64()),
+            pa.array(pnu, pa.int64()), _pnu_names(pnu), pa.array(sub, pa.int64()), pa.array(elems, pa.int64()),
             pa.array([_ATTRIBUTE[a] for a in attr.tolist()], pa.large_string()),
             pa.array(["" if f < 0 else _FORMAT[f] for f in fmt_cell.tolist()], pa.large_string()),
             written, read, pa.array([_hex(e) for e in errs], pa.large_string()),
             pa.array([self._error_text(e) if e >= 0 else "" for e in errs], pa.large_string()),
+            pa.array(err_sub, pa.int64(), mask=err_sub < 0),
         ], schema=batch_schema("parameters")))
         # --- per transaction: its label, its errors -------------------------------------------------------
         params: list[list[str]] = [[] for _ in range(n)]
@@ -160,7 +162,7 @@ class TableBuilder:
     def _changes(self, txns: list[Txn], rows: list[int], owners: list[int], labels: list[str], pnu: np.ndarray,
                  sub: np.ndarray, written: pa.Array, errs: list[int], numbers: list[int], captures: list[str],
                  devices: list[str], j: np.ndarray) -> pa.Table:
-        cols: list[list] = [[] for _ in range(12)]
+        cols: list[list] = [[] for _ in range(13)]
         idx = np.array(rows, np.int64)
         values = written.take(pa.array(idx)).to_pylist()
         positions = j[idx].tolist()
@@ -173,11 +175,11 @@ class TableBuilder:
                 result = "ok" if t.verdict in ANSWERED else t.verdict
             before = t.values_before[i] if i < len(t.values_before) else [None]
             for col, cell in zip(cols, (captures[owners[row]], devices[row], t.do, numbers[owners[row]], t.write_frame,
-                                        t.t_start, labels[row], None, None, value, result,
+                                        t.t_start, labels[row], None, None, None, value, result,
                                         " ".join(b for b in before if b is not None) if all(before) else ""),
                                  strict=True):
                 col.append(cell)
-        cols[7], cols[8] = pnu[idx], sub[idx]
+        cols[7], cols[8], cols[9] = pnu[idx], _pnu_names(pnu[idx]), sub[idx]
         return _table("changes", cols)
 
     @staticmethod
@@ -255,3 +257,8 @@ def _table(name: str, cols: list) -> pa.Table:
             arrays.append(pa.array(values, field.type))
         del c
     return pa.Table.from_arrays(arrays, schema=schema)
+
+
+def _pnu_names(pnu: np.ndarray) -> pa.Array:
+    """pd_values.pnu_name of each parameter number ("" for most: only profile parameters have one)."""
+    return pa.array([pt.pnu_name(p) for p in pnu.tolist()], pa.large_string())

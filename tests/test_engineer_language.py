@@ -1,0 +1,186 @@
+"""Issue #16: every output in the engineer's words -- status names, sources a reader can look up,
+one notation, exact floats, standard parameter names, and citations that resolve in docs/protocol.md."""
+
+from __future__ import annotations
+
+import re
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from pd_analyze.analysis.api import analyze
+from pd_analyze.model import pd_values as pt
+from pd_analyze.model.rules import RULES
+from pd_analyze.model.values import status_text
+from pd_analyze.output.writers import neutralise
+from pd_analyze.protocol import profiles
+
+ROOT = Path(__file__).resolve().parent.parent
+SAMPLES = ROOT / "sample_pcaps"
+ERRORS = str(SAMPLES / "pd_b5_and_pnio_errors.pcap")
+NEGATIVE = str(SAMPLES / "pd_negative.pcap")
+SEED_FILE = re.compile(r"\b\d{3}_[0-9a-f]{16}\.txt\b")
+
+
+def run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "pd_analyze.cli", *args], capture_output=True, timeout=120)
+
+
+# --- 1. PNIOStatus explained everywhere ------------------------------------------------------------------
+
+@pytest.mark.parametrize(("status", "text"), [
+    ("DF80C300", "DF80C300 write: resource unavailable"),
+    ("DE80B500", "DE80B500 read: access state conflict (PROFIdrive: response not ready yet / request still "
+                 "processed)"),
+    ("DE80B200", "DE80B200 read: access invalid slot/subslot"),
+    ("DF81CC01", "DF81CC01 write: PNIO CMWRR (write record): AR state not primary"),
+    ("1C010014", "1C010014 RPC fault/reject: nca_server_too_busy"),
+    ("00000000", "00000000 OK"),
+    ("", ""),
+])
+def test_status_text(status, text):
+    assert status_text(status) == text
+
+
+def test_transactions_carry_the_status_in_words():
+    t = analyze(ERRORS).transactions.set_index("txn")
+    assert t.loc[4, "pnio_status"] == "DF80B000"
+    assert t.loc[4, "pnio_error_text"] == ("DF80B000 write: access invalid index (no parameter access point at this "
+                                           "slot/subslot/index)")
+    assert t.loc[8, "pnio_error_text"] == "1C010014 RPC fault/reject: nca_server_too_busy"
+    assert t.loc[1, "pnio_error_text"] == ""
+
+
+def test_dump_names_every_status_byte_and_never_calls_a_failure_ok():
+    out = run("dump", ERRORS, "--frames", "14,28").stdout.decode()
+    assert "ndr.status.code1 = 0xb5 (access: state conflict" in out
+    assert "[not ready: DE80B500 read: access state conflict" in out
+    failed = [line for line in out.splitlines() if "status.code = 0xdf" in line]
+    assert len(failed) == 2  # the NDR status and the IODWriteResHeader's
+    assert all(line.endswith("[failed: DF80B000 write: access invalid index (no parameter access point at this "
+                             "slot/subslot/index)]") for line in failed)
+    assert "iod.status.code1 = 0xb0 (access: invalid index" in out
+    heading = next(line for line in out.splitlines() if line.startswith("Frame 14 "))
+    assert heading.endswith("PNIOStatus DE80B500 read: access state conflict (PROFIdrive: response not ready "
+                            "yet / request still processed)")
+
+
+# --- 2. Sources a reader can look up ------------------------------------------------------------------------
+
+def test_no_source_names_an_internal_file():
+    texts = [r.source for r in RULES.values()] + list(profiles.TOLERATIONS.values())
+    for name in profiles.packaged():
+        texts += [lim.source for lim in profiles.load(name).limits]
+    assert texts and not [t for t in texts if SEED_FILE.search(t)]
+    for path in [*ROOT.joinpath("pd_analyze").rglob("*.*"), ROOT / "README.md", ROOT / "docs" / "protocol.md"]:
+        if path.suffix in (".py", ".toml", ".md", ".js", ".css", ".html"):
+            assert not SEED_FILE.search(path.read_text(encoding="utf-8")), path
+
+
+def test_vendor_limit_cites_title_page_and_table():
+    yaskawa = profiles.load("yaskawa")
+    source = next(lim.source for lim in yaskawa.limits if lim.key == "request.n_params")
+    assert source == "Yaskawa SI-EP3 PROFINET Technical Manual SIEP C730600 89E, p. 38, table 8.10: No. of Parameters 1"
+    sinamics = profiles.load("sinamics")
+    assert next(lim.source for lim in sinamics.limits if lim.key == "request.n_params").startswith(
+        "SINAMICS Function Manual 06/2012, p. 613: ")
+
+
+_CITATION = re.compile(r"protocol\.md(?: sections?| section| §)? ?((?:\d+(?:\.\d+)?(?:\s*(?:-|,|and|/)\s*)?)+)")
+
+
+def _sections() -> set[str]:
+    doc = (ROOT / "docs" / "protocol.md").read_text(encoding="utf-8")
+    return {m.group(1) for m in re.finditer(r"^#{2,3} (\d+(?:\.\d+)?)\.? ", doc, re.M)}
+
+
+def test_every_protocol_md_citation_resolves_in_the_projects_docs():
+    sections = _sections()
+    assert {"1.4", "2.5", "3.6", "4.6", "4.7", "6.3", "7.4", "9"} <= sections
+    cited: dict[str, set[str]] = {}
+    files = [p for p in ROOT.joinpath("pd_analyze").rglob("*") if p.suffix in (".py", ".toml", ".js", ".html")]
+    files += [p for p in ROOT.joinpath("devtools").rglob("*.py")] + [ROOT / "README.md"]
+    for path in files:
+        for m in _CITATION.finditer(path.read_text(encoding="utf-8")):
+            for number in re.findall(r"\d+(?:\.\d+)?", m.group(1)):
+                cited.setdefault(number.rstrip("."), set()).add(path.name)
+    assert len(cited) > 20
+    missing = {n: sorted(where) for n, where in cited.items() if n not in sections}
+    assert not missing
+
+
+def test_readme_links_the_protocol_reference():
+    assert "(docs/protocol.md)" in (ROOT / "README.md").read_text(encoding="utf-8")
+
+
+# --- 3. One notation; numbering of addresses and blocks ---------------------------------------------------
+
+def test_headings_number_addresses_and_blocks_as_the_field_names_do():
+    r = run("decode", "01 01 01 02 10 01 03 c4 00 00 10 03 07 d0 00 00", "--request")
+    out = r.stdout.decode()
+    assert "Parameter address [0]: P964[0] (drive unit identification)" in out
+    assert "Parameter address [1]: P2000[0..2]" in out
+    after = out.split("Parameter address [1]: P2000[0..2]")[1]
+    assert "pd.addr[1].pnu = 2000" in after and "pd.addr[0]" not in after
+
+
+# --- 4. Exact values -----------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize(("raw", "text"), [
+    ("46caa340", "25937.625"), ("3dcccccd", "0.1"), ("44bb8000", "1500"), ("7f7fffff", "3.4028235e+38"),
+    ("00000001", "1e-45"), ("80000000", "-0"), ("c4420000", "-776"),
+])
+def test_float32_is_the_shortest_text_that_reads_back(raw, text):
+    value = struct.unpack(">f", bytes.fromhex(raw))[0]
+    assert pt.float_text(value, 4) == text
+    assert struct.pack(">f", float(text)).hex() == raw
+
+
+def test_float64_shortest_text():
+    assert pt.float_text(0.1, 8) == "0.1"
+    assert pt.float_text(25937.625, 8) == "25937.625"
+    assert pt.float_text(float("nan"), 8) == "nan"
+
+
+def test_dump_and_json_show_the_exact_float():
+    args = ("decode", "01 01 01 01 08 01 46 ca a3 40", "--response")
+    assert "pd.val[0].value[0] = 25937.625" in run(*args).stdout.decode()
+    assert '"value":25937.625,"show":"25937.625"' in run(*args, "--format", "json").stdout.decode()
+
+
+def test_numbers_in_a_csv_cell_are_never_prefixed():
+    assert neutralise("-775.375 2225.25") == "-775.375 2225.25"
+    assert neutralise("-1") == "-1"
+    assert neutralise("-inf nan") == "-inf nan"
+    assert neutralise("=SUM(A1)") == "'=SUM(A1)"
+    assert neutralise("-1 =A1") == "'-1 =A1"
+    assert neutralise("@cmd") == "'@cmd"
+
+
+def test_parameters_error_subindex_column():
+    p = analyze(NEGATIVE).parameters
+    row = p[p.param == "P2000[5]"].iloc[0]
+    assert (row.error, row.error_text, row.error_subindex) == ("0x03", "faulty subindex", 5)
+    assert str(p.dtypes["error_subindex"]) == "Int64"
+    assert p[p.param == "P9999[0]"].error_subindex.isna().all()  # error 0x00 has no second value
+
+
+# --- 5. Standard parameter names -----------------------------------------------------------------------------
+
+def test_pnu_names():
+    assert pt.pnu_name(964) == "drive unit identification"
+    assert pt.pnu_name(947) == "fault number"
+    assert pt.pnu_name(985) == "number list of defined parameters"
+    assert pt.pnu_name(2000) == ""
+    assert pt.pnu_name(2000, {2000: "speed setpoint"}) == "speed setpoint"
+
+
+def test_pnu_name_columns():
+    a = analyze(NEGATIVE)
+    p = a.parameters
+    assert p[p.pnu == 964].pnu_name.unique().tolist() == ["drive unit identification"]
+    assert p[p.pnu == 2000].pnu_name.unique().tolist() == [""]
+    assert list(a.changes.columns[:9]) == ["capture", "device", "do", "txn", "frame", "t", "param", "pnu", "pnu_name"]
