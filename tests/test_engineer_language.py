@@ -184,3 +184,93 @@ def test_pnu_name_columns():
     assert p[p.pnu == 964].pnu_name.unique().tolist() == ["drive unit identification"]
     assert p[p.pnu == 2000].pnu_name.unique().tolist() == [""]
     assert list(a.changes.columns[:9]) == ["capture", "device", "do", "txn", "frame", "t", "param", "pnu", "pnu_name"]
+
+
+# --- 7. dump habits -----------------------------------------------------------------------------------------
+
+RETRIES = str(SAMPLES / "pd_retries_and_duplicates.pcap")
+
+
+def test_findings_only_shows_every_finding_audit_shows_at_its_frame():
+    audit = run("audit", RETRIES, "--fail-on", "never").stdout.decode().splitlines()[:-1]
+    want = sorted((int(line.split(":")[1]), line.split(": ", 1)[1].split()[1]) for line in audit)
+    out = run("dump", RETRIES, "--findings-only").stdout.decode()
+    got, frame = [], 0
+    for line in out.splitlines():
+        if line.startswith("Frame "):
+            frame = int(line.split()[1])
+        elif line.startswith("  ! "):
+            got.append((frame, line.split()[2]))
+    assert sorted(got) == want
+    assert ("28", "T4") in {(str(f), r) for f, r in got}  # a transaction-level finding, at its frame
+    assert "Frame 28 " in out and "! I T4 retry [pd.ref]: retry of the transaction of frame 26" in out
+
+
+def test_a_closed_pipe_ends_quietly_with_the_sigpipe_status():
+    for args in (("dump", NEGATIVE), ("dump", NEGATIVE, "--format", "json"), ("dump", NEGATIVE, "--color")):
+        p = subprocess.Popen([sys.executable, "-m", "pd_analyze.cli", *args], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE)
+        p.stdout.read(10)
+        p.stdout.close()
+        err = p.stderr.read()
+        assert p.wait(timeout=120) == 141, args
+        assert b"Traceback" not in err and b"Exception" not in err
+
+
+def test_frames_beyond_the_capture_are_reported_on_stderr():
+    r = run("dump", str(SAMPLES / "worked_example.pcap"), "--frames", "4,90-100,200-")
+    assert r.returncode == 0 and r.stdout.decode().count("Frame ") == 1
+    assert "pd-analyze: " in r.stderr.decode()
+    assert "--frames 90-100,200- lies beyond the capture's 6 frames" in r.stderr.decode()
+    assert "beyond" not in run("dump", str(SAMPLES / "worked_example.pcap"), "--frames", "4-9").stderr.decode()
+
+
+def test_color_always_never_auto():
+    path = str(SAMPLES / "worked_example.pcap")
+    assert run("dump", path, "--frames", "1", "--color", "always").stdout.startswith(b"\x1b[32mFrame 1\x1b[0m")
+    assert run("dump", path, "--frames", "1", "--color").stdout.startswith(b"\x1b[32mFrame 1")
+    for args in (("--color", "never"), ("--color", "auto"), ("--no-color",), ()):
+        assert b"\x1b" not in run("dump", path, "--frames", "1", *args).stdout, args  # auto: not a terminal
+
+
+def test_time_formats():
+    path = str(SAMPLES / "worked_example.pcap")
+
+    def heads(*args: str) -> list[str]:
+        out = run("dump", path, "--frames", "1,4", *args).stdout.decode()
+        return [line.split("  ")[1] for line in out.splitlines() if line.startswith("Frame ")]
+    assert heads() == ["1767225600.000000", "1767225600.004400"]
+    assert heads("-t", "ud") == ["2026-01-01 00:00:00.000000 UTC", "2026-01-01 00:00:00.004400 UTC"]
+    assert heads("-t", "u") == ["00:00:00.000000", "00:00:00.004400"]
+    assert heads("-t", "r") == ["0.000000", "0.004400"]
+    assert heads("-t", "dd") == ["0.000000", "0.004400"]
+    assert heads("--time-format", "r", "--frames", "4-") == ["0.004400", "0.014600", "0.016300"]
+
+
+def test_dump_accepts_a_directory(tmp_path):
+    for name in ("worked_example.pcap", "write_multiple.pcap"):
+        (tmp_path / name).write_bytes((SAMPLES / name).read_bytes())
+    r = run("dump", str(tmp_path), "--findings-only")
+    assert r.returncode == 0
+    assert [line for line in r.stdout.decode().splitlines() if line.startswith("==> ")] == [
+        f"==> {tmp_path / 'worked_example.pcap'} <==", f"==> {tmp_path / 'write_multiple.pcap'} <=="]
+
+
+# --- 8. No output on unreadable input ------------------------------------------------------------------------
+
+@pytest.mark.parametrize("fmt", ["csv", "parquet", "html"])
+def test_report_on_unreadable_input_writes_nothing(tmp_path, fmt):
+    bad = tmp_path / "notes.pcap"
+    bad.write_text("hello, not a capture")
+    for path in (tmp_path / "absent.pcap", bad):
+        out = tmp_path / f"out-{path.stem}"
+        r = run("report", str(path), "--out", str(out), "--format", fmt)
+        assert r.returncode == 2
+        assert not out.exists()
+        assert b"Wrote" not in r.stderr and r.stderr.decode().startswith(f"pd-analyze: {path}: ")
+
+
+def test_report_names_an_unreadable_file_before_what_it_wrote(tmp_path):
+    r = run("report", str(tmp_path / "absent.pcap"), str(SAMPLES / "worked_example.pcap"), "--out", str(tmp_path / "o"))
+    err = r.stderr.decode()
+    assert r.returncode == 2 and err.index("no such file") < err.index("Wrote ")

@@ -183,6 +183,12 @@ _RULES = (
     R("D1", "dpv1_header", WARNING, PROTOCOL, "PROFIBUS DP-V1", "DP-V1 header inconsistent with the block"),
 )
 RULES: Mapping[str, Rule] = MappingProxyType({r.name: r for r in _RULES})
+# Found by the transaction engine, not by a frame's own decode: pairing a response with its request (Q2-Q5)
+# and the channel rules (protocol.md 6.5). `dump --findings-only` runs the engine to show them too.
+TRANSACTION_RULES = frozenset({
+    "reference_mismatch", "response_id_mismatch", "do_not_mirrored", "n_params_not_mirrored",
+    "write_while_pending", "reference_reused", "retry", "fallback_pairing", "read_without_request",
+    "b5_polling", "txn_evicted"})
 
 
 def finding(name: str, frame: int, field: str, value: object, expected: object, message: str,
