@@ -274,3 +274,23 @@ def test_report_names_an_unreadable_file_before_what_it_wrote(tmp_path):
     r = run("report", str(tmp_path / "absent.pcap"), str(SAMPLES / "worked_example.pcap"), "--out", str(tmp_path / "o"))
     err = r.stderr.decode()
     assert r.returncode == 2 and err.index("no such file") < err.index("Wrote ")
+
+
+def _decoded(hex_bytes: str) -> dict:
+    import json
+
+    return json.loads(run("decode", hex_bytes, "--request", "--format", "json").stdout)
+
+
+@pytest.mark.parametrize(("record", "name", "shown"), [
+    ("01 01 01 01 10 eb 03 c4 00 00", "pd.addr[0].n_elems", "235"),  # a count: decimal in field and finding
+    ("01 03 01 01 10 01 03 c4 00 00", "pd.req_id", "0x03"),  # an ID: hex in both
+    ("01 01 01 01 10 01 03 c4 ff ff", "pd.addr[0].subindex", "65535"),
+])
+def test_a_field_and_its_findings_share_one_notation(record, name, shown):
+    doc = _decoded(record)
+    assert next(f["show"] for f in doc["fields"] if f["name"] == name).split(" ")[0] == shown
+    about = [f for f in doc["findings"] if f["field"] == name]
+    assert about and all(f["value"] == shown and f"{name} = {shown}" in f["message"] for f in about
+                         if f["name"] in ("pd_request_range", "vendor_limit"))
+    assert all(f["value"] == shown for f in about)

@@ -17,6 +17,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
+from pd_analyze.model.fields import value_text
 from pd_analyze.model.rules import AKD, RULES, YASKAWA_EP3
 
 # Limit keys: the field each one constrains and where it applies.
@@ -71,7 +72,7 @@ class Limit:
         return False
 
     def text(self) -> str:
-        hexa = self.key.endswith(("_id", "attribute", "format", "api", ".index"))
+        hexa = value_text(self.field, 0).startswith("0x")  # the registry decides, as for the field itself
         return ", ".join(_num(lo, hexa) if lo == hi else f"{_num(lo, hexa)} ... {_num(hi, hexa)}"
                          for lo, hi in self.ranges)
 
