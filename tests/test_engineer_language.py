@@ -294,3 +294,33 @@ def test_a_field_and_its_findings_share_one_notation(record, name, shown):
     assert about and all(f["value"] == shown and f"{name} = {shown}" in f["message"] for f in about
                          if f["name"] in ("pd_request_range", "vendor_limit"))
     assert all(f["value"] == shown for f in about)
+
+
+# --- 6. The summary answers the commissioning questions ----------------------------------------------------
+
+def test_summary_lists_failed_parameters_per_drive_with_the_reason_and_the_slowest():
+    from pd_analyze.output import report
+
+    text = report.summary(analyze([ERRORS, str(SAMPLES / "pd_timeouts.pcap")]))
+    drives = text.split("Failed, timed-out and refused parameters per drive (device, slot, DO; worst first):\n")[1]
+    drives = drives.split("\n\n")[0].splitlines()
+    assert drives[0] == "  192.168.1.21 slot 1 DO 1: 5"
+    assert "         1  P964[0]: DE80B200 read: access invalid slot/subslot" in drives
+    assert "         1  P964[0]: 1C010014 RPC fault/reject: nca_server_too_busy" in drives
+    assert "         1  P2000[0] P2001[0] P2002[0] ... (39 parameters): DF80B100 write: access write length error " \
+           "(parameter request above the record limit or shorter than its header, or read buffer too small)" in drives
+    assert "         1  P971[0]: timeout: the capture ended before an answer came (after 2 B5 answers)" in drives
+    slowest = text.split("Slowest parameters, ms (write to final response):\n")[1].splitlines()
+    assert slowest[0] == "     111.5  192.168.1.21 slot 1 DO 1 P971[0] (transaction 2)"
+
+
+# --- 10. The HTML report -------------------------------------------------------------------------------------
+
+def test_html_shows_ids_as_words_status_texts_and_parameter_names():
+    from pd_analyze.output import html_report
+
+    page = html_report.render(analyze(ERRORS))
+    assert '"DF80B000 write: access invalid index (no parameter access point at this slot/subslot/index)"' in page
+    assert '"0x02 change parameter (write)"' in page and '"0x01 request parameter, positive"' in page
+    page = html_report.render(analyze(NEGATIVE))
+    assert '"0x81 request parameter, negative"' in page
