@@ -324,3 +324,17 @@ def test_html_shows_ids_as_words_status_texts_and_parameter_names():
     assert '"0x02 change parameter (write)"' in page and '"0x01 request parameter, positive"' in page
     page = html_report.render(analyze(NEGATIVE))
     assert '"0x81 request parameter, negative"' in page
+
+
+def test_values_typed_for_pandas():
+    v = analyze(NEGATIVE).values
+    six = v[(v.param == "P2000[0..5]") & (v.side == "written")]
+    assert six.element.tolist() == [0, 1, 2, 3, 4, 5] and six.value.tolist() == [1, 2, 3, 4, 5, 6]
+    read = v[(v.param == "P2000[0]") & (v.side == "read")].iloc[0]
+    assert type(read.value) is float and read.value == 1500.0 and read.format == "FloatingPoint32"
+    word = v[(v.param == "P964[0]") & (v.side == "read")].iloc[0]
+    assert word.value == 0x1234 and word.pnu_name == "drive unit identification"
+    assert str(v.dtypes["number"]) == "Float64" and str(v.dtypes["element"]) == "Int64"
+    text = analyze(str(SAMPLES / "crafted_strings.pcap")).values
+    assert text[text.param == "P1[0]"].value.iloc[0] == "<script>alert(1)</script><b>x</b"
+    assert text[text.param == "P1[0]"].number.isna().all()
