@@ -373,7 +373,7 @@ def _timeouts(func: Callable) -> Callable:
 @click.option("--out", "out_dir", default="pd-report", show_default=True, metavar="DIR",
               help="Directory for transactions, parameters, findings and changes files.")
 @click.option("--format", "fmt", type=click.Choice(["csv", "parquet", "json", "html"]), default="csv",
-              show_default=True, help="csv, parquet (DIR/<table>/capture=<file>/part-0.parquet) and json (JSON "
+              show_default=True, help="csv, parquet (DIR/<table>/capture=<file name>/part-0.parquet) and json (JSON "
                                       "Lines) are written in chunks as the capture is read, so memory stays flat "
                                       "whatever its size. html: DIR/report.html (self-contained: summary, plots, "
                                       "tables, drill-down) plus the tables as CSV; it holds every table in memory.")

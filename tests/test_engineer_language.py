@@ -338,3 +338,19 @@ def test_values_typed_for_pandas():
     text = analyze(str(SAMPLES / "crafted_strings.pcap")).values
     assert text[text.param == "P1[0]"].value.iloc[0] == "<script>alert(1)</script><b>x</b"
     assert text[text.param == "P1[0]"].number.isna().all()
+
+
+def test_parquet_partitions_are_named_by_the_capture_file_name(tmp_path):
+    import pandas as pd
+
+    from pd_analyze.output import report
+
+    for sub in ("line1", "line2"):
+        (tmp_path / sub).mkdir()
+        (tmp_path / sub / "drive.pcap").write_bytes((SAMPLES / "worked_example.pcap").read_bytes())
+    files = [str(tmp_path / "line1" / "drive.pcap"), str(tmp_path / "line2" / "drive.pcap")]
+    report.write_tables(analyze(files), str(tmp_path / "out"), "parquet")
+    parts = sorted(p.parent.name for p in (tmp_path / "out" / "transactions").rglob("*.parquet"))
+    assert parts == ["capture=drive.pcap", "capture=drive.pcap~2"]
+    back = pd.read_parquet(tmp_path / "out" / "transactions")
+    assert sorted(back.capture.astype(str)) == ["drive.pcap", "drive.pcap~2"]
