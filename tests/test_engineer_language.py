@@ -354,3 +354,17 @@ def test_parquet_partitions_are_named_by_the_capture_file_name(tmp_path):
     assert parts == ["capture=drive.pcap", "capture=drive.pcap~2"]
     back = pd.read_parquet(tmp_path / "out" / "transactions")
     assert sorted(back.capture.astype(str)) == ["drive.pcap", "drive.pcap~2"]
+
+
+def test_timeline_labels_failures_with_their_transaction_numbers():
+    import base64
+
+    from pd_analyze.output import html_report
+
+    page = html_report.render(analyze(ERRORS))
+    figure = page.split('<figure id="plot-timeline">')[1].split("</figure>")[0]
+    svg = base64.b64decode(figure.split("base64,")[1].split('"')[0]).decode()
+    texts = re.findall(r"<text[^>]*>([^<]*)</text>", svg)
+    for txn, status in ((3, "DF80B100"), (4, "DF80B000"), (7, "DE80B200"), (8, "1C010014")):
+        assert any(t.startswith(f"{txn}: {status} ") for t in texts), (txn, [t for t in texts if ":" in t])
+    assert "labelled with their txn number and what failed" in figure

@@ -340,8 +340,14 @@ def _plots(analysis: Analysis) -> str:
         fig.set_size_inches(_PLOT_WIDTH.get(name, 7.0), fig.get_figheight())  # shown at natural size in the grid
         svg = plots.svg(fig)
         src = "data:image/svg+xml;base64," + base64.b64encode(svg.encode("utf-8")).decode("ascii")
+        caption = _CAPTIONS[name]
+        failed = int((analysis.transactions.verdict != "ok").sum()) if name == "timeline" else 0
+        if failed > plots.MAX_LABELS:  # the labels would overprint: say so rather than promise them
+            caption = caption.replace("large markers labelled with their txn number and what failed",
+                                      f"large markers ({failed:,} failures: too many to label; the Transactions "
+                                      "table lists them)")
         figures.append(f"<figure id=\"plot-{name}\"><img class=\"plot\" src=\"{src}\" alt=\"{_e(title)}\">"
-                       f"<figcaption>{_e(_CAPTIONS[name])}</figcaption></figure>")
+                       f"<figcaption>{_e(caption)}</figcaption></figure>")
     return "<section id=\"plots\"><h2>Plots</h2>\n<div class=\"plots\">" + "\n".join(figures) + "</div>\n</section>\n"
 
 
