@@ -106,6 +106,9 @@ def _few(params: str, most: int = 4) -> str:
 class Summary:
     """Accumulates the summary from table rows; `text()` renders it."""
 
+    FAILED = _FAILED  # the verdicts listed per drive, and how many slowest transactions are kept (for add_batch)
+    SLOWEST = TOP
+
     def __init__(self) -> None:
         self.transactions = 0
         self.verdicts: Counter[str] = Counter()

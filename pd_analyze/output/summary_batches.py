@@ -154,14 +154,12 @@ _DRIVE_COLS = ["txn", "verdict", "device", "slot", "do", "params", "pnio_error_t
 def _drives(acc: Summary, t: pa.Table, base: int) -> None:
     """Summary.drive_row for the rows that can matter: every failed one, and those at least as slow as
     the TOP-th slowest of the batch (a faster one cannot be among the slowest overall)."""
-    from pd_analyze.output.summary import _FAILED, TOP
-
-    failed = _mask(pc.is_in(t.column("verdict"), value_set=_values(tuple(_FAILED))))
+    failed = _mask(pc.is_in(t.column("verdict"), value_set=_values(tuple(acc.FAILED))))
     totals = t.column("t_total").to_numpy(zero_copy_only=False).astype(float)
     timed = ~np.isnan(totals)
     slow = np.zeros(len(totals), bool)
     if timed.any():
-        cut = np.sort(totals[timed])[::-1][min(TOP, int(timed.sum())) - 1]
+        cut = np.sort(totals[timed])[::-1][min(acc.SLOWEST, int(timed.sum())) - 1]
         slow = timed & (totals >= cut)
     rows = np.flatnonzero(failed | slow)
     if not len(rows):
