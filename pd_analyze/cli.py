@@ -324,23 +324,10 @@ Examples:
 
 
 def _progress() -> Callable[[str, int], None] | None:
-    """A frame counter on stderr for long files; silent when stderr is not a terminal."""
-    if not sys.stderr.isatty():
-        return None
-    from tqdm import tqdm
+    """Percent of the capture's bytes read and the time left, on stderr when it is a terminal."""
+    from pd_analyze.output.progress import terminal_progress
 
-    bars: dict[str, tqdm] = {}
-
-    def update(path: str, frames: int) -> None:
-        bar = bars.get(path)
-        if bar is not None and frames - bar.n < 4096:  # called per PNIO frame; skipped frames jump the count
-            return
-        if bar is None:
-            bar = bars[path] = tqdm(desc=path, unit=" frames", leave=False, file=sys.stderr)
-        bar.n = frames
-        bar.refresh()
-
-    return update
+    return terminal_progress()
 
 
 def _files(captures: tuple[str, ...], read: str | None, profile: str) -> list[str]:

@@ -368,3 +368,59 @@ def test_timeline_labels_failures_with_their_transaction_numbers():
     for txn, status in ((3, "DF80B100"), (4, "DF80B000"), (7, "DE80B200"), (8, "1C010014")):
         assert any(t.startswith(f"{txn}: {status} ") for t in texts), (txn, [t for t in texts if ":" in t])
     assert "labelled with their txn number and what failed" in figure
+
+
+# --- 9. Progress that tells the time ----------------------------------------------------------------------
+
+def _repeated_capture(path: Path, times: int) -> int:
+    """A pcap of the retries sample `times` over (100 s apart): enough frames for several progress updates."""
+    src = (SAMPLES / "pd_retries_and_duplicates.pcap").read_bytes()
+    out, at = bytearray(src[:24]), 24
+    records = []
+    while at < len(src):
+        size = 16 + struct.unpack_from("<I", src, at + 8)[0]
+        records.append(src[at:at + size])
+        at += size
+    for k in range(times):
+        for r in records:
+            sec, usec = struct.unpack_from("<II", r, 0)
+            out += struct.pack("<II", sec + 100 * k, usec) + r[8:]
+    path.write_bytes(bytes(out))
+    return len(out)
+
+
+@pytest.mark.skipif(not Path("/proc/self/fdinfo").is_dir(), reason="the read position is seen through /proc")
+def test_progress_on_a_terminal_shows_percent_of_bytes_and_time_left(tmp_path):
+    import fcntl
+    import os
+    import pty
+    import termios
+    import threading
+
+    capture = tmp_path / "big.pcap"
+    _repeated_capture(capture, 10)
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 160, 0, 0))
+    seen = bytearray()
+
+    def read() -> None:
+        while True:
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:
+                return
+            if not chunk:
+                return
+            seen.extend(chunk)
+    reader = threading.Thread(target=read)
+    reader.start()
+    r = subprocess.run([sys.executable, "-m", "pd_analyze.cli", "report", str(capture), "--out", str(tmp_path / "o")],
+                       stdout=subprocess.DEVNULL, stderr=slave, timeout=300)
+    os.close(slave)
+    reader.join(10)
+    os.close(master)
+    lines = seen.decode(errors="replace").replace("\r", "\n").splitlines()
+    bars = [line for line in lines if line.startswith(f"{capture}: ") and "%|" in line]
+    assert r.returncode == 0 and bars
+    assert any(re.search(r" 100%\|.*\| 2\.94M/2\.94M \[\d\d:\d\d<\d\d:\d\d, .*12,289 frames\]", b) for b in bars)
+    assert any(re.search(r" (3[0-9]|[4-9][0-9])%\|.*<\d\d:\d\d", b) for b in bars)  # part way, with the time left
