@@ -309,7 +309,10 @@ def test_summary_lists_failed_parameters_per_drive_with_the_reason_and_the_slowe
     assert "         1  P964[0]: 1C010014 RPC fault/reject: nca_server_too_busy" in drives
     assert "         1  P2000[0] P2001[0] P2002[0] ... (39 parameters): DF80B100 write: access write length error " \
            "(parameter request above the record limit or shorter than its header, or read buffer too small)" in drives
-    assert "         1  P971[0]: timeout: the capture ended before an answer came (after 2 B5 answers)" in drives
+    assert "         1  P971[0]: timeout: the capture ended before an answer came (its last read 1004.0 ms after the " \
+           "write, 2 B5 answers)" in drives
+    assert "         1  P964[0]: timeout: no answer within the transaction timeout (the controller gave up: last " \
+           "read 1005.5 ms after the write, 3 B5 answers)" in drives
     slowest = text.split("Slowest parameters, ms (write to final response):\n")[1].splitlines()
     assert slowest[0] == "     111.5  192.168.1.21 slot 1 DO 1 P971[0] (transaction 2)"
 
@@ -424,3 +427,10 @@ def test_progress_on_a_terminal_shows_percent_of_bytes_and_time_left(tmp_path):
     assert r.returncode == 0 and bars
     assert any(re.search(r" 100%\|.*\| 2\.94M/2\.94M \[\d\d:\d\d<\d\d:\d\d, .*12,289 frames\]", b) for b in bars)
     assert any(re.search(r" (3[0-9]|[4-9][0-9])%\|.*<\d\d:\d\d", b) for b in bars)  # part way, with the time left
+
+
+def test_t_last_read_says_how_long_the_controller_kept_asking():
+    t = analyze(str(SAMPLES / "pd_timeouts.pcap")).transactions
+    timed_out = t[(t.verdict == "timeout") & t.t_last_read.notna()]
+    assert round(float(timed_out.t_last_read.max()) * 1000, 1) == 1005.5
+    assert str(t.dtypes["t_last_read"]) == "Float64"

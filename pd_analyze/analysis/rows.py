@@ -125,6 +125,7 @@ class Rows:
             txn.write_res_frame or None, " ".join(map(str, txn.read_req_frames)), txn.read_res_frame or None,
             " ".join(map(str, sorted(txn.frames))),
             txn.t_start, fig["t_write_rtt"], fig["t_total"], fig["t_final_read_rtt"], fig["t_first_read_gap"],
+            fig["t_last_read"],
             txn.capture_ended, txn.closed_by)))
         for f in txn.findings:
             self.add_finding(capture, f, number)

@@ -69,6 +69,8 @@ COLUMNS: Mapping[str, tuple[Column, ...]] = MappingProxyType({
         ("t_total", "Float64", "seconds from write request to the final read response"),
         ("t_final_read_rtt", "Float64", "seconds from the final read request to its response"),
         ("t_first_read_gap", "Float64", "seconds from write response to the first read request"),
+        ("t_last_read", "Float64", "seconds from write request to the last read request: for a timeout, how long "
+                                   "the controller kept asking"),
         ("capture_ended", "boolean", "still open when the capture ended"),
         ("closed_by", "category", "response, pnio_error, deadline, superseded, capture_end or evicted"),
     ),

@@ -82,14 +82,17 @@ _UNANSWERED = {"deadline": "no answer within the transaction timeout",
                "evicted": "dropped by the analyser's limits (too many open transactions or frames)"}
 
 
-def _reason(verdict: object, status: object, closed_by: object, b5: object) -> str:
-    """Why a transaction failed, in words."""
+def _reason(verdict: object, status: object, closed_by: object, b5: object, last_read: object = None) -> str:
+    """Why a transaction failed, in words; for a timeout, how long the controller kept reading."""
     if verdict == "pnio_error":
         return str(status) if status and not _missing(status) else "record service refused"
     if verdict == "timeout":
         why = _UNANSWERED.get(str(closed_by), "no answer")
-        return f"timeout: {why}" + (f" (after {b5} B5 answer{'s' if b5 != 1 else ''})"
-                                    if not _missing(b5) and b5 else "")
+        stopped = "its last read" if closed_by == "capture_end" else "the controller gave up: last read"
+        asked = [] if _missing(last_read) else [f"{stopped} {_ms(last_read)} ms after the write"]
+        if not _missing(b5) and b5:
+            asked.append(f"{b5} B5 answer{'s' if b5 != 1 else ''}")
+        return f"timeout: {why}" + (f" ({', '.join(asked)})" if asked else "")
     if verdict == "malformed":
         return "malformed: a PDU could not be decoded (see the findings)"
     return "reference mismatch: the response does not answer the request"
@@ -158,7 +161,7 @@ class Summary:
                 if self.b5_max is None or b5 > self.b5_max[0] or (b5 == self.b5_max[0] and place < self.b5_max[1]):
                     self.b5_max = (b5, place, r.txn)
             self.drive_row(r.txn, self.added["transactions"], verdict, device, r.slot, r.do, r.params,
-                           r.pnio_error_text, r.closed_by, r.b5_retries, r.t_total)
+                           r.pnio_error_text, r.closed_by, r.b5_retries, r.t_total, r.t_last_read)
             total = r.t_total
             if not _missing(total) and not _missing(device):
                 totals, rtts = self.latency.setdefault(device, (array("d"), array("d")))
@@ -167,11 +170,13 @@ class Summary:
                     rtts.append(r.t_write_rtt)
 
     def drive_row(self, txn: object, number: int, verdict: object, device: object, slot: object, do: object,
-                  params: object, status: object, closed_by: object, b5: object, total: object) -> None:
+                  params: object, status: object, closed_by: object, b5: object, total: object,
+                  last_read: object = None) -> None:
         """One transaction's part in the per-drive lists: a failure with its reason in words, and its
         time among the slowest. `number`: its place among the rows added (ties in the order added)."""
         if verdict in _FAILED:
-            self.refused[(_text(device), slot, do, _text(params), _reason(verdict, status, closed_by, b5))] += 1
+            why = _reason(verdict, status, closed_by, b5, last_read)
+            self.refused[(_text(device), slot, do, _text(params), why)] += 1
         if not _missing(total):
             entry = (-total, (_LAST if _missing(txn) else txn, number), _text(device), slot, do, _text(params), txn)
             if len(self.slowest) < TOP:

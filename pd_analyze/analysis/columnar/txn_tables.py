@@ -215,6 +215,7 @@ class TableBuilder:
             pa.array([None if d is None else d - s for d, s in zip(done, start, strict=True)], real),
             pa.array([None if d is None or r is None else d - r for d, r in zip(done, last_read, strict=True)], real),
             pa.array([None if r is None or f is None else f - r for r, f in zip(res, first_read, strict=True)], real),
+            pa.array([None if r is None else r - s for r, s in zip(last_read, start, strict=True)], real),
             pa.array([t.capture_ended for t in txns], pa.bool_()), pa.array([t.closed_by for t in txns], text),
         ]
         return pa.Table.from_arrays(columns, schema=batch_schema("transactions"))
