@@ -369,7 +369,7 @@ def test_timeline_labels_failures_with_their_transaction_numbers():
     svg = base64.b64decode(figure.split("base64,")[1].split('"')[0]).decode()
     texts = re.findall(r"<text[^>]*>([^<]*)</text>", svg)
     for txn, status in ((3, "DF80B100"), (4, "DF80B000"), (7, "DE80B200"), (8, "1C010014")):
-        assert any(t.startswith(f"{txn}: {status} ") for t in texts), (txn, [t for t in texts if ":" in t])
+        assert any(t.startswith(f"{txn}: pnio_error {status} ") for t in texts), (txn, [t for t in texts if ":" in t])
     assert "labelled with their txn number and what failed" in figure
 
 
