@@ -1,29 +1,37 @@
 """The `pd-analyze` command line: argument parsing, output streams and exit codes only.
 
 Exit codes: 0 done, 1 a finding reached the --fail-on threshold (audit), 2 unreadable input or bad
-usage. Data goes to stdout, progress and errors to stderr; no traceback ever reaches the user.
+usage, 141 the reader of stdout went away (as a Unix tool killed by SIGPIPE). Data goes to stdout,
+progress and errors to stderr; no traceback ever reaches the user.
 """
 
+# Longer than 450 lines: six commands, each with its options, help text and examples in one place, so
+# that `--help`, the README and the exit codes are read and changed together; the work is done elsewhere.
 from __future__ import annotations
 
 import gc
 import os
 import sys
 from collections.abc import Callable
+from typing import NoReturn
 
 import click
 
 from pd_analyze import __version__, cli_wireshark
 from pd_analyze.analysis.capture_run import Settings
+from pd_analyze.analysis.transactions import TransactionEngine
 from pd_analyze.capture import CaptureError
+from pd_analyze.capture.reader import unreadable_reason
 from pd_analyze.model.fields import FIELDS
 from pd_analyze.output import dump
 from pd_analyze.output.decode import decode, parse_hex
+from pd_analyze.output.dump_findings import with_transaction_findings
 from pd_analyze.protocol import profiles
 from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT, Dissector, dissect
 from pd_analyze.protocol.profidrive_checks import Checker
 
 EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
+EXIT_CLOSED_PIPE = 128 + 13  # SIGPIPE, as the shell reports a tool that wrote into a closed pipe
 _COLOURS = {"error": "red", "warning": "yellow", "info": "cyan", "frame": "green", "dim": "bright_black"}
 
 DUMP_EXAMPLES = """\b
@@ -32,6 +40,8 @@ Examples:
   pd-analyze dump -r capture.pcapng --frames 1,5-9
   pd-analyze dump capture.pcap.gz --findings-only
   pd-analyze dump capture.pcapng --format json | jq .summary
+  pd-analyze dump captures/ --findings-only -t ad
+  pd-analyze dump capture.pcap --color always | less -R
   tcpdump -w - udp | pd-analyze dump -
   pd-analyze dump trace.pcap -Y 'pd.addr.pnu == 964 and txn.verdict == "nak"' -T fields -e frame.number -e pd.ref
 """
@@ -60,11 +70,23 @@ def _batch_gc() -> None:
 
 
 class _Group(click.Group):
+    def invoke(self, ctx: click.Context) -> object:
+        try:
+            return super().invoke(ctx)
+        except BrokenPipeError:  # before click's own handler, which would exit 1
+            _closed_pipe()
+
     def main(self, *args: object, **kwargs: object) -> object:
         """Any unexpected exception becomes a one-line error with exit code 2, never a traceback."""
         _batch_gc()
         try:
-            return super().main(*args, standalone_mode=False, **kwargs)
+            try:
+                super().main(*args, standalone_mode=False, **kwargs)
+            except SystemExit:
+                sys.stdout.flush()  # a reader that went away is noticed here, not at interpreter exit
+                raise
+            sys.stdout.flush()
+            return None
         except click.exceptions.Exit as exc:
             sys.exit(exc.exit_code)
         except click.Abort:
@@ -74,8 +96,7 @@ class _Group(click.Group):
             exc.show()
             sys.exit(EXIT_USAGE)
         except BrokenPipeError:
-            sys.stderr.close()  # reader went away (e.g. `| head`): not an error
-            sys.exit(EXIT_OK)
+            _closed_pipe()
         except KeyboardInterrupt:
             click.echo("pd-analyze: interrupted", err=True)
             sys.exit(130)
@@ -83,6 +104,16 @@ class _Group(click.Group):
             click.echo(dump.safe(f"pd-analyze: internal error: {exc.__class__.__name__}: {exc} "
                                  "(please report it with the capture)"), err=True)
             sys.exit(EXIT_USAGE)
+
+
+def _closed_pipe() -> NoReturn:
+    """The reader went away (`| head`): stop quietly with the status a Unix tool killed by SIGPIPE has
+    in the shell (128 + 13), never 1, which `audit` uses for findings. Output still buffered goes to
+    the null device, so the interpreter's last flush cannot fail again."""
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, sys.stdout.fileno())
+    os.close(null)
+    sys.exit(EXIT_CLOSED_PIPE)
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -111,8 +142,8 @@ def _style(enabled: bool) -> dump.Style:
 def _lines(coloured: bool) -> Callable[[str], None]:
     """Where the dump's lines go: plain text straight to stdout (click.echo flushes and looks for colour
     codes to strip on every line, some 7 us of a dump's frame), coloured text through click.echo."""
-    if coloured:
-        return click.echo
+    if coloured:  # asked for (always) or on a terminal: click.echo would strip the codes into a pipe
+        return lambda text: click.echo(text, color=True)
     write = sys.stdout.write
 
     def line(text: str) -> None:
@@ -140,21 +171,33 @@ def profile_option(func: Callable) -> Callable:
 @click.option("--format", "-T", "fmt", type=click.Choice(["text", "json", "fields"]), default="text", show_default=True,
               help="text: indented tree; json: JSON Lines, one object per PNIO RPC frame; fields: see -e.")
 @cli_wireshark.dump_options
-@click.option("--color/--no-color", default=None, help="Colour the text output (default: on a terminal).")
+@click.option("--color", "color", type=click.Choice(["always", "never", "auto"]), default="auto",
+              show_default=True, is_flag=False, flag_value="always",
+              help="Colour the text output: always, never, or auto (on a terminal). --color alone: always.")
+@click.option("--no-color", "no_color", is_flag=True, hidden=True, help="The same as --color never.")
+@click.option("-t", "--time-format", "time_format", type=click.Choice(dump.TIME_FORMATS), default="e",
+              show_default=True, help="Frame times as tshark -t: e epoch seconds, ad/a local date and time/time, "
+              "ud/u the same in UTC, r since the first PNIO RPC frame, dd since the previous frame shown.")
 @click.option("--rpc-timeout", type=SECONDS, default=DEFAULT_RPC_TIMEOUT,
               show_default=True, help="Seconds of capture time before a request counts as unanswered.")
 @profile_option
 def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None, findings_only: bool,
                  fmt: str, flt: str | None, field_names: tuple[str, ...], field_options: tuple[str, ...],
-                 color: bool | None, rpc_timeout: float, profile: str) -> None:
-    """Every PNIO RPC frame as a tree of layers and fields: offset, bytes, value, meaning, check."""
-    paths = _inputs(captures, read)
+                 color: str, no_color: bool, time_format: str, rpc_timeout: float, profile: str) -> None:
+    """Every PNIO RPC frame as a tree of layers and fields: offset, bytes, value, meaning, check.
+
+    CAPTURE may be a file, a directory (its captures, sorted) or a glob pattern, as for report and audit.
+    With --findings-only the transaction engine runs too, so every finding audit reports (also the
+    pairing and channel rules Q2-Q5, T1-T7) is shown at its frame."""
+    paths = _files(captures, read, profile) if not (read == "-" or captures == ("-",)) else ["-"]
     checker = _checker(profile)
     try:
-        wanted: Callable[[int], bool] = dump.parse_frames(frames) if frames else (lambda n: True)
+        ranges = dump.frame_ranges(frames) if frames else []
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--frames") from None
-    colour = sys.stdout.isatty() if color is None else color
+    wanted: Callable[[int], bool] = (lambda n: any(lo <= n <= hi for lo, hi in ranges)) if ranges else \
+        (lambda n: True)
+    colour = sys.stdout.isatty() if color == "auto" and not no_color else color == "always" and not no_color
     style = _style(colour and fmt == "text")
     if flt is not None or fmt == "fields" or field_names:  # the frames a filter selects, or -T fields
         out = _lines(colour and fmt == "text")
@@ -165,12 +208,20 @@ def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None
         if len(paths) > 1 and fmt == "text":
             click.echo(dump.safe(f"==> {path} <=="))
         d = Dissector(annotate=True, rpc_timeout=rpc_timeout, checker=checker)
-        results = (r for r in dissect(path, dissector=d) if wanted(r.frame))
+        clock = dump.Clock(time_format)
+        results = clock.watch(dissect(path, dissector=d))
+        if findings_only:  # the transaction engine's findings too, at their frames (as audit shows them)
+            results = with_transaction_findings(results, TransactionEngine())
+        results = (r for r in results if wanted(r.frame))
         try:
-            dump.render(results, fmt, _lines(colour and fmt == "text"), style, findings_only)
+            dump.render(results, fmt, _lines(colour and fmt == "text"), style, findings_only, clock)
         except CaptureError as exc:
             click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
             status = EXIT_USAGE
+        outside = dump.beyond(ranges, d.accounting.read)
+        if outside and status == EXIT_OK:
+            click.echo(dump.safe(f"pd-analyze: {path}: --frames {','.join(outside)} lies beyond the capture's "
+                                 f"{d.accounting.read} frames"), err=True)
         loose = [f for f in d.loose_findings if wanted(f.frame)]
         if loose and fmt == "text":
             click.echo("Findings on frames that are not PNIO RPC:")
@@ -280,23 +331,10 @@ Examples:
 
 
 def _progress() -> Callable[[str, int], None] | None:
-    """A frame counter on stderr for long files; silent when stderr is not a terminal."""
-    if not sys.stderr.isatty():
-        return None
-    from tqdm import tqdm
+    """Percent of the capture's bytes read and the time left, on stderr when it is a terminal."""
+    from pd_analyze.output.progress import terminal_progress
 
-    bars: dict[str, tqdm] = {}
-
-    def update(path: str, frames: int) -> None:
-        bar = bars.get(path)
-        if bar is not None and frames - bar.n < 4096:  # called per PNIO frame; skipped frames jump the count
-            return
-        if bar is None:
-            bar = bars[path] = tqdm(desc=path, unit=" frames", leave=False, file=sys.stderr)
-        bar.n = frames
-        bar.refresh()
-
-    return update
+    return terminal_progress()
 
 
 def _files(captures: tuple[str, ...], read: str | None, profile: str) -> list[str]:
@@ -329,7 +367,7 @@ def _timeouts(func: Callable) -> Callable:
 @click.option("--out", "out_dir", default="pd-report", show_default=True, metavar="DIR",
               help="Directory for transactions, parameters, findings and changes files.")
 @click.option("--format", "fmt", type=click.Choice(["csv", "parquet", "json", "html"]), default="csv",
-              show_default=True, help="csv, parquet (DIR/<table>/capture=<file>/part-0.parquet) and json (JSON "
+              show_default=True, help="csv, parquet (DIR/<table>/capture=<file name>/part-0.parquet) and json (JSON "
                                       "Lines) are written in chunks as the capture is read, so memory stays flat "
                                       "whatever its size. html: DIR/report.html (self-contained: summary, plots, "
                                       "tables, drill-down) plus the tables as CSV; it holds every table in memory.")
@@ -339,6 +377,11 @@ def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fm
                    timeout: float, rpc_timeout: float, jobs: int, chain: bool) -> None:
     """Pair requests with responses; write the tables and print a summary (worst offenders first)."""
     paths = _files(captures, read, profile)
+    unreadable = [error for error in map(unreadable_reason, paths) if error]
+    if len(unreadable) == len(paths):  # nothing to report on: no files written, no "Wrote"
+        for error in unreadable:
+            click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
+        sys.exit(EXIT_USAGE)
     _writable(out_dir)
     progress = _progress() if jobs == 1 else None
     try:
@@ -348,10 +391,11 @@ def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fm
             raise  # not the report's files: a fault to report
         raise click.ClickException(dump.safe(f"cannot write the report to {out_dir}: {exc}")) from None
     click.echo("\n".join(dump.safe(line) for line in text.split("\n")))
-    click.echo("\nWrote " + ", ".join(written), err=True)
-    for error in errors:
+    for error in errors:  # before "Wrote": what could not be read is said first
         click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
+    click.echo("\nWrote " + ", ".join(written), err=True)
     sys.exit(EXIT_USAGE if errors else EXIT_OK)
+
 
 
 def _writable(out_dir: str) -> None:

@@ -59,8 +59,8 @@ def test_worked_example_request_and_response_exactly():
     assert [v for _, _, v, _ in pdv.values_of(r.blocks[1])] == [1, 2, 3]
     sections = pdv.annotate(r, FRAME6_READ_RES[164:], 164, GENERIC.describe, p)
     titles = [t for t, _ in sections]
-    assert titles == ["Parameter response header", "Parameter 1: P964[0] Word x 1",
-                      "Parameter 2: P2000[0..2] Double word x 3"]
+    assert titles == ["Parameter response header", "Parameter [0]: P964[0] (drive unit identification) Word x 1",
+                      "Parameter [1]: P2000[0..2] Double word x 3"]
     value = sections[1][1][2]
     assert (value.name, value.offset, value.raw, value.value, value.show) == (
         "pd.val[0].value[0]", 170, b"\x12\x34", 0x1234, "0x1234")
@@ -144,7 +144,7 @@ def test_error_blocks_and_negative_responses():
     r, found = res(nak, request)
     assert found == [] and [(b.error, b.error_subindex) for b in r.blocks] == [(-1, -1), (2, 1)]
     titles = [t for t, _ in pdv.annotate(r, nak, 0, GENERIC.describe, request)]
-    assert titles[2] == "Parameter 2: P2000[0..2] error 0x02 (low or high limit exceeded)"
+    assert titles[2] == "Parameter [1]: P2000[0..2] error 0x02 (low or high limit exceeded)"
     r, found = res(pd_response(9, 0x81, 1, [error_block(0x00), error_block(0x02)]), request)
     assert names(found) == ["error_subindex_presence"]
     r, found = res(pd_response(9, 0x81, 1, [error_block(0x00, 3), error_block(0x02, 0, extra=[9])]), request)
@@ -198,7 +198,7 @@ def test_description_complete_element():
     r, found = res(data, request)
     assert found == []
     (_, header), (title, fields) = pdv.annotate(r, data, 0, GENERIC.describe, request)
-    assert title == "Parameter 1: P1082[0] OctetString x 46, description element 0 (complete description)"
+    assert title == "Parameter [0]: P1082[0] OctetString x 46, description element 0 (complete description)"
     by = {f.name: f for f in fields}
     assert by["pd.val[0].desc.identifier"].show == "0x4208 (data type FloatingPoint32; read-only, array)"
     assert by["pd.val[0].desc.name"].value == "Speed setpoint  "
@@ -258,7 +258,7 @@ def test_vendor_limits_name_their_seed():
     p, found = req(read_request(1, 0, [ParamAddress(5, attr=0x20), ParamAddress(6)]), yaskawa)
     assert names(found) == ["vendor_limit"] * 3
     assert {f.field for f in found} == {"pd.do", "pd.n_params", "pd.addr[0].attr"}
-    assert all(f.source.startswith("000_8871e7857f299724.txt") for f in found)
+    assert all(f.source.startswith("Yaskawa SI-EP3 PROFINET Technical Manual SIEP C730600 89E, p. 38") for f in found)
     assert all(f.severity == "warning" for f in found)
     assert yaskawa.describe("request.n_params", 2) == "generic 1 ... 39: ok; yaskawa 1: BREAKS (vendor_limit)"
 

@@ -67,7 +67,8 @@ def test_parquet_dataset_partitioned_by_capture(tmp_path):
     assert len(parts) == 2 and all(p.startswith("capture=") for p in parts)
     back = pd.read_parquet(tmp_path / "transactions")
     assert sorted(back.txn.tolist()) == [1, 2, 3, 4, 5]
-    assert set(back.capture.astype(str)) == set(files)
+    assert set(back.capture.astype(str)) == {"record_rw_le.pcap", "worked_example.pcap"}  # file names (#16)
+    assert sorted(parts) == ["capture=record_rw_le.pcap", "capture=worked_example.pcap"]
 
 
 def test_dask_api_on_a_local_two_worker_cluster():

@@ -58,6 +58,13 @@ class Analysis:
     def changes(self) -> pd.DataFrame:
         return self._frame("changes")
 
+    @cached_property
+    def values(self) -> pd.DataFrame:
+        """Every value written or read, one typed row per array element (analysis.values_table)."""
+        from pd_analyze.analysis.values_table import values_frame
+
+        return values_frame(self.parameters)
+
     def _frame(self, name: str) -> pd.DataFrame:
         """A table from its rows (the per-frame path's) and its pyarrow tables (the columns')."""
         tables = self.rows.tables.get(name)

@@ -15,6 +15,7 @@ from pd_analyze.analysis.schema import ChangeRow, FindingRow, ParameterRow, Tran
 from pd_analyze.analysis.transaction import Transaction, elements, param_label
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.rules import Finding
+from pd_analyze.model.values import status_text
 from pd_analyze.model.verdicts import ANSWERED
 from pd_analyze.protocol.link import ip_text
 from pd_analyze.protocol.profidrive import Address, Block
@@ -29,7 +30,7 @@ def block_values(block: Block | None, values: list | None = None) -> str:
     values = values_of(block) if values is None else values
     if pt.FORMATS.get(block.format, pt.FORMATS[0x41]).kind in ("hex", "bits", "nibbles"):
         return " ".join(f"0x{v:0{2 * block.size}x}" for _, _, v, _ in values if isinstance(v, int))
-    return " ".join(cell_text(value) for _, _, value, _ in values)
+    return " ".join(cell_text(value, size) for _, size, value, _ in values)
 
 
 def _hex(value: int) -> str:
@@ -103,11 +104,12 @@ class Rows:
             fmt = written if written is not None else res_block
             read_values = values_of(res_block) if res_block is not None and not res_block.is_error else None
             append(ParameterRow._make((  # _make: a tuple is built in C, a named tuple's __new__ in Python
-                number, capture, device, txn.do, label, addr.pnu, addr.subindex, addr.n_elems,
+                number, capture, device, txn.do, label, addr.pnu, pt.pnu_name(addr.pnu), addr.subindex, addr.n_elems,
                 pt.ATTRIBUTE.get(addr.attr) or _hex(addr.attr),  # (a default argument is built every time)
                 (pt.FORMAT_NAME.get(fmt.format) or _hex(fmt.format)) if fmt is not None and not fmt.is_error else "",
                 block_values(written), block_values(res_block, read_values), _hex(err),
-                pt.error_text(err) if err >= 0 else "")))
+                pt.error_text(err) if err >= 0 else "",
+                res_block.error_subindex if err >= 0 and res_block.error_subindex >= 0 else None)))
             if txn.req_id == pt.REQ_CHANGE and written is not None:
                 self._change(capture, txn, number, i, addr, label, written, res_block, device)
         if response is not None and len(blocks) == 1 and blocks[0].is_error and len(addresses) > 1:
@@ -118,10 +120,12 @@ class Rows:
             number, capture, device, controller, ar, index, v[3], v[4], v[5],
             _int(txn.ref), _hex(txn.req_id), _int(txn.do), _int(txn.n_params), param_label(txn),
             _hex(response.ident) if response is not None else "", txn.verdict, " ".join(errors), txn.pnio_status,
+            status_text(txn.pnio_status),
             txn.b5_retries, len(txn.read_req_frames), txn.rpc_retransmissions, txn.write_req_frame,
             txn.write_res_frame or None, " ".join(map(str, txn.read_req_frames)), txn.read_res_frame or None,
             " ".join(map(str, sorted(txn.frames))),
             txn.t_start, fig["t_write_rtt"], fig["t_total"], fig["t_final_read_rtt"], fig["t_first_read_gap"],
+            fig["t_last_read"],
             txn.capture_ended, txn.closed_by)))
         for f in txn.findings:
             self.add_finding(capture, f, number)
@@ -139,7 +143,8 @@ class Rows:
         else:
             result = "ok" if txn.verdict in ANSWERED else txn.verdict
         self.changes.append(ChangeRow._make((
-            capture, device, txn.do, number, txn.write_req_frame, txn.t_start, label, addr.pnu, addr.subindex,
+            capture, device, txn.do, number, txn.write_req_frame, txn.t_start, label, addr.pnu,
+            pt.pnu_name(addr.pnu), addr.subindex,
             block_values(written), result, " ".join(b for b in before if b is not None) if all(before) else "")))
 
 

@@ -75,6 +75,7 @@ class Transaction:
             "t_total": None if done is None else done - self.t_start,
             "t_final_read_rtt": None if done is None or final_req is None else done - final_req,
             "t_first_read_gap": None if res is None or not self.t_read_reqs else self.t_read_reqs[0] - res,
+            "t_last_read": final_req - self.t_start if final_req is not None else None,
             "t_ready_after": None if res is None or done is None else (
                 0.0 if self.last_b5_res is None else self.last_b5_res - res),
             "t_ready_by": None if res is None or done is None or final_req is None else final_req - res,
@@ -171,7 +172,7 @@ def elements_read(txn: Transaction) -> list[tuple[Element, str]]:
         if addr.attr != pt.ATTR_VALUE or block.is_error:
             continue
         keys = elements(txn, addr)
-        values = [cell_text(v) for _, _, v, _ in values_of(block)]
+        values = [cell_text(v, size) for _, size, v, _ in values_of(block)]
         if len(values) == len(keys):
             out += zip(keys, values, strict=True)
         elif len(values) == 1:

@@ -66,6 +66,19 @@ def open_capture(path: str, info: CaptureInfo) -> tuple[BinaryIO, str]:
         raise
 
 
+def unreadable_reason(path: str) -> str:
+    """Why a capture cannot be read at all (missing, a directory, not a capture, ...), '' when its header
+    reads; stdin is not probed (its bytes can be read only once)."""
+    if path == "-":
+        return ""
+    try:
+        stream, _ = open_capture(path, CaptureInfo(path))
+    except CaptureError as exc:
+        return str(exc)
+    stream.close()
+    return ""
+
+
 def in_decompressed(exc: CaptureError) -> CaptureError:
     """The error of a gzip-compressed capture: its offset counts decompressed bytes, and says so."""
     return CaptureError(exc.path, f"{exc.reason} (offset in the decompressed data)", exc.offset)

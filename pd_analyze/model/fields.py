@@ -228,3 +228,13 @@ def field(name: str) -> FieldDef:
     """The registry entry of a field (concrete indexed names allowed); KeyError if unknown."""
     found = FIELDS.get(name)
     return found if found is not None else FIELDS[template(name)]
+
+
+def value_text(name: str, value: int) -> str:
+    """An integer of a field as the registry presents it everywhere (the dump's field and the findings
+    about it alike): hex for IDs, codes and formats (0x28), decimal for counts, numbers and lengths (40)."""
+    try:
+        hexa = field(name).type in (HEX, FLAGS)
+    except KeyError:
+        hexa = False
+    return f"0x{value:02x}" if hexa else str(value)

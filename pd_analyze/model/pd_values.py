@@ -6,6 +6,8 @@ vendor-specific error texts live in the vendor profiles (pd_analyze/profiles/*.t
 
 from __future__ import annotations
 
+import math
+import struct
 from collections.abc import Mapping
 from types import MappingProxyType
 from typing import NamedTuple
@@ -132,3 +134,48 @@ DESCRIPTION_SIZE = 46
 IDENTIFIER_BITS: Mapping[int, str] = MappingProxyType({
     8: "standardisation not relevant", 9: "read-only", 10: "text array available",
     12: "changed vs factory setting", 13: "reset only", 14: "array"})
+
+
+def float_text(value: float, size: int) -> str:
+    """The shortest text that reads back to the same IEEE 754 bits at the value's width (4: Float32,
+    8: Float64), as Python writes a float without a trailing ".0": 46 ca a3 40 is 25937.625 (not the
+    25937.62 a fixed 7 digits would give), 1500 is 1500, 1e-45 stays 1e-45; nan, inf, -inf as str()."""
+    if value != value or value in (math.inf, -math.inf):
+        return str(value)
+    text = repr(value)
+    if size == 4:
+        bits = struct.pack(">f", value)
+        for digits in range(1, 10):  # 9 significant digits always read back to the same Float32
+            candidate = float(f"{value:.{digits - 1}e}")
+            try:
+                if struct.pack(">f", candidate) == bits:
+                    text = repr(candidate)
+                    break
+            except OverflowError:  # rounded up beyond the largest Float32: more digits are needed
+                continue
+    return text[:-2] if text.endswith(".0") else text
+
+
+# Profile parameters (PNU 900 ... 999) have the same meaning on every drive (protocol.md 4.7; names as
+# public drive manuals print them). A vendor profile may add its own names ([pnu_names] in its TOML).
+PROFILE_PARAMETERS: Mapping[int, str] = MappingProxyType({
+    915: "DO IO data assignment, setpoint telegram", 916: "DO IO data assignment, actual value telegram",
+    918: "node address", 919: "device system number", 922: "telegram selection",
+    923: "list of all parameters for signals", 925: "controller sign-of-life failures tolerated",
+    927: "operator control rights", 930: "operating mode", 944: "fault message counter", 945: "fault code",
+    947: "fault number", 948: "fault time", 949: "fault value", 952: "number of fault situations",
+    964: "drive unit identification", 965: "profile identification number",
+    971: "transfer into non-volatile memory", 974: "base mode parameter access service identification",
+    975: "drive object identification",
+    **{pnu: "number list of defined parameters" for pnu in range(980, 990)},
+})
+
+
+def pnu_name(pnu: int, names: Mapping[int, str] | None = None) -> str:
+    """The name of a parameter number: the profile's own table first, then the PROFIdrive profile
+    parameters; '' when neither knows it."""
+    if names:
+        name = names.get(pnu)
+        if name:
+            return name
+    return PROFILE_PARAMETERS.get(pnu, "")

@@ -21,9 +21,9 @@ MALFORMED, PROTOCOL, SEQUENCE, COMMENT = "malformed", "protocol", "sequence", "c
 IEC = "IEC 61158-6-10"
 DCE = "DCE 1.1 CL-RPC"
 PCAP = "pcap/pcapng file format"
-YASKAWA_EP3 = "000_8871e7857f299724.txt"
-AKD = "003_8e0163ef8c5e11f4.txt"
-PD = "PROFIdrive profile V4.2"
+YASKAWA_EP3 = "Yaskawa SI-EP3 PROFINET Technical Manual SIEP C730600 89E, p. 38"
+AKD = "Kollmorgen AKD PROFINET manual, parameter request/response tables"
+PD = "PROFIdrive profile V4.2, Base Mode Parameter Access"
 
 
 @dataclass(frozen=True, slots=True)
@@ -183,6 +183,12 @@ _RULES = (
     R("D1", "dpv1_header", WARNING, PROTOCOL, "PROFIBUS DP-V1", "DP-V1 header inconsistent with the block"),
 )
 RULES: Mapping[str, Rule] = MappingProxyType({r.name: r for r in _RULES})
+# Found by the transaction engine, not by a frame's own decode: pairing a response with its request (Q2-Q5)
+# and the channel rules (protocol.md 6.5). `dump --findings-only` runs the engine to show them too.
+TRANSACTION_RULES = frozenset({
+    "reference_mismatch", "response_id_mismatch", "do_not_mirrored", "n_params_not_mirrored",
+    "write_while_pending", "reference_reused", "retry", "fallback_pairing", "read_without_request",
+    "b5_polling", "txn_evicted"})
 
 
 def finding(name: str, frame: int, field: str, value: object, expected: object, message: str,

@@ -95,7 +95,7 @@ ERROR_CODE_READ, ERROR_CODE_WRITE = 0xDE, 0xDF  # the ErrorCode of a failed read
 ERROR_DECODE_PNIORW, ERROR_DECODE_PNIO = 0x80, 0x81
 
 # ErrorCode1 under ErrorDecode PNIORW: IEC 61158-6-10 names, with the PROFIdrive meaning where
-# protocol.md 4.6 gives one (Yaskawa 001_ad73eb8113d11cc5.txt names in brackets where they differ).
+# protocol.md 4.6 gives one (the Yaskawa V1000 SI-EP3/V manual's names in brackets where they differ).
 PNIORW_CODE1 = _frozen({
     0xA0: "application: read error", 0xA1: "application: write error",
     0xA2: "application: module failure",
@@ -127,6 +127,70 @@ PNIO_CODE1 = _frozen({
     0xFF: "user-specific",
 })
 PNIORW_STATE_CONFLICT = 0xB5
+# ErrorCode2 under ErrorDecode PNIO, by ErrorCode1: what failed (protocol.md 4.6).
+PNIO_CODE2: Mapping[int, Mapping[int, str]] = _frozen({
+    0x08: _frozen({0: "BlockType", 1: "BlockLength", 2: "BlockVersionHigh", 3: "BlockVersionLow", 5: "ARUUID",
+                   6: "API", 7: "SlotNumber", 8: "SubslotNumber", 9: "Padding", 10: "Index",
+                   11: "RecordDataLength", 12: "TargetARUUID"}),
+    0x3D: _frozen({0: "state conflict", 1: "resources"}),
+    0x40: _frozen({0: "ArgsLength invalid", 1: "unknown blocks", 2: "IOCR missing", 3: "wrong block count",
+                   4: "no AR resources", 5: "AR UUID unknown", 6: "state conflict",
+                   7: "out of provider/consumer/alarm resources", 8: "out of memory"}),
+    0xCA: _frozen({0: "invalid state", 1: "signalled error"}),
+    0xCC: _frozen({0: "invalid state", 1: "AR state not primary"}),
+})
+# The record service an ErrorCode names, as a status text starts ("DF80B100 write: ...").
+PNIO_SERVICE = _frozen({ERROR_CODE_READ: "read", ERROR_CODE_WRITE: "write"})
+
+
+def code1_name(decode: int, code1: int) -> str:
+    """The name of ErrorCode1, which depends on ErrorDecode (PNIORW or PNIO); '' when none is known."""
+    if decode == ERROR_DECODE_PNIORW:
+        return PNIORW_CODE1.get(code1, "reserved" if code1 < 0xA0 else "")
+    if decode == ERROR_DECODE_PNIO:
+        return PNIO_CODE1.get(code1, "")
+    return ""
+
+
+def code2_name(decode: int, code1: int, code2: int) -> str:
+    """The name of ErrorCode2: under PNIO the detail of ErrorCode1, under PNIORW user-specific."""
+    if decode == ERROR_DECODE_PNIO:
+        return PNIO_CODE2.get(code1, {}).get(code2, "")
+    if decode == ERROR_DECODE_PNIORW and code2:
+        return "user-specific"
+    return ""
+
+
+def status_text(status: str) -> str:
+    """A status as the tables hold it (8 hex digits) in words: 'DF80C300 write: resource unavailable'.
+
+    The PNIOStatus bytes ErrorCode, ErrorDecode, ErrorCode1, ErrorCode2 (protocol.md 2.5, 4.6), or the
+    NCA status of an RPC fault or reject (protocol.md 2.2), which closes a transaction the same way. ''
+    for an empty status."""
+    if not status:
+        return ""
+    try:
+        value = int(status, 16)
+    except ValueError:
+        return status
+    if value in NCA_STATUS or value >> 16 in (0x1C00, 0x1C01):
+        return f"{status} RPC fault/reject: {NCA_STATUS.get(value, 'NCA status')}"
+    code, decode, code1, code2 = value >> 24, value >> 16 & 0xFF, value >> 8 & 0xFF, value & 0xFF
+    if not value:
+        return f"{status} OK"
+    service = PNIO_SERVICE.get(code) or (PNIO_ERROR_CODE.get(code) if code else "") or f"ErrorCode {code:#04x}"
+    if decode not in (ERROR_DECODE_PNIORW, ERROR_DECODE_PNIO):
+        return f"{status} {service}: ErrorDecode {decode:#04x} unknown, ErrorCode1 {code1:#04x}, " \
+               f"ErrorCode2 {code2:#04x}"
+    first = code1_name(decode, code1).replace(": ", " ", 1) or f"ErrorCode1 {code1:#04x}"
+    if decode == ERROR_DECODE_PNIO:
+        first = f"PNIO {first}"
+    second = code2_name(decode, code1, code2)
+    if second and decode == ERROR_DECODE_PNIO:
+        first += f": {second}"
+    elif code2:
+        first += f", ErrorCode2 {code2:#04x}" + (f" ({second})" if second else "")
+    return f"{status} {service}: {first}"
 
 # Link layer (protocol.md 1.3).
 ETHERTYPE = _frozen({0x0800: "IPv4", 0x0806: "ARP", 0x8100: "802.1Q", 0x88A8: "802.1ad",

@@ -23,7 +23,8 @@ from pd_analyze.analysis.schema import COLUMNS, TIME, Column
 _L = pa.large_string()
 # writers._NUMBER for RE2: Python's \d is any Unicode decimal digit, and its $ also
 # matches before a newline that ends the text (RE2's $ matches only at the very end).
-_NUMBER = r"^[+-]?(\p{Nd}+(\.\p{Nd}*)?|\.\p{Nd}+)([eE][+-]?\p{Nd}+)?\n?$"
+_NUMBER_TOKEN = r"([+-]?(\p{Nd}+(\.\p{Nd}*)?|\.\p{Nd}+)([eE][+-]?\p{Nd}+)?|[+-]?inf|nan)"
+_NUMBER = rf"^{_NUMBER_TOKEN}( {_NUMBER_TOKEN})*\n?$"
 
 
 def _text(text: str) -> pa.Scalar:

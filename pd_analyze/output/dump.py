@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from datetime import UTC, datetime
 
 from pd_analyze.model.layout import Field, json_value
 from pd_analyze.model.rules import ERROR, INFO, WARNING, Finding
@@ -82,9 +83,48 @@ def _json_value(value: object) -> str:
     return json.dumps(json_value(value), ensure_ascii=True, separators=(",", ":"))
 
 
-def frame_text(result: FrameResult, style: Style = plain_style, findings_only: bool = False) -> str:
+# How a frame's time is shown, as tshark's -t: e seconds since the epoch (the default), ad / a local date and
+# time / time, ud / u the same in UTC, r seconds since the capture's first PNIO RPC frame, dd seconds since
+# the previous frame shown.
+TIME_FORMATS = ("e", "ad", "a", "ud", "u", "r", "dd")
+
+
+class Clock:
+    """A frame's time as text in one of TIME_FORMATS; `first` is set from the first frame dissected."""
+
+    def __init__(self, fmt: str = "e") -> None:
+        self.fmt = fmt
+        self.first: float | None = None
+        self._shown: float | None = None
+
+    def watch(self, results: Iterable[FrameResult]) -> Iterator[FrameResult]:
+        """The results unchanged; the first one's time is where relative times count from."""
+        for res in results:
+            if self.first is None:
+                self.first = res.ts
+            yield res
+
+    def text(self, ts: float) -> str:
+        fmt = self.fmt
+        if ts != ts or fmt == "e":
+            return f"{ts:.6f}"
+        if fmt == "r":
+            return f"{ts - (ts if self.first is None else self.first):.6f}"
+        if fmt == "dd":
+            delta = 0.0 if self._shown is None else ts - self._shown
+            self._shown = ts
+            return f"{delta:.6f}"
+        when = datetime.fromtimestamp(ts, UTC if fmt in ("ud", "u") else None)
+        if fmt in ("ad", "ud"):
+            return when.strftime("%Y-%m-%d %H:%M:%S.%f") + (" UTC" if fmt == "ud" else "")
+        return when.strftime("%H:%M:%S.%f")
+
+
+def frame_text(result: FrameResult, style: Style = plain_style, findings_only: bool = False,
+               clock: Clock | None = None) -> str:
+    when = clock.text(result.ts) if clock is not None else f"{result.ts:.6f}"
     head = style(f"Frame {result.frame}", "frame") + \
-        f"  {result.ts:.6f}  {result.src} -> {result.dst}  {safe(result.summary)}"
+        f"  {when}  {result.src} -> {result.dst}  {safe(result.summary)}"
     lines = [head]
     if not findings_only:
         for layer in result.layers:
@@ -152,6 +192,10 @@ def _check_role(check: str) -> str:
     for sev in (ERROR, WARNING, INFO):
         if f" {sev}:" in check:
             return sev
+    if check.startswith("failed: "):  # a PNIOStatus reporting a failed record service
+        return ERROR
+    if check.startswith("not ready: "):  # B5 polling: normal while the drive works on the request
+        return WARNING
     return "warning" if "BREAKS" in check else "dim"
 
 
@@ -169,6 +213,12 @@ def finding_line(f: Finding, indent: str = "", style: Style = plain_style) -> st
 
 def parse_frames(spec: str) -> Callable[[int], bool]:
     """'1,5-9,20-' to a frame-number predicate; ValueError with a helpful message if malformed."""
+    ranges = frame_ranges(spec)
+    return lambda n: any(lo <= n <= hi for lo, hi in ranges)
+
+
+def frame_ranges(spec: str) -> list[tuple[int, int]]:
+    """'1,5-9,20-' as (first, last) pairs, an open end as 10**12; ValueError if malformed."""
     ranges: list[tuple[int, int]] = []
     for part in spec.split(","):
         part = part.strip()
@@ -185,16 +235,22 @@ def parse_frames(spec: str) -> Callable[[int], bool]:
         ranges.append((start, end))
     if not ranges:
         raise ValueError("empty frame selection: use numbers like 1,5-9,20-")
-    return lambda n: any(lo <= n <= hi for lo, hi in ranges)
+    return ranges
+
+
+def beyond(ranges: list[tuple[int, int]], frames: int) -> list[str]:
+    """The parts of a --frames selection that lie wholly beyond a capture of `frames` frames."""
+    return [f"{lo}-" if hi >= 10**12 else f"{lo}-{hi}" if hi != lo else str(lo)
+            for lo, hi in ranges if lo > frames]
 
 
 def render(results: Iterable[FrameResult], fmt: str, write: Callable[[str], None], style: Style,
-           findings_only: bool) -> int:
+           findings_only: bool, clock: Clock | None = None) -> int:
     """Write each result; returns the number of frames written."""
     count = 0
     for result in results:
         if findings_only and not result.findings:
             continue
-        write(frame_json(result) if fmt == "json" else frame_text(result, style, findings_only) + "\n")
+        write(frame_json(result) if fmt == "json" else frame_text(result, style, findings_only, clock) + "\n")
         count += 1
     return count

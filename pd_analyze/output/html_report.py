@@ -22,6 +22,7 @@ import hashlib
 import html
 import json
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from functools import cache
@@ -32,6 +33,7 @@ import pandas as pd
 
 from pd_analyze import __version__
 from pd_analyze.analysis.api import Analysis
+from pd_analyze.model import pd_values as pt
 from pd_analyze.model.verdicts import VERDICTS
 from pd_analyze.output import plots
 from pd_analyze.protocol.frames import FrameResult
@@ -55,8 +57,9 @@ class Col:
 TRANSACTION_COLS = (
     Col("txn", "txn", "num"), Col("t_start", "time (UTC)", "time"), Col("capture", "capture", "str"),
     Col("device", "device", "str"), Col("controller", "controller", "str"), Col("index", "index", "str"),
-    Col("do", "DO", "num"), Col("ref", "ref", "num"), Col("req_id", "req", "str"), Col("params", "parameters", "str"),
-    Col("verdict", "verdict", "verdict"), Col("errors", "errors", "str"), Col("pnio_status", "PNIOStatus", "str"),
+    Col("do", "DO", "num"), Col("ref", "ref", "num"), Col("req_id", "request", "req_id"),
+    Col("params", "parameters", "str"), Col("resp_id", "response", "resp_id"),
+    Col("verdict", "verdict", "verdict"), Col("errors", "errors", "str"), Col("pnio_error_text", "PNIOStatus", "str"),
     Col("b5_retries", "B5", "num"), Col("reads", "reads", "num"), Col("t_write_rtt", "write rtt ms", "ms"),
     Col("t_total", "total ms", "ms"), Col("closed_by", "closed by", "str"), Col("frames", "frames", "str"),
 )
@@ -69,8 +72,8 @@ FINDING_COLS = (
 CHANGE_COLS = (
     Col("t", "time (UTC)", "time"), Col("capture", "capture", "str"), Col("device", "device", "str"),
     Col("do", "DO", "num"), Col("txn", "txn", "num"), Col("frame", "frame", "num"), Col("param", "parameter", "str"),
-    Col("value_before", "value before", "str"), Col("value_written", "value written", "str"),
-    Col("result", "result", "str"),
+    Col("pnu_name", "name", "str"), Col("value_before", "value before", "str"),
+    Col("value_written", "value written", "str"), Col("result", "result", "str"),
 )
 
 
@@ -163,7 +166,8 @@ def _cap_findings(f: pd.DataFrame, limit: int) -> tuple[pd.DataFrame, int, str]:
 
 def _table(df: pd.DataFrame, total: int, chosen: str, cols: tuple[Col, ...], where: str,
            name: str) -> dict[str, Any]:
-    columns = [{"name": c.name, "label": c.label, "kind": c.kind} for c in cols]
+    columns = [{"name": c.name, "label": c.label, "kind": "str" if c.kind in ("req_id", "resp_id") else c.kind}
+               for c in cols]
     values = [_column(df[c.name], c.kind) for c in cols]
     rows = [list(r) for r in zip(*values, strict=True)] if values and len(df) else []
     note = ""
@@ -182,7 +186,18 @@ def _column(s: pd.Series, kind: str) -> list[object]:
         return [None if pd.isna(v) else float(v) for v in ms.astype("object")]
     if kind == "num":
         return [None if pd.isna(v) else (int(v) if float(v).is_integer() else float(v)) for v in s.astype("object")]
+    if kind in ("req_id", "resp_id"):  # the ID with its name: "0x81 request parameter, negative"
+        names = pt.REQUEST_ID if kind == "req_id" else pt.RESPONSE_ID
+        return [None if pd.isna(v) else _named_id(str(v), names) for v in s.astype("object")]
     return [None if pd.isna(v) else str(v) for v in s.astype("object")]
+
+
+def _named_id(text: str, names: Mapping[int, str]) -> str:
+    try:
+        name = names.get(int(text, 16), "") if text else ""
+    except ValueError:
+        return text
+    return f"{text} {name}" if name else text
 
 
 # --- drill-down -----------------------------------------------------------------------------------------------
@@ -325,8 +340,14 @@ def _plots(analysis: Analysis) -> str:
         fig.set_size_inches(_PLOT_WIDTH.get(name, 7.0), fig.get_figheight())  # shown at natural size in the grid
         svg = plots.svg(fig)
         src = "data:image/svg+xml;base64," + base64.b64encode(svg.encode("utf-8")).decode("ascii")
+        caption = _CAPTIONS[name]
+        failed = int((analysis.transactions.verdict != "ok").sum()) if name == "timeline" else 0
+        if failed > plots.MAX_LABELS:  # the labels would overprint: say so rather than promise them
+            caption = caption.replace("large markers labelled with their txn number and what failed",
+                                      f"large markers ({failed:,} failures: too many to label; the Transactions "
+                                      "table lists them)")
         figures.append(f"<figure id=\"plot-{name}\"><img class=\"plot\" src=\"{src}\" alt=\"{_e(title)}\">"
-                       f"<figcaption>{_e(_CAPTIONS[name])}</figcaption></figure>")
+                       f"<figcaption>{_e(caption)}</figcaption></figure>")
     return "<section id=\"plots\"><h2>Plots</h2>\n<div class=\"plots\">" + "\n".join(figures) + "</div>\n</section>\n"
 
 
@@ -348,7 +369,7 @@ def _drill_section(failed: pd.DataFrame, shown: pd.DataFrame, drill: dict[int, l
                 "use <code>pd-analyze dump --frames</code> or <code>Analysis.fields(txn)</code> for the others.</p>")
     items = []
     for row in shown.itertuples():
-        what = row.errors or row.pnio_status or ""
+        what = row.errors or row.pnio_error_text or ""
         frames = len(str(row.frames).split())
         items.append(
             f"<details id=\"txn-{int(row.txn)}\" data-txn=\"{int(row.txn)}\"><summary>"

@@ -168,7 +168,7 @@ def _label_failures(ax: Axes, failures: pd.DataFrame, secs: pd.Series, y: pd.Ser
         prev = last.get(lane)
         level = (prev[1] + 1) % len(offsets) if prev is not None and x - prev[0] < 0.12 * span else 0
         last[lane] = (x, level)
-        what = row.errors or " ".join(str(v) for v in (row.verdict, row.pnio_status) if v)
+        what = row.errors or " ".join(str(v) for v in (row.verdict, row.pnio_error_text) if v)
         ax.annotate(f"{row.txn}: {_short(str(what), 28)}", (x, lane), xytext=(4, offsets[level]),
                     textcoords="offset points", fontsize=7, color=VERDICT_COLOURS[str(row.verdict)])
 
@@ -254,7 +254,8 @@ def svg(fig: Figure) -> str:
     """The figure as SVG text: text kept as text, fixed ids and no date, so equal input gives equal bytes."""
     buf = io.StringIO()
     with rc_context({"svg.fonttype": "none", "svg.hashsalt": "pd-analyze"}):
-        fig.savefig(buf, format="svg", metadata={"Date": None, "Creator": "pd-analyze"})
+        # tight: the saved area grows to hold every label, legend and annotation, so none is cut off
+        fig.savefig(buf, format="svg", bbox_inches="tight", metadata={"Date": None, "Creator": "pd-analyze"})
     return buf.getvalue()
 
 

@@ -75,8 +75,42 @@ def _text(value: object) -> str:
     return "<NA>" if _missing(value) else str(value)
 
 
+_FAILED = frozenset({"pnio_error", "timeout", "malformed", "reference_mismatch"})
+_UNANSWERED = {"deadline": "no answer within the transaction timeout",
+               "superseded": "the controller wrote the next request before an answer came",
+               "capture_end": "the capture ended before an answer came",
+               "evicted": "dropped by the analyser's limits (too many open transactions or frames)"}
+
+
+def _reason(verdict: object, status: object, closed_by: object, b5: object, last_read: object = None) -> str:
+    """Why a transaction failed, in words; for a timeout, how long the controller kept reading."""
+    if verdict == "pnio_error":
+        return str(status) if status and not _missing(status) else "record service refused"
+    if verdict == "timeout":
+        why = _UNANSWERED.get(str(closed_by), "no answer")
+        stopped = "its last read" if closed_by == "capture_end" else "the controller gave up: last read"
+        asked = [] if _missing(last_read) else [f"{stopped} {_ms(last_read)} ms after the write"]
+        if not _missing(b5) and b5:
+            asked.append(f"{b5} B5 answer{'s' if b5 != 1 else ''}")
+        return f"timeout: {why}" + (f" ({', '.join(asked)})" if asked else "")
+    if verdict == "malformed":
+        return "malformed: a PDU could not be decoded (see the findings)"
+    return "reference mismatch: the response does not answer the request"
+
+
+def _few(params: str, most: int = 4) -> str:
+    """A transaction's parameter list, shortened when long: 'P2000[0] P2001[0] P2002[0] ... (39 parameters)'."""
+    labels = params.split()
+    if not labels:
+        return "(parameters not decoded)"
+    return params if len(labels) <= most else " ".join(labels[:most - 1]) + f" ... ({len(labels)} parameters)"
+
+
 class Summary:
     """Accumulates the summary from table rows; `text()` renders it."""
+
+    FAILED = _FAILED  # the verdicts listed per drive, and how many slowest transactions are kept (for add_batch)
+    SLOWEST = TOP
 
     def __init__(self) -> None:
         self.transactions = 0
@@ -91,6 +125,9 @@ class Summary:
         self.b5_max: tuple[int, tuple, object] | None = None  # retries, place in the table, txn
         self.added = Counter()  # rows added per table: a row's place among equal keys
         self.latency: dict[str, tuple[array, array]] = {}  # device: t_total, t_write_rtt (seconds)
+        # per drive (device, slot, DO): parameters that failed, timed out or were refused, by reason
+        self.refused: Counter[tuple] = Counter()
+        self.slowest: list[tuple] = []  # (-t_total, place, device, slot, do, params, txn), the TOP slowest
         self.findings = 0
         self.severities: Counter[str] = Counter()
         self.rules: Counter[tuple[str, str]] = Counter()
@@ -123,12 +160,31 @@ class Summary:
                 place = (_TXN_ORDER(r), self.added["transactions"])
                 if self.b5_max is None or b5 > self.b5_max[0] or (b5 == self.b5_max[0] and place < self.b5_max[1]):
                     self.b5_max = (b5, place, r.txn)
+            self.drive_row(r.txn, self.added["transactions"], verdict, device, r.slot, r.do, r.params,
+                           r.pnio_error_text, r.closed_by, r.b5_retries, r.t_total, r.t_last_read)
             total = r.t_total
             if not _missing(total) and not _missing(device):
                 totals, rtts = self.latency.setdefault(device, (array("d"), array("d")))
                 totals.append(total)
                 if not _missing(r.t_write_rtt):
                     rtts.append(r.t_write_rtt)
+
+    def drive_row(self, txn: object, number: int, verdict: object, device: object, slot: object, do: object,
+                  params: object, status: object, closed_by: object, b5: object, total: object,
+                  last_read: object = None) -> None:
+        """One transaction's part in the per-drive lists: a failure with its reason in words, and its
+        time among the slowest. `number`: its place among the rows added (ties in the order added)."""
+        if verdict in _FAILED:
+            why = _reason(verdict, status, closed_by, b5, last_read)
+            self.refused[(_text(device), slot, do, _text(params), why)] += 1
+        if not _missing(total):
+            entry = (-total, (_LAST if _missing(txn) else txn, number), _text(device), slot, do, _text(params), txn)
+            if len(self.slowest) < TOP:
+                self.slowest.append(entry)
+                self.slowest.sort(key=lambda e: (e[0], e[1]))
+            elif (entry[0], entry[1]) < (self.slowest[-1][0], self.slowest[-1][1]):
+                self.slowest[-1] = entry
+                self.slowest.sort(key=lambda e: (e[0], e[1]))
 
     def _parameters(self, rows: Iterable[tuple]) -> None:
         first = self.first
@@ -206,6 +262,23 @@ class Summary:
                 f"{e}={n}" for e, n in _ranked_by_first(self.by_error, first)))
             first = {k[1]: v for k, v in self.first.items() if k[0] == "do"}
             lines.append("  by DO: " + ", ".join(f"{d}={n}" for d, n in _ranked_by_first(self.by_do, first)))
+        if self.refused:
+            lines.append("")
+            lines.append("Failed, timed-out and refused parameters per drive (device, slot, DO; worst first):")
+            drives: dict[tuple, int] = {}
+            for (dev, slot, do, _params, _why), n in self.refused.items():
+                drives[(dev, _text(slot), _text(do))] = drives.get((dev, _text(slot), _text(do)), 0) + n
+            for (dev, slot, do), total in _ranked(drives, top):  # type: ignore[misc]
+                lines.append(f"  {dev} slot {slot} DO {do}: {total}")
+                mine = {k: n for k, n in self.refused.items() if (k[0], _text(k[1]), _text(k[2])) == (dev, slot, do)}
+                for (_d, _s, _o, params, why), n in _ranked(mine, top):  # type: ignore[misc]
+                    lines.append(f"    {n:>6}  {_few(params)}: {why}")
+        if self.slowest:
+            lines.append("")
+            lines.append("Slowest parameters, ms (write to final response):")
+            for neg, _place, dev, slot, do, params, txn in self.slowest:
+                lines.append(f"  {_ms(-neg):>8}  {dev} slot {_text(slot)} DO {_text(do)} {_few(params)} "
+                             f"(transaction {_text(txn)})")
         lines.append("")
         lines.append(f"B5 retries: {self.b5_total} in {self.b5_transactions} transactions"
                      + (f" (max {self.b5_max[0]} in transaction {self.b5_max[2]})"

@@ -83,6 +83,7 @@ def transactions(acc: Summary, t: pa.Table) -> None:
         place = _place(number, base + best + 1)
         if acc.b5_max is None or most > acc.b5_max[0] or (most == acc.b5_max[0] and place < acc.b5_max[1]):
             acc.b5_max = (most, place, number)
+    _drives(acc, t, base)
     total = t.column("t_total")
     timed = _mask(total.is_valid()) & ~np.isnan(total.to_numpy()) & _mask(device.is_valid())
     if timed.any():
@@ -144,3 +145,32 @@ def findings(acc: Summary, t: pa.Table) -> None:
     named = _mask(t.column("rule").is_valid()) & _mask(t.column("name").is_valid())
     for key, count in _group_counts(t.filter(pa.array(named)), ["rule", "name"]):
         acc.rules[key] += count
+
+
+_DRIVE_COLS = ["txn", "verdict", "device", "slot", "do", "params", "pnio_error_text", "closed_by", "b5_retries",
+               "t_total", "t_last_read"]
+
+
+def _drives(acc: Summary, t: pa.Table, base: int) -> None:
+    """Summary.drive_row for the rows that can matter: every failed one, and those at least as slow as
+    the TOP-th slowest of the batch (a faster one cannot be among the slowest overall)."""
+    failed = _mask(pc.is_in(t.column("verdict"), value_set=_values(tuple(acc.FAILED))))
+    totals = t.column("t_total").to_numpy(zero_copy_only=False).astype(float)
+    timed = ~np.isnan(totals)
+    slow = np.zeros(len(totals), bool)
+    if timed.any():
+        cut = np.sort(totals[timed])[::-1][min(acc.SLOWEST, int(timed.sum())) - 1]
+        slow = timed & (totals >= cut)
+    rows = np.flatnonzero(failed | slow)
+    if not len(rows):
+        return
+    picked = t.take(pa.array(rows)).select(_DRIVE_COLS).to_pylist()
+    for i, row in zip(rows.tolist(), picked, strict=True):
+        total = row["t_total"]
+        acc.drive_row(row["txn"], base + i + 1, row["verdict"], row["device"], row["slot"], row["do"], row["params"],
+                      row["pnio_error_text"], row["closed_by"], row["b5_retries"],
+                      None if total is None or total != total else total, _number(row["t_last_read"]))
+
+
+def _number(value: object) -> object:
+    return None if value is None or value != value else value

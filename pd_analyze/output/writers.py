@@ -29,7 +29,10 @@ from pd_analyze.analysis.schema import COLUMNS, FIXED_CATEGORIES, TIME, float_ce
 from pd_analyze.analysis.schema import cell_value as value_of
 
 _FORMULA = re.compile(r"^[=+\-@\t\r]")
-_NUMBER = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$")
+# A number, or a list of numbers separated by single spaces (values_written "-775.375 2225.25"): data a
+# spreadsheet cannot run, so never prefixed; the formula guard is for free text only.
+_NUMBER_TOKEN = r"([+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?|[+-]?inf|nan)"
+_NUMBER = re.compile(rf"^{_NUMBER_TOKEN}( {_NUMBER_TOKEN})*$")
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 _EPOCH_NAIVE = datetime(1970, 1, 1)
 CSV_BATCH_ROWS = 65_536  # rows formatted a column at a time at once (each call costs some microseconds)
@@ -206,7 +209,7 @@ class JsonWriter(_LineWriter):
 
 
 class ParquetWriter:
-    """A Hive-partitioned dataset DIR/capture=<file>/part-0.parquet, a row group per chunk and capture.
+    """A Hive-partitioned dataset DIR/capture=<file name>/part-0.parquet, a row group per chunk and capture.
 
     Rows must come grouped by capture (the report sorts findings by capture for Parquet; the other
     tables are in transaction order, which runs file by file): one partition file is open at a time.
@@ -225,6 +228,7 @@ class ParquetWriter:
         self._values = [value_of(c) for c in self._cols]
         self._file: tuple[str, Any] | None = None  # capture, its open pyarrow.parquet.ParquetWriter
         self._closed: set[str] = set()
+        self._partitions: dict[str, str] = {}  # capture path -> its partition name
         os.makedirs(path, exist_ok=True)
 
     def write(self, rows: Sequence[tuple]) -> None:
@@ -283,13 +287,27 @@ class ParquetWriter:
 
         if capture in self._closed:  # a bug in the caller's order, never the capture's fault
             raise ValueError(f"rows of capture {capture!r} do not come together")
-        folder = os.path.join(self.path, "capture=" + quote(capture, safe=""))
+        folder = os.path.join(self.path, "capture=" + quote(self._partition(capture), safe=""))
         if os.path.isdir(folder):  # as pandas' delete_matching: this partition is replaced
             for old in os.listdir(folder):
                 if os.path.isfile(os.path.join(folder, old)):
                     os.unlink(os.path.join(folder, old))
         os.makedirs(folder, exist_ok=True)
         return pq.ParquetWriter(os.path.join(folder, "part-0.parquet"), self._file_schema)
+
+    def _partition(self, capture: str) -> str:
+        """The partition of a capture: its file name (a reader's `capture` column), made unique with ~2,
+        ~3, ... when captures of the same name in other directories share the dataset."""
+        name = self._partitions.get(capture)
+        if name is None:
+            base = os.path.basename(capture) or capture
+            taken = set(self._partitions.values())
+            name, k = base, 1
+            while name in taken:
+                k += 1
+                name = f"{base}~{k}"
+            self._partitions[capture] = name
+        return name
 
     def _array(self, i: int, cells: Sequence[object]) -> Any:
         pa = self._pa

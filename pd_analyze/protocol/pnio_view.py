@@ -5,12 +5,18 @@ from __future__ import annotations
 
 from pd_analyze.model.layout import Field, plain
 from pd_analyze.model.values import (
+    ERROR_CODE_READ,
+    ERROR_DECODE_PNIORW,
     INDEX_WRITE_MULTIPLE,
+    PNIO_ERROR_CODE,
     PNIO_OPNUM,
     PNIORW_STATE_CONFLICT,
     PROFIDRIVE_INDICES,
     PTYPE_RESPONSE,
     RECORD_SERVICES,
+    code1_name,
+    code2_name,
+    status_text,
 )
 from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol import profidrive_view
@@ -24,9 +30,7 @@ def pdu_summary(ptype: int, seq: int, stub: rec.Stub, fragments: int, opnum: int
     kind = "response" if ptype == PTYPE_RESPONSE else "request"
     parts = [f"{op} {kind}", f"seq {seq}"]
     if stub.status is not None and not stub.status.ok:
-        status = stub.status.text()
-        parts.append(f"PNIOStatus {status}" + (" (state conflict: not ready)"
-                                               if stub.status.code1 == PNIORW_STATE_CONFLICT else ""))
+        parts.append(f"PNIOStatus {status_text(stub.status.text())}")
     for block in stub.blocks[:4]:
         text = f"{block.layout.title.split(' ')[0]} api {block.values[rec.B_API]:#x} slot " \
                f"{block.values[rec.B_SLOT]}/{block.values[rec.B_SUBSLOT]:#x} index {block.index:#06x}"
@@ -49,7 +53,7 @@ def stub_layers(stub: rec.Stub, body: bytes, base: int, opnum: int, response: bo
         layers.append(Layer(title, 0, [plain("rpc.body", 0, body, len(body), body, base)]))
         return layers
     layout = stub.ndr_layout
-    layers.append(Layer(layout.title, 0, layout.annotate(body, 0, stub.ndr, base)))
+    layers.append(Layer(layout.title, 0, explain_status(layout.annotate(body, 0, stub.ndr, base), stub.status)))
     if opnum not in RECORD_SERVICES:
         rest = body[rec.NDR_SIZE:]
         if rest:
@@ -60,7 +64,8 @@ def stub_layers(stub: rec.Stub, body: bytes, base: int, opnum: int, response: bo
     for block in stub.blocks:
         depth = 1 + block.depth
         layers.append(Layer(f"{block.layout.title}, index {block.index:#06x}", depth,
-                                block.layout.annotate(body, block.offset, block.values, base)))
+                            explain_status(block.layout.annotate(body, block.offset, block.values, base),
+                                           block.status)))
         if block.layout in (rec.WRITE_REQ, rec.READ_RES) and block.index != INDEX_WRITE_MULTIPLE:
             layers += record_layers(block, base, depth + 1, describe)
         end = block.record_offset + len(block.record)
@@ -73,6 +78,37 @@ def stub_layers(stub: rec.Stub, body: bytes, base: int, opnum: int, response: bo
         layers.append(Layer("Trailing bytes", 1, [plain("record.trailing", start, body, stub.trailing,
                                                             body[start:], base)]))
     return layers
+
+
+def explain_status(fields: list[Field], status: rec.Status | None) -> list[Field]:
+    """The PNIOStatus fields of a header in words: ErrorCode1 and ErrorCode2 named by what ErrorDecode
+    says they are (protocol.md 4.6), and a failed status marked as the failure it is, not as a
+    well-formed field ("ok"), on its ErrorCode."""
+    if status is None or status.ok:
+        return fields
+    for f in fields:
+        part = f.name.rpartition(".")[2]
+        if part == "code1":
+            meaning = code1_name(status.decode, status.code1)
+        elif part == "code2":
+            meaning = code2_name(status.decode, status.code1, status.code2)
+        elif part == "code" and ".status." in f.name:
+            meaning = PNIO_ERROR_CODE.get(status.code, "")
+            f.check = status_check(status)
+        else:
+            continue
+        f.show = f"0x{f.value:02x} ({meaning})" if meaning and isinstance(f.value, int) else f.show
+        f.shared = None  # shown for this status only: not the Layout's shared text
+    return fields
+
+
+def status_check(status: rec.Status) -> str:
+    """The check text of a status that is not OK: B5 on a read is the device saying "not ready yet"
+    (the controller reads again, protocol.md 7.3), anything else a refused record service."""
+    if status.code == ERROR_CODE_READ and status.decode == ERROR_DECODE_PNIORW \
+            and status.code1 == PNIORW_STATE_CONFLICT:
+        return f"not ready: {status_text(status.text())}; the controller reads again"
+    return f"failed: {status_text(status.text())}"
 
 
 def record_layers(block: rec.Block, base: int, depth: int, describe: Describe) -> list[Layer]:

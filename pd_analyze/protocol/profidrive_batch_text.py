@@ -125,13 +125,14 @@ def _hex(raw: np.ndarray) -> pa.Array:
 
 
 def _floats(raw: np.ndarray, size: int) -> pa.Array:
-    """f"{v:.7g}" of each value (which gives nan, inf and -inf as str() does), formatted once per
-    distinct bit pattern (-0.0 is not 0.0)."""
+    """pd_values.float_text of each value (the shortest text of its width that reads back to the same
+    bits; nan, inf and -inf as str() gives them), formatted once per distinct bit pattern (-0.0 is not 0.0)."""
     distinct, inverse = np.unique(_big_endian(raw), return_inverse=True)
     width = np.uint32 if size == 4 else np.uint64
     with np.errstate(invalid="ignore"):  # a signalling NaN is converted like any other
         floats = distinct.astype(width).view(np.float32 if size == 4 else np.float64).astype(np.float64)
-    return pa.array(list(map("{:.7g}".format, floats.tolist())), pa.string()).take(pa.array(inverse.ravel()))
+    texts = [pt.float_text(v, size) for v in floats.tolist()]
+    return pa.array(texts, pa.string()).take(pa.array(inverse.ravel()))
 
 
 def _string_cell(cat: int, data: bytes) -> str:

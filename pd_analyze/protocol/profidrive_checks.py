@@ -9,6 +9,7 @@ from __future__ import annotations
 from functools import cache
 
 from pd_analyze.model import pd_values as pt
+from pd_analyze.model.fields import value_text
 from pd_analyze.model.rules import Finding, finding
 from pd_analyze.protocol.profidrive import Block, Parsed
 from pd_analyze.protocol.profiles import DEFAULT, Limit, Profile, generic, load
@@ -61,8 +62,9 @@ class Checker:
             return
         for profile, lim in self._by_key.get(key, ()):
             if not lim.allows(value):
-                out.append(finding(lim.rule, frame, name, _fmt(value), lim.text(),
-                                   f"{name} = {_fmt(value)} outside the {profile.name} limit {lim.text()} "
+                shown = value_text(name, value)
+                out.append(finding(lim.rule, frame, name, shown, lim.text(),
+                                   f"{name} = {shown} outside the {profile.name} limit {lim.text()} "
                                    f"({lim.source})", source=lim.source))
 
     def describe(self, key: str, value: int) -> str:
@@ -257,6 +259,3 @@ def _address_fields(i: int) -> tuple[str, str, str, str]:
 def _value_fields(i: int) -> tuple[str, str]:
     return f"pd.val[{i}].format", f"pd.val[{i}].n_values"
 
-
-def _fmt(value: int) -> str:
-    return f"{value:#x}" if value > 9 else str(value)

@@ -39,12 +39,13 @@ def values_of(block: Block) -> list[tuple[int, int, object, str]]:
     return out
 
 
-def cell_text(value: object) -> str:
-    """One value as a table cell shows it: text quoted when it has spaces, escaped when not printable."""
+def cell_text(value: object, size: int) -> str:
+    """One value as a table cell shows it: text quoted when it has spaces, escaped when not printable, a
+    float as the shortest text of its width (size bytes) that reads back to the same bits."""
     if isinstance(value, str):
         return repr(value) if not value.isprintable() else value if " " not in value else f'"{value}"'
     if isinstance(value, float):
-        return f"{value:.7g}"
+        return pt.float_text(value, size)
     return str(value)
 
 
@@ -64,7 +65,8 @@ def value_of(fmt: int, raw: bytes) -> tuple[object, str]:
         value = struct.unpack(">f" if len(raw) == 4 else ">d", raw)[0]
         if math.isnan(value) or math.isinf(value):
             return str(value), str(value)
-        return value, f"{value:.7g}" if len(raw) == 4 else repr(value)
+        shown = pt.float_text(value, len(raw))
+        return float(shown), shown  # a Float32 as the double its shortest text reads as: 0.1, not 0.100000001
     if kind == "hex":
         return unsigned, f"0x{unsigned:0{2 * len(raw)}x}"
     if kind == "n2":
@@ -105,14 +107,14 @@ def description_fields(block: Block, i: int, base: int) -> list[Field]:
         name = f"pd.val[{i}].desc.{element}"
         if code:
             value = struct.unpack(code, raw)[0]
-            shown = f"{value:.7g}" if isinstance(value, float) else str(value)
+            shown = pt.float_text(value, size) if isinstance(value, float) else str(value)
             if element == "identifier":
                 fmt = value & 0xFF
                 flags = [text for bit, text in pt.IDENTIFIER_BITS.items() if value >> bit & 1]
                 shown = f"0x{value:04x} (data type {pt.FORMAT_NAME.get(fmt, hex(fmt))}" + \
                         (f"; {', '.join(flags)}" if flags else "") + ")"
             elif element in ("low_limit", "high_limit"):
-                shown = f"0x{value:08x} (as Float32 {struct.unpack('>f', raw)[0]:.7g})"
+                shown = f"0x{value:08x} (as Float32 {pt.float_text(struct.unpack('>f', raw)[0], 4)})"
         else:
             value = raw.decode("latin-1")
             shown = f'"{value}"' if value.isprintable() else repr(value)
@@ -145,7 +147,7 @@ def annotate(p: Parsed, data: bytes, base: int, describe: Describe,
                    ("subindex", 4, 2, a.subindex))]
         for fld, key in zip(fields, ("attribute", "n_elems", "pnu", "subindex"), strict=True):
             fld.check = describe(f"request.{key}", fld.value)
-        sections.append((f"Parameter address {i + 1}: {a.label()}", fields))
+        sections.append((f"Parameter address [{i}]: {_named(a.label(), a.pnu)}", fields))
     if p.echo:
         sections.append(("Address echo (AKD manual layout)", [Field("pd.echo", base + 4, 6, bytes(data[4:10]),
                                                                     data[4:10].hex(), data[4:10].hex(" "))]))
@@ -161,30 +163,37 @@ def annotate(p: Parsed, data: bytes, base: int, describe: Describe,
     return sections
 
 
-
-
 def _show_addr(name: str, value: int) -> str:
     if name == "attr":
         return f"0x{value:02x} ({pt.ATTRIBUTE.get(value, 'reserved')})"
     if name == "n_elems" and value == 0:
         return "0 (single value / non-array)"
+    if name == "pnu" and pt.pnu_name(value):
+        return f"{value} ({pt.pnu_name(value)})"
     return str(value)
+
+
+def _named(label: str, pnu: int | None) -> str:
+    """A parameter label with its standard name when it has one: 'P964[0] (drive unit identification)'."""
+    name = pt.pnu_name(pnu) if pnu is not None else ""
+    return f"{label} ({name})" if name else label
 
 
 def _block_title(i: int, block: Block, addr: Address | None, response: bool) -> str:
     label = addr.label(block.n_values if addr is not None and addr.attr == pt.ATTR_VALUE
-                       and not block.is_error else None) if addr is not None else f"block {i + 1}"
+                       and not block.is_error else None) if addr is not None else f"block [{i}]"
+    label = _named(label, addr.pnu if addr is not None else None)
     if block.is_error:
-        return f"Parameter {i + 1}: {label} error {block.error:#04x} ({pt.error_text(max(block.error, 0))})"
+        return f"Parameter [{i}]: {label} error {block.error:#04x} ({pt.error_text(max(block.error, 0))})"
     if block.format in (pt.FMT_ZERO, pt.FMT_AKD_ZERO):
-        return f"Parameter {i + 1}: {label} written" if response else f"Parameter {i + 1}: {label} Zero"
+        return f"Parameter [{i}]: {label} written" if response else f"Parameter [{i}]: {label} Zero"
     name = pt.FORMAT_NAME.get(block.format, f"format {block.format:#04x}")
     element = ""
     if addr is not None and addr.attr == pt.ATTR_DESCRIPTION:
         element = f", description element {addr.subindex} ({pt.DESCRIPTION_ELEMENT.get(addr.subindex, '?')})"
     elif addr is not None and addr.attr == pt.ATTR_TEXT:
         element = ", text"
-    return f"Parameter {i + 1}: {label} {name} x {block.n_values}{element}"
+    return f"Parameter [{i}]: {label} {name} x {block.n_values}{element}"
 
 
 def _block_fields(i: int, block: Block, data: bytes, base: int, side: str, describe: Describe,

@@ -17,7 +17,8 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
-from pd_analyze.model.rules import RULES
+from pd_analyze.model.fields import value_text
+from pd_analyze.model.rules import AKD, RULES, YASKAWA_EP3
 
 # Limit keys: the field each one constrains and where it applies.
 LIMIT_KEYS: Mapping[str, tuple[str, str]] = MappingProxyType({
@@ -44,9 +45,9 @@ LIMIT_KEYS: Mapping[str, tuple[str, str]] = MappingProxyType({
     "iod.index": ("iod.index", "PROFIdrive record request: Index"),
 })
 TOLERATIONS = MappingProxyType({
-    "format_00_zero": "Format 0x00 accepted as Zero 'no data' (003_8e0163ef8c5e11f4.txt)",
-    "trailing_00_00": "positive change response followed by 00 00 is only noted (003_8e0163ef8c5e11f4.txt)",
-    "api_dap": "API 0x0000 on 0xB02E is only noted (000_8871e7857f299724.txt)",
+    "format_00_zero": f"Format 0x00 accepted as Zero 'no data' ({AKD})",
+    "trailing_00_00": f"positive change response followed by 00 00 is only noted ({AKD})",
+    "api_dap": f"API 0x0000 on 0xB02E is only noted ({YASKAWA_EP3})",
 })
 DEFAULT = "generic"
 ENV_DIR = "PD_ANALYZE_PROFILES"
@@ -71,7 +72,7 @@ class Limit:
         return False
 
     def text(self) -> str:
-        hexa = self.key.endswith(("_id", "attribute", "format", "api", ".index"))
+        hexa = value_text(self.field, 0).startswith("0x")  # the registry decides, as for the field itself
         return ", ".join(_num(lo, hexa) if lo == hi else f"{_num(lo, hexa)} ... {_num(hi, hexa)}"
                          for lo, hi in self.ranges)
 

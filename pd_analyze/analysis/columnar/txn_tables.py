@@ -22,6 +22,7 @@ from pd_analyze.analysis.rows import Rows, finding_row
 from pd_analyze.analysis.schema import COLUMNS, micros
 from pd_analyze.analysis.table_batches import TIME_TYPE, batch_schema, rows_to_batch
 from pd_analyze.model import pd_values as pt
+from pd_analyze.model.values import status_text
 from pd_analyze.model.verdicts import ANSWERED
 
 _NAMES = ("transactions", "parameters", "findings", "changes")
@@ -108,6 +109,7 @@ class TableBuilder:
         rb = np.where(has_res[owner] & (j < np.where(has_res, rc.n_blocks[s], 0)[owner]),
                       rc.first_block[s][owner] + j, -1)
         err = _at(bc.error, rb, -1)
+        err_sub = np.where(err >= 0, _at(bc.error_subindex, rb, -1), -1)
         src = np.where(wb >= 0, wb, rb)
         fmt = _at(bc.format, src, -1)
         fmt_cell = np.where(fmt != pt.FMT_ERROR, fmt, -1)
@@ -126,11 +128,12 @@ class TableBuilder:
             pa.array([numbers[o] for o in owners], pa.int64()),
             pa.array([captures[o] for o in owners], pa.large_string()),
             pa.array(devices, pa.large_string()), pa.array(dos, pa.int64()), pa.array(labels, pa.large_string()),
-            pa.array(pnu, pa.int64()), pa.array(sub, pa.int64()), pa.array(elems, pa.int64()),
+            pa.array(pnu, pa.int64()), _pnu_names(pnu), pa.array(sub, pa.int64()), pa.array(elems, pa.int64()),
             pa.array([_ATTRIBUTE[a] for a in attr.tolist()], pa.large_string()),
             pa.array(["" if f < 0 else _FORMAT[f] for f in fmt_cell.tolist()], pa.large_string()),
             written, read, pa.array([_hex(e) for e in errs], pa.large_string()),
             pa.array([self._error_text(e) if e >= 0 else "" for e in errs], pa.large_string()),
+            pa.array(err_sub, pa.int64(), mask=err_sub < 0),
         ], schema=batch_schema("parameters")))
         # --- per transaction: its label, its errors -------------------------------------------------------
         params: list[list[str]] = [[] for _ in range(n)]
@@ -159,7 +162,7 @@ class TableBuilder:
     def _changes(self, txns: list[Txn], rows: list[int], owners: list[int], labels: list[str], pnu: np.ndarray,
                  sub: np.ndarray, written: pa.Array, errs: list[int], numbers: list[int], captures: list[str],
                  devices: list[str], j: np.ndarray) -> pa.Table:
-        cols: list[list] = [[] for _ in range(12)]
+        cols: list[list] = [[] for _ in range(13)]
         idx = np.array(rows, np.int64)
         values = written.take(pa.array(idx)).to_pylist()
         positions = j[idx].tolist()
@@ -172,11 +175,11 @@ class TableBuilder:
                 result = "ok" if t.verdict in ANSWERED else t.verdict
             before = t.values_before[i] if i < len(t.values_before) else [None]
             for col, cell in zip(cols, (captures[owners[row]], devices[row], t.do, numbers[owners[row]], t.write_frame,
-                                        t.t_start, labels[row], None, None, value, result,
+                                        t.t_start, labels[row], None, None, None, value, result,
                                         " ".join(b for b in before if b is not None) if all(before) else ""),
                                  strict=True):
                 col.append(cell)
-        cols[7], cols[8] = pnu[idx], sub[idx]
+        cols[7], cols[8], cols[9] = pnu[idx], _pnu_names(pnu[idx]), sub[idx]
         return _table("changes", cols)
 
     @staticmethod
@@ -199,7 +202,8 @@ class TableBuilder:
             pa.array([t.n_params if t.n_params >= 0 else None for t in txns], integer),
             pa.array([" ".join(p) for p in params], text), pa.array(resp_id, text),
             pa.array([t.verdict for t in txns], text), pa.array([" ".join(e) for e in errors], text),
-            pa.array([t.pnio_status for t in txns], text), pa.array([t.b5 for t in txns], integer),
+            pa.array([t.pnio_status for t in txns], text),
+            pa.array([status_text(t.pnio_status) for t in txns], text), pa.array([t.b5 for t in txns], integer),
             pa.array([len(t.read_frames) for t in txns], integer), pa.array([0] * len(txns), integer),
             pa.array([t.write_frame for t in txns], integer),
             pa.array([t.write_res_frame or None for t in txns], integer),
@@ -211,6 +215,7 @@ class TableBuilder:
             pa.array([None if d is None else d - s for d, s in zip(done, start, strict=True)], real),
             pa.array([None if d is None or r is None else d - r for d, r in zip(done, last_read, strict=True)], real),
             pa.array([None if r is None or f is None else f - r for r, f in zip(res, first_read, strict=True)], real),
+            pa.array([None if r is None else r - s for r, s in zip(last_read, start, strict=True)], real),
             pa.array([t.capture_ended for t in txns], pa.bool_()), pa.array([t.closed_by for t in txns], text),
         ]
         return pa.Table.from_arrays(columns, schema=batch_schema("transactions"))
@@ -253,3 +258,8 @@ def _table(name: str, cols: list) -> pa.Table:
             arrays.append(pa.array(values, field.type))
         del c
     return pa.Table.from_arrays(arrays, schema=schema)
+
+
+def _pnu_names(pnu: np.ndarray) -> pa.Array:
+    """pd_values.pnu_name of each parameter number ("" for most: only profile parameters have one)."""
+    return pa.array([pt.pnu_name(p) for p in pnu.tolist()], pa.large_string())
