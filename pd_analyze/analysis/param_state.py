@@ -237,7 +237,7 @@ class StateTable:
     # --- the table ----------------------------------------------------------------------------------------
     def ordered(self) -> list[Key]:
         """The elements in table order: device (as an address), DO, PNU, subindex."""
-        return sorted(self.elements, key=lambda k: (_device_order(k[0]), k[1], k[2], k[3]))
+        return sorted(self.elements, key=lambda k: (device_order(k[0]), k[1], k[2], k[3]))
 
     def rows(self) -> Iterator[tuple]:
         for key in self.ordered():
@@ -272,7 +272,7 @@ def state_frame(rows: list[tuple]) -> pd.DataFrame:
     return df
 
 
-def _device_order(device: str) -> tuple:
+def device_order(device: str) -> tuple:
     parts = device.split(".")
     if len(parts) == 4 and all(p.isdigit() for p in parts):
         return (0, *map(int, parts))
