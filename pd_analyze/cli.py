@@ -3,6 +3,8 @@
 Exit codes: 0 done, 1 a finding reached the --fail-on threshold (audit), 2 unreadable input or bad
 usage. Data goes to stdout, progress and errors to stderr; no traceback ever reaches the user.
 """
+# Longer than 450 lines: every command's options, help and examples are declared here, in one place, so that
+# `--help` and the shared options (profile, timeouts, jobs) cannot drift apart; the work is in the layers below.
 
 from __future__ import annotations
 
@@ -269,6 +271,8 @@ AUDIT_EXAMPLES = """\b
 Examples:
   pd-analyze audit commissioning.pcapng
   pd-analyze audit captures/ --fail-on warning --profile yaskawa
+  pd-analyze audit sample_pcaps/audit_commissioning.pcap --expect sample_pcaps/sets/audit_commissioning.csv
+  pd-analyze audit commissioning.pcapng --expect intended.csv --expect-strict
 """
 
 
@@ -410,9 +414,9 @@ def audit_command(captures: tuple[str, ...], read: str | None, fail_on: str, exp
                                            progress=_progress() if jobs == 1 else None,
                                            wrap=state.wrap if expected else None)
     if expected is not None:
-        from pd_analyze.analysis import expect
+        from pd_analyze.analysis import intended
 
-        rows = _chain_rows(rows, expect.finding_rows(expect.check(expected, state.table(), expect_strict)))
+        rows = _chain_rows(rows, intended.finding_rows(intended.check(expected, state.table(), expect_strict)))
     counts: dict[str, int] = dict.fromkeys(SEVERITIES, 0)
     total = worst = 0
     for capture, frame, txn, severity, rule, name, *_, message in rows:
@@ -439,16 +443,16 @@ def _na(value: object) -> str:
     return "<NA>" if value is None else str(value)
 
 
-# --- parameter state: params, diff, audit --expect (the logic is in analysis.param_state, analysis.expect,
+# --- parameter state: params, diff, audit --expect (the logic is in analysis.param_state, analysis.intended,
 # output.param_tables and output.param_diff) ------------------------------------------------------------------
 
 def _expected(path: str) -> object:
     """The intended set, read before any capture: a malformed one is a one-line error naming its line."""
-    from pd_analyze.analysis import expect
+    from pd_analyze.analysis import intended
 
     try:
-        return expect.load(path)
-    except expect.ExpectError as exc:
+        return intended.load(path)
+    except intended.ExpectError as exc:
         raise click.ClickException(dump.safe(str(exc))) from None
 
 
@@ -476,13 +480,13 @@ def _chain_rows(first: object, then: list[tuple]) -> object:
 
 PARAMS_EXAMPLES = """\b
 Examples:
-  pd-analyze params sample_pcaps/pd_audit_commissioning.pcap
+  pd-analyze params sample_pcaps/audit_commissioning.pcap
   pd-analyze params commissioning.pcapng --format csv > state.csv
   pd-analyze params captures/ --out state/ --format parquet
 """
 DIFF_EXAMPLES = """\b
 Examples:
-  pd-analyze diff sample_pcaps/pd_audit_commissioning.pcap sample_pcaps/pd_audit_recommissioning.pcap
+  pd-analyze diff sample_pcaps/audit_commissioning.pcap sample_pcaps/audit_recommissioning.pcap
   pd-analyze diff drive_a.pcapng drive_b.pcapng --by do --format csv
 """
 

@@ -75,13 +75,13 @@ class Analysis:
         return state_of(self.rows).frame()
 
     def check_expected(self, expected: str, strict: bool = False) -> pd.DataFrame:
-        """The findings of the parameter state against an intended set (CSV file; see analysis.expect),
+        """The findings of the parameter state against an intended set (CSV file; see analysis.intended),
         as rows of the findings table; `strict` adds unexpected_write for parameters the set does not list."""
-        from pd_analyze.analysis import expect
+        from pd_analyze.analysis import intended
         from pd_analyze.analysis.param_state import state_of
 
-        found = expect.check(expect.load(expected), state_of(self.rows), strict)
-        return expect.findings_frame(found)
+        found = intended.check(intended.load(expected), state_of(self.rows), strict)
+        return intended.findings_frame(found)
 
     @cached_property
     def accounting(self) -> pd.DataFrame:

@@ -180,7 +180,7 @@ _RULES = (
     R("T5", "b5_polling", INFO, SEQUENCE, PD, "B5 retries above the threshold"),
     R("T7", "txn_evicted", WARNING, SEQUENCE, "pd-analyze limits",
       "transaction table full, or a transaction with too many frames: it ends as a timeout"),
-    # the parameter state against an intended set (pd-analyze audit --expect, analysis.expect)
+    # the parameter state against an intended set (pd-analyze audit --expect, analysis.intended)
     R("S1", "expect_mismatch", ERROR, COMMENT, EXPECT, "confirmed or read-back value differs from the intended one"),
     R("S2", "expect_refused", ERROR, COMMENT, EXPECT, "every write of an intended parameter was refused"),
     R("S3", "expect_unconfirmed", WARNING, COMMENT, EXPECT, "written, but neither confirmed nor read back"),

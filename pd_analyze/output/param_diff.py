@@ -24,7 +24,8 @@ DIFF_COLUMNS: tuple[Column, ...] = tuple(Column(*c) for c in (
     ("param", "string", "P<pnu>[<subindex>]"), ("name", "string", "profile parameter name, empty when unknown"),
     ("difference", "string", "differs, only in A, only in B, refused in A/B, unconfirmed in A/B"),
     ("status_a", "string", "ok, refused, unconfirmed or missing: how the last write ended in A (ok: no write)"),
-    ("format_a", "string", "data type in A"), ("value_a", "string", "the value A last saw"),
+    ("format_a", "string", "data type in A"),
+    ("value_a", "string", "the value A last saw (confirmed or read back); with none, the value last tried"),
     ("error_a", "string", "the last refused write's error in A"),
     ("status_b", "string", "the same for B"), ("format_b", "string", "data type in B"),
     ("value_b", "string", "the value B last saw"), ("error_b", "string", "the last refused write's error in B"),
@@ -51,7 +52,9 @@ def side_of(st: ElementState | None) -> Side:
     tries = [(s.order, what) for s, what in ((st.written, "ok"), (st.refused, "refused"),
                                                (st.unconfirmed, "unconfirmed")) if s is not None]
     status = max(tries)[1] if tries else "ok"
-    last = st.last
+    # the value last seen; with none (every write refused or unconfirmed), the value last tried
+    last = st.last or max((s for s in (st.refused, st.unconfirmed) if s is not None), key=lambda s: s.order,
+                          default=None)
     error = st.refused.note if st.refused is not None else ""
     return Side(status, last.fmt if last else "", last.value if last else None, error)
 
@@ -104,7 +107,7 @@ def _shown(status: str, value: str | None, error: str) -> str:
         return "-"
     text = value if value is not None else "(no value)"
     if status == "refused":
-        return f"{text}; refused {error}"
+        return f"{text}; refused ({error})"
     return f"{text}; {status}" if status != "ok" else text
 
 
