@@ -266,6 +266,7 @@ Examples:
   pd-analyze report captures/ --out report/ --format parquet --profile sinamics
   pd-analyze report 'line3/*.pcapng' --timeout 30
   pd-analyze report sample_pcaps/fault_trace.pcap --format html --out report/
+  pd-analyze report commissioning.pcapng --format html --expect intended.csv
 """
 AUDIT_EXAMPLES = """\b
 Examples:
@@ -330,16 +331,24 @@ def _timeouts(func: Callable) -> Callable:
                                       "Lines) are written in chunks as the capture is read, so memory stays flat "
                                       "whatever its size. html: DIR/report.html (self-contained: summary, plots, "
                                       "tables, drill-down) plus the tables as CSV; it holds every table in memory.")
+@click.option("--expect", "expect_path", metavar="EXPECTED.csv",
+              help="With --format html: show each drive's parameter state against this intended set (as audit "
+                   "--expect).")
 @profile_option
 @_timeouts
-def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fmt: str, profile: str,
-                   timeout: float, rpc_timeout: float, jobs: int, chain: bool) -> None:
+def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fmt: str, expect_path: str | None,
+                   profile: str, timeout: float, rpc_timeout: float, jobs: int, chain: bool) -> None:
     """Pair requests with responses; write the tables and print a summary (worst offenders first)."""
+    if expect_path and fmt != "html":
+        raise click.UsageError("--expect belongs to --format html (the page's parameter state); for findings use "
+                               "`pd-analyze audit --expect`")
+    expected = _expected(expect_path) if expect_path else None
     paths = _files(captures, read, profile)
     _writable(out_dir)
     progress = _progress() if jobs == 1 else None
     try:
-        written, text, errors = _report(paths, out_dir, fmt, profile, timeout, rpc_timeout, progress, jobs, chain)
+        written, text, errors = _report(paths, out_dir, fmt, profile, timeout, rpc_timeout, progress, jobs, chain,
+                                        expected)
     except OSError as exc:  # the disk filled up, the directory went away...
         if exc.filename is not None and not os.path.abspath(exc.filename).startswith(os.path.abspath(out_dir)):
             raise  # not the report's files: a fault to report
@@ -363,7 +372,8 @@ def _writable(out_dir: str) -> None:
 
 
 def _report(paths: list[str], out_dir: str, fmt: str, profile: str, timeout: float, rpc_timeout: float,
-            progress: Callable[[str, int], None] | None, jobs: int, chain: bool) -> tuple[list[str], str, list[str]]:
+            progress: Callable[[str, int], None] | None, jobs: int, chain: bool,
+            expected: object = None) -> tuple[list[str], str, list[str]]:
     """The files written, the summary text and the capture errors."""
     from pd_analyze.output import report
 
@@ -374,7 +384,8 @@ def _report(paths: list[str], out_dir: str, fmt: str, profile: str, timeout: flo
         analysis = analyze(paths, profile, timeout, rpc_timeout, progress, jobs, chain)
         written = report.write_tables(analysis, out_dir, "csv")
         written.append(html_report.write(analysis, f"{out_dir}/report.html",
-                                         tables_dir_note="the CSV files beside this page"))
+                                         tables_dir_note="the CSV files beside this page",
+                                         expected=expected))  # type: ignore[arg-type]
         text, errors = report.summary(analysis), analysis.errors
     else:
         streamed = report.stream(paths, out_dir, fmt, Settings(profile, timeout, rpc_timeout), progress, jobs, chain)

@@ -25,7 +25,7 @@ import ipaddress
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 from pd_analyze.analysis.param_state import ElementState, Key, Seen, StateTable
 from pd_analyze.analysis.param_values import NotAValueError, parse_int, same, wire
@@ -174,6 +174,28 @@ def targets(expected: ExpectedSet, state: StateTable) -> list[tuple[Expected, st
             continue
         mine = [d for d in devices if (d, e.do, e.pnu, e.subindex) not in named]
         out += [(e, d) for d in mine] if devices else [(e, ANY_DEVICE)]
+    return out
+
+
+class Outcome(NamedTuple):
+    """The check of one intended element: `result` is "as intended" or the name of its finding."""
+
+    key: Key
+    line: Expected
+    result: str
+    message: str
+
+
+AS_INTENDED = "as intended"
+
+
+def outcomes(expected: ExpectedSet, state: StateTable) -> list[Outcome]:
+    """Every intended element of every device with its result (the HTML report's expected-set columns)."""
+    out = []
+    for e, device in targets(expected, state):
+        key = (device, e.do, e.pnu, e.subindex)
+        found = _check_one(expected.path, e, key, state.elements.get(key))
+        out.append(Outcome(key, e, found[1].name, found[1].message) if found else Outcome(key, e, AS_INTENDED, ""))
     return out
 
 
