@@ -332,3 +332,29 @@ def test_html_report_has_a_state_table_per_drive_with_the_set(tmp_path: Path) ->
     page = (tmp_path / "plain" / "report.html").read_text()
     assert '<section id="params"><h2>Parameter state</h2>' in page and "Checked against" not in page
     assert run("report", A, "--expect", str(five)).returncode == 2  # csv: no page to show it on
+
+
+def test_readme_shows_what_the_commands_print(tmp_path: Path) -> None:
+    """Every `$ pd-analyze ...` of the README's audit section prints what the README shows; the changed set
+    (made with sed there) names exactly P1000 and exits 1."""
+    import re
+    import shlex
+
+    readme = (ROOT / "README.md").read_text()
+    section = readme[readme.index("### Auditing a commissioning"):readme.index("## Python API")]
+    blocks = re.findall(r"```\n(.*?)```", section, re.S)
+    shown = 0
+    for block in blocks:
+        for command, output in re.findall(r"^\$ (pd-analyze [^;\n]*)\n((?:(?!\$ ).*\n)*)", block, re.M):
+            if "changed.csv" in command:
+                continue
+            r = run(*shlex.split(command)[1:])
+            assert r.stdout == output, command
+            shown += 1
+    assert shown == 3
+    changed = tmp_path / "changed.csv"
+    changed.write_text((SAMPLES / "sets" / "audit_commissioning.csv").read_text().replace(",1000,0,-300,",
+                                                                                         ",1000,0,-250,"))
+    r = run("audit", A, "--expect", str(changed))
+    assert r.returncode == 1
+    assert r.stdout + f"exit {r.returncode}\n" in section

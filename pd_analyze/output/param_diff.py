@@ -106,8 +106,8 @@ def _shown(status: str, value: str | None, error: str) -> str:
     if status == "missing":
         return "-"
     text = value if value is not None else "(no value)"
-    if status == "refused":
-        return f"{text}; refused ({error})"
+    if status == "refused":  # the error's number; its text is in the CSV and JSON
+        return f"{text}; refused {error.split(' ', 1)[0]}"
     return f"{text}; {status}" if status != "ok" else text
 
 
