@@ -77,6 +77,26 @@ def test_api_frame_is_typed_and_matches_the_streamed_state() -> None:
     assert len(df) == 9 and df.pnu.tolist() == [730, 730, 730, 1000, 1120, 1121, 1300, 2900, 1120]
     state, _ = collect([A], Settings())
     assert df.equals(state.frame())
+    assert df.station.tolist() == ["pump-1"] * 8 + [""]  # the PN-DCP Identify response of frame 25
+
+
+def test_station_names_from_pn_dcp() -> None:
+    from pd_analyze.analysis.stations import stations
+    from pd_analyze.protocol.dcp import station
+
+    real = ROOT.parent / "shared" / "captures" / "cisagov_icsnpp-profinet-io-cm__profinet_io_cm_mixed_1.pcap"
+    assert stations([str(real)]) == {"192.168.1.2": "versamax-pns11"}  # frame 466, as tshark reads it
+    assert stations(["-", str(ROOT / "sample_pcaps" / "absent.pcap")]) == {}  # stdin is not read twice
+    eth = bytes(12) + b"\x88\x92"
+    ident = bytes.fromhex("feff0501000010010000") + (28).to_bytes(2, "big")
+    ip = bytes.fromhex("0102000e0000") + bytes([10, 0, 0, 7]) + bytes(8)
+    name = bytes.fromhex("02020005" "0000") + b"abc" + b"\x00"
+    assert station(eth + ident + ip + name) == ("10.0.0.7", "abc")
+    assert station(bytes(12) + b"\x81\x00\x00\x05" + b"\x88\x92" + ident + ip + name) == ("10.0.0.7", "abc")
+    assert station(eth + ident[:3] + b"\x00" + ident[4:] + ip + name) is None  # a request, not a response
+    assert station(eth + ident + ip) is None and station(eth + ident[:5]) is None and station(bytes(10)) is None
+    cut = eth + ident[:-2] + (40).to_bytes(2, "big") + ip + name  # DCPDataLength beyond the frame
+    assert station(cut) == ("10.0.0.7", "abc")
 
 
 @pytest.mark.parametrize("path", sorted(p for p in SAMPLES.glob("*") if p.suffix in (".pcap", ".pcapng", ".gz")),
@@ -257,7 +277,8 @@ def test_params_text_csv_json_and_out(tmp_path: Path) -> None:
     lines = r.stdout.splitlines()
     assert lines[0].split() == ["device", "DO", "parameter", "format", "written", "frame", "read", "frame", "agrees",
                                 "writes", "refused", "last", "error", "name"]
-    assert lines[7].split() == ["192.168.1.21", "1", "P1300[0]", "Unsigned16", "2", "2", "0x02"]
+    assert lines[7].split() == ["192.168.1.21", "(pump-1)", "1", "P1300[0]", "Unsigned16", "2", "2", "0x02"]
+    assert lines[9].split()[:2] == ["192.168.1.22", "1"]  # no station name in the capture
     csv_lines = run("params", A, "--format", "csv").stdout.splitlines()
     assert csv_lines[0] == ",".join(c.name for c in STATE_COLUMNS) and len(csv_lines) == 10
     rows = [json.loads(line) for line in run("params", A, "--format", "json").stdout.splitlines()]
@@ -316,7 +337,7 @@ def test_html_report_has_a_state_table_per_drive_with_the_set(tmp_path: Path) ->
     page = (tmp_path / "report.html").read_text()
     assert ("Checked against the intended set: 10 intended elements: 3 as intended, 5 expect_mismatch, "
             "1 expect_missing, 1 expect_refused.") in page
-    assert re.findall(r"<h3>([^<]+) <small>\((\d+)\)</small></h3>", page) == [("192.168.1.21", "9"),
+    assert re.findall(r"<h3>([^<]+) <small>\((\d+)\)</small></h3>", page) == [("192.168.1.21 (pump-1)", "9"),
                                                                            ("192.168.1.22", "1")]
     data = json.loads(re.search(r'<script type="application/json" id="pd-data">(.*?)</script>', page, re.S).group(1))
     t = data["tables"]["params-0"]

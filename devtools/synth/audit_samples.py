@@ -4,6 +4,7 @@ parameters it was meant to leave, and a later recommissioning of the first drive
 - `audit_commissioning.pcap`: drive .21 (session 1) gets Float32, Integer16, an Unsigned8 array, a
   VisibleString; a 0x82 negative response confirms P1121 (Zero block) while refusing P1300 (error 0x02),
   whose second write is refused again; everything written is read back. Drive .22 (session 2) gets P1120.
+  Last, drive .21 answers a PN-DCP Identify with its station name "pump-1".
 - `audit_commissioning.csv` (in sets/): the intended set the capture meets exactly (a `*` line for P1120,
   the rest for .21; P1300 is not in it).
 - `audit_recommissioning.pcap`: drive .21 again: P1120 12.0 (not 10.0), P730[1] 1 (not 0), P2900 "Pump2",
@@ -16,12 +17,28 @@ from __future__ import annotations
 
 from .catalog import STATIC_EXPECTED, Built, intent_of, parameter_set, sample
 from .expect import Intent
-from .fixtures import ok_read, pcap_of, session
+from .fixtures import ok_read, pcap_of, plant, session
+from .net_encode import ETH_PNRT
 from .pd_encode import ParamAddress as P
 from .pd_encode import change_ok, change_request, error_block, pd_response, read_request, value_block, zero_block
 from .sim_capture import Capture
 
 RES_CHANGE_NAK = 0x82
+DCP_IDENTIFY_RESPONSE = 0xFEFF  # FrameID
+
+
+def dcp_identify_response(ip: str, name: str, xid: int) -> bytes:
+    """A PN-DCP Identify response (ServiceID 5, ServiceType 1 success) with the IP parameter and NameOfStation
+    blocks (each: Option, Suboption, DCPBlockLength, BlockInfo, value; padded to an even length)."""
+
+    def block(option: int, sub: int, value: bytes) -> bytes:
+        body = (0).to_bytes(2, "big") + value  # BlockInfo 0
+        return bytes([option, sub]) + len(body).to_bytes(2, "big") + body + bytes(len(body) & 1)
+
+    addr = bytes(int(x) for x in ip.split("."))
+    blocks = block(1, 2, addr + bytes([255, 255, 255, 0]) + bytes(4)) + block(2, 2, name.encode())
+    return (DCP_IDENTIFY_RESPONSE.to_bytes(2, "big") + bytes([5, 1]) + xid.to_bytes(4, "big") + bytes(2)
+            + len(blocks).to_bytes(2, "big") + blocks)
 F32, I16, U8, U16, VSTR = 0x08, 0x03, 0x05, 0x06, 0x09
 
 
@@ -60,6 +77,10 @@ def audit_commissioning_capture() -> Built:
     x.txn(s2.parameter_access(req, change_ok(5, 1, 1)), 5, "ok", "second drive: change P1120")
     x.txn(s2.parameter_access(read_request(6, 1, [P(1120)]), ok_read(6, 1, [value_block(F32, [10.0])])), 6, "ok",
           "second drive: read back")  # fmt: skip
+
+    # frame 25: drive .21 answers a DCP Identify with its station name (drive .22 announces none)
+    ctrl, dev = plant(1)
+    cap.send_ether(dev, ctrl.mac, ETH_PNRT, dcp_identify_response(dev.ip, "pump-1", 0x1001))
     return cap, x
 
 

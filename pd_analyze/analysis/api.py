@@ -72,7 +72,7 @@ class Analysis:
         """Per device, DO, PNU and subindex: the last value confirmed written and read back (param_state)."""
         from pd_analyze.analysis.param_state import state_of
 
-        return state_of(self.rows).frame()
+        return state_of(self.rows, [c.path for c in self.captures]).frame()
 
     def check_expected(self, expected: str, strict: bool = False) -> pd.DataFrame:
         """The findings of the parameter state against an intended set (CSV file; see analysis.intended),

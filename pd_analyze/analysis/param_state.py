@@ -29,6 +29,7 @@ from pd_analyze.analysis.jobs import run
 from pd_analyze.analysis.param_values import cells_agree, one_value, split_cell
 from pd_analyze.analysis.rows import Rows, _shifted, _shifted_table
 from pd_analyze.analysis.schema import TIME, Column, micros
+from pd_analyze.analysis.stations import stations
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.pnu_names import pnu_name
 from pd_analyze.model.verdicts import ANSWERED
@@ -47,6 +48,7 @@ CHANGE, READ = f"0x{pt.REQ_CHANGE:02x}", f"0x{pt.REQ_READ:02x}"  # the req_id ce
 # The table's columns, declared once (name, dtype as schema.Column, description)
 STATE_COLUMNS: tuple[Column, ...] = tuple(Column(*c) for c in (
     ("device", "category", "drive IP address"),
+    ("station", "string", "the drive's station name as it announced it (PN-DCP), empty when the capture has none"),
     ("do", "Int64", "DO-ID"), ("pnu", "Int64", "parameter number"), ("subindex", "Int64", "array element"),
     ("param", "string", "P<pnu>[<subindex>]"),
     ("name", "string", "profile parameter name (PNU 900-999), empty when unknown"),
@@ -149,6 +151,7 @@ class StateTable:
     """The state of every element seen, folded from table rows in any order of transactions."""
 
     elements: dict[Key, ElementState] = field(default_factory=dict)
+    stations: dict[str, str] = field(default_factory=dict)  # device IP -> station name (analysis.stations)
     pending: dict[int, list[ParamCells]] = field(default_factory=dict)  # rows whose transaction row is to come
 
     def add(self, txns: dict[int, TxnInfo], params: Iterable[ParamCells]) -> None:
@@ -241,19 +244,19 @@ class StateTable:
 
     def rows(self) -> Iterator[tuple]:
         for key in self.ordered():
-            yield state_row(key, self.elements[key])
+            yield state_row(key, self.elements[key], self.stations.get(key[0], ""))
 
     def frame(self) -> pd.DataFrame:
         return state_frame(list(self.rows()))
 
 
-def state_row(key: Key, st: ElementState) -> tuple:
+def state_row(key: Key, st: ElementState, station: str = "") -> tuple:
     device, do, pnu, sub = key
     w, r, last, ref = st.written, st.read, st.last, st.refused
     err, _, err_text = (ref.note.partition(" ") if ref is not None else ("", "", ""))
     fmt = last.fmt if last is not None else (ref or st.unconfirmed or Seen((0, 0), None, "", "", None, None)).fmt
     return STATE_ROW(
-        device, do, pnu, sub, f"P{pnu}[{sub}]", pnu_name(pnu), fmt, last.value if last else None,
+        device, station, do, pnu, sub, f"P{pnu}[{sub}]", pnu_name(pnu), fmt, last.value if last else None,
         w.value if w else None, w.capture if w else None, w.frame if w else None, w.t if w else None,
         r.value if r else None, r.capture if r else None, r.frame if r else None, r.t if r else None,
         st.agrees, st.writes, st.n_refused, st.n_unconfirmed, err, err_text, ref.frame if ref else None)
@@ -270,6 +273,12 @@ def state_frame(rows: list[tuple]) -> pd.DataFrame:
         else:
             df[c.name] = df[c.name].astype(c.dtype)
     return df
+
+
+def device_label(device: str, names: dict[str, str]) -> str:
+    """A device as people name it: its address, and its station name where the capture has one."""
+    name = names.get(device, "")
+    return f"{device} ({name})" if name else device
 
 
 def device_order(device: str) -> tuple:
@@ -342,9 +351,10 @@ class StateRows(Rows):
             self.tables.clear()
 
 
-def state_of(rows: Rows) -> StateTable:
-    """The state of an analysis' rows (Analysis.rows: rows made one by one and the columns' tables)."""
-    table = StateTable()
+def state_of(rows: Rows, paths: Iterable[str] = ()) -> StateTable:
+    """The state of an analysis' rows (Analysis.rows: rows made one by one and the columns' tables), with the
+    station names of the captures at `paths`."""
+    table = StateTable(stations=stations(paths))
     table.add_rows(rows.transactions, rows.parameters)
     table.add_tables(rows.tables.get("transactions", ()), rows.tables.get("parameters", ()))
     return table
@@ -356,4 +366,5 @@ def collect(files: list[str], settings: Settings, progress: Progress | None = No
     rows = StateRows(inner)
     results = run(files, rows, settings, progress, jobs, chain)
     rows.fold()
+    rows.state.stations = stations(files)
     return rows.state, results

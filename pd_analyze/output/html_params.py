@@ -12,7 +12,14 @@ from collections import Counter
 from typing import TYPE_CHECKING, Any
 
 from pd_analyze.analysis.intended import AS_INTENDED, ExpectedSet, Outcome, outcomes
-from pd_analyze.analysis.param_state import STATE_COLUMNS, StateTable, device_order, state_of, state_row
+from pd_analyze.analysis.param_state import (
+    STATE_COLUMNS,
+    StateTable,
+    device_label,
+    device_order,
+    state_of,
+    state_row,
+)
 from pd_analyze.model.pnu_names import pnu_name
 
 if TYPE_CHECKING:
@@ -38,7 +45,7 @@ def _cell(value: object) -> object:
 
 def section(analysis: Analysis, expected: ExpectedSet | None = None) -> tuple[dict[str, dict[str, Any]], str]:
     """The tables to embed (by data-table key) and the section's HTML."""
-    return render_state(state_of(analysis.rows), expected)
+    return render_state(state_of(analysis.rows, [c.path for c in analysis.captures]), expected)
 
 
 def render_state(state: StateTable, expected: ExpectedSet | None) -> tuple[dict[str, dict[str, Any]], str]:
@@ -60,7 +67,8 @@ def render_state(state: StateTable, expected: ExpectedSet | None) -> tuple[dict[
         by_device.setdefault(key[0], []).append(cells)
     tables = {f"params-{i}": {"columns": columns, "rows": rows, "total": len(rows), "note": "", "links": []}
               for i, rows in enumerate(by_device.values())}
-    return tables, _html(list(by_device), tables, checked if expected is not None else None)
+    devices = [device_label(d, state.stations) for d in by_device]
+    return tables, _html(devices, tables, checked if expected is not None else None)
 
 
 def _html(devices: list[str], tables: dict[str, dict[str, Any]], checked: dict | None) -> str:

@@ -15,7 +15,7 @@ import json
 import os
 from collections.abc import Iterable, Sequence
 
-from pd_analyze.analysis.param_state import STATE_COLUMNS, StateTable
+from pd_analyze.analysis.param_state import STATE_COLUMNS, StateTable, device_label
 from pd_analyze.analysis.schema import TIME, Column
 from pd_analyze.output.writers import csv_time, json_time, neutralise
 
@@ -77,7 +77,8 @@ def state_text(state: StateTable) -> list[str]:
     rows = list(state.rows())
     if not rows:
         return ["no PROFIdrive parameter value written or read in the capture"]
-    return aligned([h for h, _ in TEXT_COLUMNS], ([row[i] for i in picks] for row in rows))
+    return aligned([h for h, _ in TEXT_COLUMNS], ([device_label(row[0], state.stations), *[row[i] for i in picks[1:]]]
+                                                  for row in rows))
 
 
 def state_formatted(state: StateTable, fmt: str) -> str:
