@@ -12,12 +12,16 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
+import numpy as np
+
 from pd_analyze.capture import CaptureError
-from pd_analyze.capture.reader import frames
+from pd_analyze.capture.batches import FrameBatch, batches
 from pd_analyze.model.values import LINKTYPE_ETHERNET
-from pd_analyze.protocol.dcp import PN_RT, station
+from pd_analyze.protocol.dcp import FRAME_IDS, PN_RT, station
 
 STDIN = "-"
+_FRAME_IDS = np.array(sorted(FRAME_IDS), dtype=np.uint16)
+_ETYPE_AT = (12, 16)  # EtherType untagged, and behind one VLAN tag (DCP is not expected behind two)
 
 
 def stations(paths: Iterable[str]) -> dict[str, str]:
@@ -27,11 +31,25 @@ def stations(paths: Iterable[str]) -> dict[str, str]:
         if path == STDIN:
             continue
         try:
-            for f in frames(path):
-                if f.linktype == LINKTYPE_ETHERNET and PN_RT in f.data[12:24]:  # (cheap: behind up to 2 tags)
-                    found = station(f.data)
+            for batch in batches(path):
+                for i in _pn_rt(batch):
+                    start = int(batch.start[i])
+                    found = station(bytes(batch.buf[start:start + int(batch.caplen[i])]))
                     if found is not None:
                         names[found[0]] = found[1]
         except (CaptureError, OSError):
             continue
     return names
+
+
+def _pn_rt(batch: FrameBatch) -> np.ndarray:
+    """Indexes of a batch's Ethernet frames with EtherType 0x8892 (PN-RT) and a DCP response FrameID, found
+    without a Python loop: most frames of a PROFINET capture are cyclic PN-RT or IP, a handful DCP."""
+    data = np.frombuffer(batch.buf, dtype=np.uint8)
+    hit = np.zeros(len(batch), dtype=bool)
+    for at in _ETYPE_AT:
+        ok = (batch.linktype == LINKTYPE_ETHERNET) & (batch.caplen >= at + 4)
+        first = np.where(ok, batch.start + at, 0)
+        frame_id = data[first + 2].astype(np.uint16) << 8 | data[first + 3]
+        hit |= ok & (data[first] == PN_RT[0]) & (data[first + 1] == PN_RT[1]) & np.isin(frame_id, _FRAME_IDS)
+    return np.flatnonzero(hit)
