@@ -379,3 +379,12 @@ def test_readme_shows_what_the_commands_print(tmp_path: Path) -> None:
     r = run("audit", A, "--expect", str(changed))
     assert r.returncode == 1
     assert r.stdout + f"exit {r.returncode}\n" in section
+
+
+def test_audit_expect_over_two_captures_in_parallel_is_the_same() -> None:
+    one = run("audit", A, B, "--expect", SET)
+    two = run("audit", A, B, "--expect", SET, "--jobs", "2")
+    assert one.returncode == two.returncode == 1 and one.stdout == two.stdout
+    assert one.stdout.splitlines()[-1] == "3 findings in 2 captures: 3 error, 0 warning, 0 info"
+    # the later capture's values are the last seen: .21's P1120 was set to 12 in B
+    assert "P1120[0] of 192.168.1.21 DO 1: intended 10.0, read back 12 (FloatingPoint32, frame 8)" in one.stdout
