@@ -4,6 +4,8 @@ Exit codes: 0 done, 1 a finding reached the --fail-on threshold (audit), 2 unrea
 usage, 141 the reader of stdout went away (as a Unix tool killed by SIGPIPE). Data goes to stdout,
 progress and errors to stderr; no traceback ever reaches the user.
 """
+# Longer than 450 lines: every command's options, help and examples are declared here, in one place, so that
+# `--help` and the shared options (profile, timeouts, jobs) cannot drift apart; the work is in the layers below.
 
 # Longer than 450 lines: six commands, each with its options, help text and examples in one place, so
 # that `--help`, the README and the exit codes are read and changed together; the work is done elsewhere.
@@ -322,11 +324,14 @@ Examples:
   pd-analyze report captures/ --out report/ --format parquet --profile sinamics
   pd-analyze report 'line3/*.pcapng' --timeout 30
   pd-analyze report sample_pcaps/fault_trace.pcap --format html --out report/
+  pd-analyze report commissioning.pcapng --format html --expect intended.csv
 """
 AUDIT_EXAMPLES = """\b
 Examples:
   pd-analyze audit commissioning.pcapng
   pd-analyze audit captures/ --fail-on warning --profile yaskawa
+  pd-analyze audit sample_pcaps/audit_commissioning.pcap --expect sample_pcaps/sets/audit_commissioning.csv
+  pd-analyze audit commissioning.pcapng --expect intended.csv --expect-strict
 """
 
 
@@ -371,11 +376,18 @@ def _timeouts(func: Callable) -> Callable:
                                       "Lines) are written in chunks as the capture is read, so memory stays flat "
                                       "whatever its size. html: DIR/report.html (self-contained: summary, plots, "
                                       "tables, drill-down) plus the tables as CSV; it holds every table in memory.")
+@click.option("--expect", "expect_path", metavar="EXPECTED.csv",
+              help="With --format html: show each drive's parameter state against this intended set (as audit "
+                   "--expect).")
 @profile_option
 @_timeouts
-def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fmt: str, profile: str,
-                   timeout: float, rpc_timeout: float, jobs: int, chain: bool) -> None:
+def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fmt: str, expect_path: str | None,
+                   profile: str, timeout: float, rpc_timeout: float, jobs: int, chain: bool) -> None:
     """Pair requests with responses; write the tables and print a summary (worst offenders first)."""
+    if expect_path and fmt != "html":
+        raise click.UsageError("--expect belongs to --format html (the page's parameter state); for findings use "
+                               "`pd-analyze audit --expect`")
+    expected = _expected(expect_path) if expect_path else None
     paths = _files(captures, read, profile)
     unreadable = [error for error in map(unreadable_reason, paths) if error]
     if len(unreadable) == len(paths):  # nothing to report on: no files written, no "Wrote"
@@ -385,7 +397,8 @@ def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fm
     _writable(out_dir)
     progress = _progress() if jobs == 1 else None
     try:
-        written, text, errors = _report(paths, out_dir, fmt, profile, timeout, rpc_timeout, progress, jobs, chain)
+        written, text, errors = _report(paths, out_dir, fmt, profile, timeout, rpc_timeout, progress, jobs, chain,
+                                        expected)
     except OSError as exc:  # the disk filled up, the directory went away...
         if exc.filename is not None and not os.path.abspath(exc.filename).startswith(os.path.abspath(out_dir)):
             raise  # not the report's files: a fault to report
@@ -410,7 +423,8 @@ def _writable(out_dir: str) -> None:
 
 
 def _report(paths: list[str], out_dir: str, fmt: str, profile: str, timeout: float, rpc_timeout: float,
-            progress: Callable[[str, int], None] | None, jobs: int, chain: bool) -> tuple[list[str], str, list[str]]:
+            progress: Callable[[str, int], None] | None, jobs: int, chain: bool,
+            expected: object = None) -> tuple[list[str], str, list[str]]:
     """The files written, the summary text and the capture errors."""
     from pd_analyze.output import report
 
@@ -421,7 +435,8 @@ def _report(paths: list[str], out_dir: str, fmt: str, profile: str, timeout: flo
         analysis = analyze(paths, profile, timeout, rpc_timeout, progress, jobs, chain)
         written = report.write_tables(analysis, out_dir, "csv")
         written.append(html_report.write(analysis, f"{out_dir}/report.html",
-                                         tables_dir_note="the CSV files beside this page"))
+                                         tables_dir_note="the CSV files beside this page",
+                                         expected=expected))  # type: ignore[arg-type]
         text, errors = report.summary(analysis), analysis.errors
     else:
         streamed = report.stream(paths, out_dir, fmt, Settings(profile, timeout, rpc_timeout), progress, jobs, chain)
@@ -434,19 +449,36 @@ def _report(paths: list[str], out_dir: str, fmt: str, profile: str, timeout: flo
 @click.option("-r", "--read", "read", metavar="FILE", help="Capture to read (as tshark -r).")
 @click.option("--fail-on", type=click.Choice(["error", "warning", "info", "never"]), default="error",
               show_default=True, help="Exit 1 when a finding reaches this severity.")
+@click.option("--expect", "expect_path", metavar="EXPECTED.csv",
+              help="Check every drive's parameter state against an intended set (CSV: device,do,pnu,subindex,"
+                   "value[,tolerance]; device * for every drive): findings S1-S4.")
+@click.option("--expect-strict", is_flag=True, help="With --expect: also report parameters written that the set "
+                                                    "does not list (S5 unexpected_write, info).")
 @profile_option
 @_timeouts
-def audit_command(captures: tuple[str, ...], read: str | None, fail_on: str, profile: str, timeout: float,
-                  rpc_timeout: float, jobs: int, chain: bool) -> None:
+def audit_command(captures: tuple[str, ...], read: str | None, fail_on: str, expect_path: str | None,
+                  expect_strict: bool, profile: str, timeout: float, rpc_timeout: float, jobs: int,
+                  chain: bool) -> None:
     """Findings like a linter (file:frame: severity rule message); exit 1 at the --fail-on threshold.
 
-    Findings are sorted by capture and frame through a bounded on-disk sort: memory stays flat."""
+    Findings are sorted by capture and frame through a bounded on-disk sort: memory stays flat. With
+    --expect, the parameter state (one entry per parameter element, not per frame) is checked against the
+    intended set after the capture's own findings; a missing parameter is reported at its line of the set."""
     from pd_analyze.model.rules import SEVERITIES, SEVERITY_RANK
     from pd_analyze.output import report
 
+    if expect_strict and not expect_path:
+        raise click.UsageError("--expect-strict needs --expect EXPECTED.csv")
+    expected = _expected(expect_path) if expect_path else None
     paths = _files(captures, read, profile)
+    state = _StateHolder()
     rows, results = report.stream_findings(paths, Settings(profile, timeout, rpc_timeout), jobs, chain,
-                                           progress=_progress() if jobs == 1 else None)
+                                           progress=_progress() if jobs == 1 else None,
+                                           wrap=state.wrap if expected else None)
+    if expected is not None:
+        from pd_analyze.analysis import intended
+
+        rows = _chain_rows(rows, intended.finding_rows(intended.check(expected, state.table(), expect_strict)))
     counts: dict[str, int] = dict.fromkeys(SEVERITIES, 0)
     total = worst = 0
     for capture, frame, txn, severity, rule, name, *_, message in rows:
@@ -471,6 +503,133 @@ def audit_command(captures: tuple[str, ...], read: str | None, fail_on: str, pro
 
 def _na(value: object) -> str:
     return "<NA>" if value is None else str(value)
+
+
+# --- parameter state: params, diff, audit --expect (the logic is in analysis.param_state, analysis.intended,
+# output.param_tables and output.param_diff) ------------------------------------------------------------------
+
+def _expected(path: str) -> object:
+    """The intended set, read before any capture: a malformed one is a one-line error naming its line."""
+    from pd_analyze.analysis import intended
+
+    try:
+        return intended.load(path)
+    except intended.ExpectError as exc:
+        raise click.ClickException(dump.safe(str(exc))) from None
+
+
+class _StateHolder:
+    """The StateRows audit puts in front of its findings, kept to read the state once the run is done."""
+
+    def __init__(self) -> None:
+        self.rows: object = None
+
+    def wrap(self, inner: object) -> object:
+        from pd_analyze.analysis.param_state import StateRows
+
+        self.rows = StateRows(inner)  # type: ignore[arg-type]
+        return self.rows
+
+    def table(self) -> object:
+        self.rows.fold()  # type: ignore[attr-defined]
+        return self.rows.state  # type: ignore[attr-defined]
+
+
+def _chain_rows(first: object, then: list[tuple]) -> object:
+    yield from first  # type: ignore[misc]
+    yield from then
+
+
+PARAMS_EXAMPLES = """\b
+Examples:
+  pd-analyze params sample_pcaps/audit_commissioning.pcap
+  pd-analyze params commissioning.pcapng --format csv > state.csv
+  pd-analyze params captures/ --out state/ --format parquet
+"""
+DIFF_EXAMPLES = """\b
+Examples:
+  pd-analyze diff sample_pcaps/audit_commissioning.pcap sample_pcaps/audit_recommissioning.pcap
+  pd-analyze diff drive_a.pcapng drive_b.pcapng --by do --format csv
+"""
+
+
+@main.command("params", epilog=PARAMS_EXAMPLES)
+@click.argument("captures", nargs=-1, metavar="CAPTURE...")
+@click.option("-r", "--read", "read", metavar="FILE", help="Capture to read (as tshark -r).")
+@click.option("--out", "out_dir", default=None, metavar="DIR", help="Write DIR/parameter_state.<format> instead "
+                                                                      "of printing to stdout.")
+@click.option("--format", "fmt", type=click.Choice(["text", "csv", "json", "parquet"]), default=None,
+              help="text: a table (stdout's default); csv, json (JSON Lines); parquet needs --out (whose default "
+                   "is csv).")
+@profile_option
+@_timeouts
+def params_command(captures: tuple[str, ...], read: str | None, out_dir: str | None, fmt: str | None, profile: str,
+                   timeout: float, rpc_timeout: float, jobs: int, chain: bool) -> None:
+    """Parameter state per drive: per device, DO, PNU and subindex the last value confirmed written and the last
+    read back (frame and time), whether they agree, writes, refused writes and the last error.
+
+    Memory holds one entry per parameter element, whatever the capture's size."""
+    from pd_analyze.analysis.param_state import collect
+    from pd_analyze.output import param_tables
+
+    if out_dir is None and fmt == "parquet":
+        raise click.UsageError("--format parquet needs --out DIR")
+    if out_dir is not None and fmt == "text":
+        raise click.UsageError("--out writes csv, json or parquet")
+    paths = _files(captures, read, profile)
+    if out_dir is not None:
+        _writable(out_dir)
+    state, results = collect(paths, Settings(profile, timeout, rpc_timeout), _progress() if jobs == 1 else None,
+                             jobs, chain)
+    if out_dir is not None:
+        click.echo("Wrote " + param_tables.write_state(state, out_dir, fmt or "csv"), err=True)
+    elif fmt in ("csv", "json"):
+        sys.stdout.write(param_tables.state_formatted(state, fmt))
+    else:
+        click.echo("\n".join(dump.safe(line) for line in param_tables.state_text(state)))
+    errors = [f"{c.path}: {c.error}" for c in results if c.error]
+    for error in errors:
+        click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
+    sys.exit(EXIT_USAGE if errors else EXIT_OK)
+
+
+@main.command("diff", epilog=DIFF_EXAMPLES)
+@click.argument("a", metavar="A")
+@click.argument("b", metavar="B")
+@click.option("--by", type=click.Choice(["device", "do"]), default="device", show_default=True,
+              help="device: each drive against the same drive (before and after); do: the one drive of A against "
+                   "the one drive of B (drives that should be alike).")
+@click.option("--format", "fmt", type=click.Choice(["text", "csv", "json"]), default="text", show_default=True)
+@profile_option
+@_timeouts
+def diff_command(a: str, b: str, by: str, fmt: str, profile: str, timeout: float, rpc_timeout: float, jobs: int,
+                 chain: bool) -> None:
+    """Parameter state of capture A against B: one row per parameter element that differs, is missing on one side,
+    or was refused (or left unconfirmed) on one side. Exit 0 when the states agree, 1 when they differ, 2 on
+    trouble, as diff(1)."""
+    from pd_analyze.analysis.param_state import collect
+    from pd_analyze.output import param_diff
+
+    files = [_files((side,), None, profile) for side in (a, b)]
+    settings = Settings(profile, timeout, rpc_timeout)
+    (state_a, res_a), (state_b, res_b) = (collect(f, settings, None, jobs, chain) for f in files)
+    errors = [f"{c.path}: {c.error}" for c in res_a + res_b if c.error]
+    for error in errors:
+        click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
+    if errors:
+        sys.exit(EXIT_USAGE)
+    try:
+        rows = param_diff.diff_rows(state_a, state_b, by)
+    except param_diff.DiffError as exc:
+        raise click.UsageError(dump.safe(str(exc))) from None
+    if fmt == "text":
+        if rows:
+            click.echo("\n".join(dump.safe(line) for line in param_diff.diff_text(rows, by)))
+    else:
+        sys.stdout.write(param_diff.diff_formatted(rows, fmt))
+    click.echo(f"{len(rows)} parameter element{'s' if len(rows) != 1 else ''} differ"
+               f"{'s' if len(rows) == 1 else ''} (A: {len(state_a.elements)}, B: {len(state_b.elements)})", err=True)
+    sys.exit(EXIT_FINDINGS if rows else EXIT_OK)
 
 
 @main.command("fields")

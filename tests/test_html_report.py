@@ -245,12 +245,14 @@ def test_every_sample_report_opens_without_errors(browser, reports: dict[str, Pa
         errors = console_errors(browser)
         drawn = plots_drawn(browser)
         tables = browser.execute_script("return document.querySelectorAll('div.pdtable table').length")
-        expected_rows = min(len(pd_analyze.analyze(str(REPO / "sample_pcaps" / name)).transactions),
-                            html_report.PAGE_SIZE)
+        analysis = pd_analyze.analyze(str(REPO / "sample_pcaps" / name))
+        expected_rows = min(len(analysis.transactions), html_report.PAGE_SIZE)
+        expected_tables = 3 + analysis.parameter_state.device.nunique()  # and a parameter-state table per drive
         rows = browser.execute_script("return document.querySelectorAll(\"div[data-table='transactions'] tbody tr\")"
                                       ".length")
-        if errors or drawn != 5 or tables != 3 or rows != expected_rows:
-            problems.append(f"{name}: errors {errors}, plots {drawn}/5, tables {tables}/3, rows {rows}/{expected_rows}")
+        if errors or drawn != 5 or tables != expected_tables or rows != expected_rows:
+            problems.append(f"{name}: errors {errors}, plots {drawn}/5, tables {tables}/{expected_tables}, "
+                            f"rows {rows}/{expected_rows}")
     assert not problems, "\n".join(problems)
 
 

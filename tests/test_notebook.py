@@ -89,13 +89,23 @@ def test_notebook_shows_the_faults(executed: nbformat.NotebookNode) -> None:
     assert len(images) == 5 and all(i[:8] == b"\x89PNG\r\n\x1a\n" and len(i) > 10_000 for i in images)
 
 
+def test_notebook_shows_the_parameter_state_and_the_intended_set(executed: nbformat.NotebookNode) -> None:
+    state = text_of(cell_with(executed, "s = a.parameter_state"))
+    for param in ("P1121[0]", "P2[0]", "P1300[0]", "P1120[0]"):
+        assert param in state
+    assert "operating state" in state and "393" in state
+    audit = text_of(cell_with(executed, "import tempfile"))
+    assert audit.startswith("0 findings with the set") and audit.count("expect_mismatch") == 1
+
+
 def test_committed_notebook_has_current_outputs(executed: nbformat.NotebookNode) -> None:
     committed = nbformat.read(NOTEBOOK, as_version=4)
     code = [c for c in committed.cells if c.cell_type == "code"]
     assert all(c.outputs for c in code), "commit the notebook with its outputs (python tests/test_notebook.py)"
     assert [c.execution_count for c in code] == list(range(1, len(code) + 1))
     assert len(pngs(committed)) == 5
-    for source in ("a.transactions.verdict.value_counts()", "p = a.parameters", "a.changes[["):
+    for source in ("a.transactions.verdict.value_counts()", "p = a.parameters", "a.changes[[",
+                   "s = a.parameter_state"):
         assert text_of(cell_with(committed, source)) == text_of(cell_with(executed, source)), source
 
 

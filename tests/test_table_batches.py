@@ -46,6 +46,11 @@ def _batches(name: str, rows: list[tuple], rng: random.Random, size: int = 13,
     """The rows cut into batches of 1 to size - 1 rows, the batches shuffled (out of txn or frame order).
     `whole_keys` cuts only between rows of different sort keys, so rows that tie keep their order."""
     col = list(ROW_TYPES[name]._fields).index(SORT_COLUMN[name])
+    if whole_keys:  # rows that tie need not be neighbours (frame 6 of two captures): bring them together first
+        groups: dict[object, list[tuple]] = {}
+        for r in rows:
+            groups.setdefault(r[col], []).append(r)
+        rows = [r for g in groups.values() for r in g]
     batches, start = [], 0
     while start < len(rows):
         end = min(len(rows), start + rng.randrange(1, size))

@@ -1,12 +1,13 @@
 """python -m devtools.synth [OUTDIR]: regenerate every sample capture and
-the expected findings of the PROFIdrive samples (OUTDIR/expected/*.json)."""
+the expected findings of the PROFIdrive samples (OUTDIR/expected/*.json) and
+the intended parameter sets of the audit samples (OUTDIR/sets/*.csv)."""
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
 
-from .build import build_all, build_expected
+from .build import build_all, build_expected, build_sets
 
 
 def main(argv: list[str]) -> int:
@@ -19,6 +20,10 @@ def main(argv: list[str]) -> int:
     for name, text in build_expected().items():
         (outdir / "expected" / f"{name}.json").write_text(text)
         print(f"expected/{name}.json")
+    (outdir / "sets").mkdir(exist_ok=True)
+    for name, data in build_sets().items():
+        (outdir / "sets" / name).write_bytes(data)
+        print(f"sets/{name}")
     return 0
 
 

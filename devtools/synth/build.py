@@ -9,9 +9,10 @@ from __future__ import annotations
 # isort: off
 from . import basic_samples, format_samples, trace_samples  # noqa: F401  (imported to register their files)
 from . import pd_samples, pd_range_samples, pd_vendor_samples, txn_samples  # noqa: F401
+from . import audit_samples  # noqa: F401
 
 # isort: on
-from .catalog import EXPECTED, INTENTS, SAMPLES, STATIC_EXPECTED
+from .catalog import EXPECTED, INTENTS, PARAMETER_SETS, SAMPLES, STATIC_EXPECTED
 from .expect import dumps
 
 
@@ -31,3 +32,8 @@ def build_expected() -> dict[str, str]:
     for name, render in EXPECTED.items():
         out[name] = dumps(render())
     return out
+
+
+def build_sets() -> dict[str, bytes]:
+    """set name -> bytes of sample_pcaps/sets/<name> (intended parameter sets for audit --expect)."""
+    return {name: build() for name, build in PARAMETER_SETS.items()}

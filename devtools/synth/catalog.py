@@ -40,6 +40,20 @@ def sample(name: str) -> Callable[[Callable[[], bytes]], Callable[[], bytes]]:
     return register
 
 
+# sample_pcaps/sets/<name>: intended parameter sets (pd-analyze audit --expect) of the samples, as bytes
+PARAMETER_SETS: dict[str, Callable[[], bytes]] = {}
+
+
+def parameter_set(name: str) -> Callable[[Callable[[], bytes]], Callable[[], bytes]]:
+    """Register the builder of an intended parameter set (sample_pcaps/sets/<name>)."""
+
+    def register(fn: Callable[[], bytes]) -> Callable[[], bytes]:
+        PARAMETER_SETS[name] = fn
+        return fn
+
+    return register
+
+
 # file name -> the transactions the file is built to contain (the README's description of the file, recorded
 # by its builder); the frame-level findings of these files are STATIC_EXPECTED below.
 INTENTS: dict[str, Callable[[], Intent]] = {}

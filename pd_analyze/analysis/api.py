@@ -75,6 +75,22 @@ class Analysis:
         return frame_from_batches(name, [rows_to_batch(name, getattr(self.rows, name)), *tables])
 
     @cached_property
+    def parameter_state(self) -> pd.DataFrame:
+        """Per device, DO, PNU and subindex: the last value confirmed written and read back (param_state)."""
+        from pd_analyze.analysis.param_state import state_of
+
+        return state_of(self.rows, [c.path for c in self.captures]).frame()
+
+    def check_expected(self, expected: str, strict: bool = False) -> pd.DataFrame:
+        """The findings of the parameter state against an intended set (CSV file; see analysis.intended),
+        as rows of the findings table; `strict` adds unexpected_write for parameters the set does not list."""
+        from pd_analyze.analysis import intended
+        from pd_analyze.analysis.param_state import state_of
+
+        found = intended.check(intended.load(expected), state_of(self.rows), strict)
+        return intended.findings_frame(found)
+
+    @cached_property
     def accounting(self) -> pd.DataFrame:
         """Per capture: frames read = decoded + skipped + malformed, and why frames were skipped."""
         return accounting_frame(self.captures)

@@ -24,6 +24,7 @@ PCAP = "pcap/pcapng file format"
 YASKAWA_EP3 = "Yaskawa SI-EP3 PROFINET Technical Manual SIEP C730600 89E, p. 38"
 AKD = "Kollmorgen AKD PROFINET manual, parameter request/response tables"
 PD = "PROFIdrive profile V4.2, Base Mode Parameter Access"
+EXPECT = "the intended parameter set (pd-analyze audit --expect)"
 
 
 @dataclass(frozen=True, slots=True)
@@ -179,6 +180,12 @@ _RULES = (
     R("T5", "b5_polling", INFO, SEQUENCE, PD, "B5 retries above the threshold"),
     R("T7", "txn_evicted", WARNING, SEQUENCE, "pd-analyze limits",
       "transaction table full, or a transaction with too many frames: it ends as a timeout"),
+    # the parameter state against an intended set (pd-analyze audit --expect, analysis.intended)
+    R("S1", "expect_mismatch", ERROR, COMMENT, EXPECT, "confirmed or read-back value differs from the intended one"),
+    R("S2", "expect_refused", ERROR, COMMENT, EXPECT, "every write of an intended parameter was refused"),
+    R("S3", "expect_unconfirmed", WARNING, COMMENT, EXPECT, "written, but neither confirmed nor read back"),
+    R("S4", "expect_missing", WARNING, COMMENT, EXPECT, "intended parameter never written or read"),
+    R("S5", "unexpected_write", INFO, COMMENT, EXPECT, "parameter written that the intended set does not list"),
     # PROFIBUS DP-V1 header (pd-analyze decode --dpv1)
     R("D1", "dpv1_header", WARNING, PROTOCOL, "PROFIBUS DP-V1", "DP-V1 header inconsistent with the block"),
 )

@@ -1,7 +1,8 @@
 """`pd-analyze report --format html`: the analysis as one self-contained HTML file.
 
 The page holds the summary, the plots of `pd_analyze.output.plots` (SVG, embedded as data: images), sortable and
-filterable tables of transactions, findings and changes, and the frames and fields of failed transactions.
+filterable tables of transactions, findings and changes, the parameter state per drive (output.html_params, with
+the intended set's results under `--expect`), and the frames and fields of failed transactions.
 Nothing is fetched: CSS and the script are inline, a Content-Security-Policy forbids every network request
 and lets only this module's own script run (by hash).
 
@@ -33,6 +34,7 @@ import pandas as pd
 
 from pd_analyze import __version__
 from pd_analyze.analysis.api import Analysis
+from pd_analyze.analysis.intended import ExpectedSet
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.verdicts import VERDICTS
 from pd_analyze.output import plots
@@ -78,19 +80,20 @@ CHANGE_COLS = (
 
 
 def write(analysis: Analysis, path: str, *, max_rows: int = MAX_ROWS, max_drilldown: int = MAX_DRILLDOWN,
-          tables_dir_note: str = "") -> str:
+          tables_dir_note: str = "", expected: ExpectedSet | None = None) -> str:
     """Write the report to `path` (UTF-8) and return the path."""
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    text = render(analysis, max_rows=max_rows, max_drilldown=max_drilldown, tables_dir_note=tables_dir_note)
+    text = render(analysis, max_rows=max_rows, max_drilldown=max_drilldown, tables_dir_note=tables_dir_note,
+                  expected=expected)
     with open(path, "w", encoding="utf-8") as out:
         out.write(text)
     return path
 
 
 def render(analysis: Analysis, *, max_rows: int = MAX_ROWS, max_drilldown: int = MAX_DRILLDOWN,
-           tables_dir_note: str = "") -> str:
-    """The whole page as one string."""
-    from pd_analyze.output import report
+           tables_dir_note: str = "", expected: ExpectedSet | None = None) -> str:
+    """The whole page as one string; `expected`: the intended set the parameter state is checked against."""
+    from pd_analyze.output import html_params, report
 
     t, f, c = analysis.transactions, analysis.findings, analysis.changes
     several = len(analysis.captures) > 1
@@ -105,6 +108,8 @@ def render(analysis: Analysis, *, max_rows: int = MAX_ROWS, max_drilldown: int =
     drill_rows = failed.head(max_drilldown)
     drill = drilldown(analysis, drill_rows)
     tables["transactions"]["links"] = sorted(drill)
+    param_tables, param_section = html_params.section(analysis, expected)
+    tables |= param_tables
     data = {"tables": tables, "drill": {str(k): v for k, v in drill.items()}, "page": PAGE_SIZE}
     script = _asset("report.js")
     digest = base64.b64encode(hashlib.sha256(script.encode("utf-8")).digest()).decode("ascii")
@@ -132,6 +137,7 @@ def render(analysis: Analysis, *, max_rows: int = MAX_ROWS, max_drilldown: int =
         _table_section("changes", "Changes", tables["changes"],
                        "The change trail: every change request, with the value read before it (when the "
                        "capture holds such a read) and its result."),
+        param_section,
         _drill_section(failed, drill_rows, drill, max_drilldown),
         f"<script type=\"application/json\" id=\"pd-data\">{_json(data)}</script>\n",
         f"<script>{script}</script>\n</body>\n</html>\n",

@@ -16,7 +16,7 @@ import dataclasses
 import os
 import shutil
 import tempfile
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -338,16 +338,17 @@ class _FindingsOnly(Rows):
 
 def stream_findings(files: list[str], settings: Settings, jobs: int = 1, chain: bool = False,
                     chunk_rows: int = CHUNK_ROWS, progress: Progress | None = None,
-                    ) -> tuple[Iterator[tuple], list[CaptureResult]]:
+                    wrap: Callable[[Rows], Rows] | None = None) -> tuple[Iterator[tuple], list[CaptureResult]]:
     """Findings of `files` sorted by capture and frame (ties as found), streamed: for `audit`.
 
-    The rows are read lazily; the spill files go once the iterator is exhausted or closed."""
+    The rows are read lazily; the spill files go once the iterator is exhausted or closed. `wrap` may put
+    another sink in front of the findings' (one that passes every row on, e.g. param_state.StateRows)."""
     from pd_analyze.analysis.jobs import run
 
     spool = Spool(sort_key("findings", by_capture=True), chunk_rows)
     sink = _FindingsOnly(findings=spool)  # type: ignore[arg-type]
     try:
-        captures = run(files, sink, settings, progress, jobs, chain)
+        captures = run(files, sink if wrap is None else wrap(sink), settings, progress, jobs, chain)
     except BaseException:
         spool.close()
         raise

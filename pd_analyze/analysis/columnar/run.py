@@ -72,6 +72,9 @@ class ColumnarRun:
         self.accounting = Accounting()  # the frames the columns took; the dissector counts its own
         self.next_number = 1
         self.last_ts = float("-inf")  # the latest capture time seen
+        # the latest time of a frame the per-frame dissector's clock sees (batch_view.fed): an Ethernet frame
+        # without an IPv4 EtherType does not move it, so the end of the capture must not either
+        self.last_fed_ts = float("-inf")
         self.last_pnio = float("-inf")  # the latest time of a PNIO RPC frame (the engines' "now")
         self._ref_opens: list[int] = []  # frames of the transactions the per-frame engine opened in this batch
         self._col_opens: list[int] = []  # the same, columnar
@@ -95,6 +98,9 @@ class ColumnarRun:
                     self._columns(part, view)
                 del view  # (the next part's decode does not wait for this one's memory)
         self.last_ts = max(self.last_ts, float(ts.max()))
+        fed_ts = ts[fed(batch)]
+        if len(fed_ts):
+            self.last_fed_ts = max(self.last_fed_ts, float(fed_ts.max()))
         if self.progress is not None and self.results:
             self.progress(self.results[-1].path, self.read)
 
@@ -158,7 +164,7 @@ class ColumnarRun:
     def finish(self) -> None:
         """End of capture: everything still open goes to the per-frame path, which ends it as it would."""
         self._all_to_frames()
-        self.d.advance(self.last_ts)
+        self.d.advance(self.last_fed_ts)
         for txn in self.engine.advance(self.last_pnio):
             self._add_reference(txn)
         for res in self.d.finish(self.read):
