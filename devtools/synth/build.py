@@ -9,6 +9,7 @@ from __future__ import annotations
 # isort: off
 from . import basic_samples, format_samples, trace_samples  # noqa: F401  (imported to register their files)
 from . import pd_samples, pd_range_samples, pd_vendor_samples, txn_samples  # noqa: F401
+from . import edge_samples  # noqa: F401
 
 # isort: on
 from .catalog import EXPECTED, INTENTS, SAMPLES, STATIC_EXPECTED

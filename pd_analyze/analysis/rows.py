@@ -17,7 +17,7 @@ from pd_analyze.model import pd_values as pt
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.verdicts import ANSWERED
 from pd_analyze.protocol.link import ip_text
-from pd_analyze.protocol.profidrive import Address, Block
+from pd_analyze.protocol.profidrive import Address, Block, Parsed
 from pd_analyze.protocol.profidrive_view import cell_text, values_of
 
 
@@ -93,8 +93,12 @@ class Rows:
         addresses = request.addresses if request is not None else []
         written_blocks = request.blocks if request is not None else []
         append = self.parameters.append
+        whole = whole_request_error(request, response)
+        if whole is not None and not addresses:  # a request of no parameter: one row, no PNU
+            append(ParameterRow._make((number, capture, device, txn.do, "", None, None, None, "", "", "", "",
+                                       _hex(whole.error), pt.error_text(whole.error), True)))
         for i, addr in enumerate(addresses):
-            res_block = blocks[i] if i < len(blocks) else None
+            res_block = whole if whole is not None else blocks[i] if i < len(blocks) else None
             written = written_blocks[i] if i < len(written_blocks) else None
             err = res_block.error if res_block is not None and res_block.is_error else -1
             label = addr.label()
@@ -107,11 +111,11 @@ class Rows:
                 pt.ATTRIBUTE.get(addr.attr) or _hex(addr.attr),  # (a default argument is built every time)
                 (pt.FORMAT_NAME.get(fmt.format) or _hex(fmt.format)) if fmt is not None and not fmt.is_error else "",
                 block_values(written), block_values(res_block, read_values), _hex(err),
-                pt.error_text(err) if err >= 0 else "")))
+                pt.error_text(err) if err >= 0 else "", whole is not None)))
             if txn.req_id == pt.REQ_CHANGE and written is not None:
                 self._change(capture, txn, number, i, addr, label, written, res_block, device)
-        if response is not None and len(blocks) == 1 and blocks[0].is_error and len(addresses) > 1:
-            errors = [f"*:{_hex(blocks[0].error)}"]  # header-level error: the whole request refused
+        if whole is not None:
+            errors = [f"*:{_hex(whole.error)}"]  # header-level error: the whole request refused
         fig = txn.figures()
         v = txn.channel
         self.transactions.append(TransactionRow._make((
@@ -155,6 +159,16 @@ class Rows:
 
     def _before(self, keys: list[Element], before: list[str | None]) -> None:
         """A change's row comes next; `before` are the values last read of its elements (None: unknown)."""
+
+
+def whole_request_error(request: Parsed | None, response: Parsed | None) -> Block | None:
+    """The one error block a device answered for the whole request (protocol.md 3.3: a header-level error
+    such as 0x22/0x23 with No. of parameters mirrored, or any one error block for a request of no or of
+    several parameters), None when the errors are per parameter."""
+    if request is None or response is None or len(response.blocks) != 1 or len(request.addresses) == 1:
+        return None
+    block = response.blocks[0]
+    return block if block.is_error else None
 
 
 def finding_row(capture: str, f: Finding, txn: int | None) -> FindingRow:

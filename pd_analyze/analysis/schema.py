@@ -80,6 +80,8 @@ COLUMNS: Mapping[str, tuple[Column, ...]] = MappingProxyType({
         ("values_read", "string", "values of the response"),
         ("error", "string", "PROFIdrive error number (0x..), empty when none"),
         ("error_text", "string", "meaning of the error number"),
+        ("whole_request", "boolean", "the error refused the whole request (one error block for all its "
+                                     "parameters, protocol.md 3.3), not this parameter alone"),
     ),
     "findings": _cols(
         ("capture", "category", "capture file"), ("frame", "Int64", "frame number"),

@@ -138,7 +138,9 @@ def parse_response(data: bytes, frame: int, findings: list[Finding]) -> Parsed:
         # still completely decoded (its verdict comes from Q3, protocol.md 7.4); a body is not.
         p.complete = len(data) == 4
         return p
-    count = 1 if p.ident == pt.RES_NOT_SUPPORTED and p.n == 0 else p.n
+    # No. of parameters 0 mirrors a request of no parameter: a negative answer refuses it with one error
+    # block for the whole request (3.3), as a 0x80 does
+    count = 1 if p.n == 0 and (p.ident == pt.RES_NOT_SUPPORTED or (p.ident & 0x80 and len(data) > 4)) else p.n
     trial: list[Finding] = []
     blocks, end, ok = _blocks(data, 4, count, frame, trial, True)
     if (trial or not ok) and len(data) > 10 and count == 1:
