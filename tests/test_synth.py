@@ -572,7 +572,7 @@ INTERLEAVED = {"pd_interleaved.pcap", "pd_timeouts.pcap"}  # sessions on their o
 
 def test_pd_samples_registered_deterministic_with_expectations() -> None:
     names = [s.name for s in catalog.SAMPLES if s.name.startswith("pd_")]
-    assert names == list(catalog.EXPECTED) and len(names) == 11
+    assert names == list(catalog.EXPECTED) and len(names) == 12
     first, second = build.build_expected(), build.build_expected()
     assert first == second
     built = build.build_all()

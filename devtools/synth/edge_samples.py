@@ -9,16 +9,21 @@ indexes, 7.2); a busy drive given up by the next write and by the deadline after
 zero pad bytes and once with non-zero ones; whole-request errors (a header-level error on three
 parameters, a request of no parameter); and a busy transaction still open when the capture ends.
 
+pd_sew_movilink.pcap: SEW MOVILINK services carried in the PROFIdrive record (protocol.md 5.5): READ,
+WRITE volatile, a negative answer with a MOVILINK error word, READ minimum, and a PROFIdrive read.
+
 Built like txn_samples.py: sessions one after the other on the capture's clock, every transaction and
 every finding declared on the line that causes it.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 from . import pnio_encode
 from .capture_files import Frame
 from .catalog import Built, pd_sample
-from .expect import Intent
+from .expect import GENERIC, Intent
 from .fixtures import session
 from .pd_encode import ParamAddress as P
 from .pd_encode import change_ok, change_request, error_block, pd_request, pd_response, read_request, value_block
@@ -111,4 +116,53 @@ def pd_edge_cases_capture() -> Built:
     calls = s.parameter_access(change_request(1, 1, [(P(971), value_block(0x06, [1]))]), None, b5_retries=2,
                                read_gap_us=1_000_000)  # fmt: skip
     x.txn(calls, 1, "timeout", "two B5, then the capture ends 2 s after the write", capture_ended=True)
+    return cap, x
+
+
+# ---- pd_sew_movilink.pcap --------------------------------------------------------------------------------------
+SEW = "sew"
+SEW_KW = {"api": 0, "slot": 0, "subslot": 1}  # data set 47 as the SEW manuals address it (protocol.md 5.5)
+FIRMWARE, P170 = 8300, 0x2129  # MOVILINK index 8300 "firmware version"; P170 is index 0x2129
+
+
+def _movilink(ref: int, service: int, index: int, value: int | None = None) -> bytes:
+    """A MOVILINK service in the PROFIdrive record: Request ID 0x40, axis 0, the service in the Attribute's
+    high nibble, a double word after the address for the WRITE services."""
+    values = [value_block(0x43, [value])] if value is not None else []
+    return pd_request(ref, 0x40, 0, [P(index, 0, 0, service)], values)
+
+
+@pd_sample("pd_sew_movilink.pcap")
+def pd_sew_movilink_capture() -> Built:
+    """SEW MOVILINK services over data set 47 (index 0x002F, API 0, slot 0, subslot 1), session 1. Under
+    `--profile sew` each is decoded and paired (tests/test_sew_profile.py asserts those verdicts); under the
+    generic profile Request ID 0x40 stays reserved: the records are not PROFIdrive (N1 not_profidrive),
+    no transaction opens, and only the one PROFIdrive read is a transaction."""
+    cap = Capture()
+    x = Intent(cap, (GENERIC, SEW))
+    s = session(cap, 1)
+
+    def sew_access(request: bytes, response: bytes, **kw: Any) -> list[Call]:
+        calls = s.parameter_access(request, response, index=0x002F, common_kw=SEW_KW, **kw)
+        x.on([x.write_req(calls), *x.read_reqs(calls)], "profibus_index")
+        return calls
+
+    def movilink(request: bytes, response: bytes, **kw: Any) -> None:
+        """Under the generic profile: the write and the answer are not PROFIdrive (N1), no transaction
+        opens and its reads find none (T2)."""
+        calls = sew_access(request, response, **kw)
+        x.on([x.write_req(calls), x.final_res(calls)], "not_profidrive", profiles=[GENERIC])
+        x.loose(x.read_reqs(calls), "read_without_request")
+
+    # ref 1: READ parameter 8300, the manuals' example: 0x311C7289
+    movilink(_movilink(1, 0x10, FIRMWARE), pd_response(1, 0x40, 0, [value_block(0x43, [0x311C7289])]), b5_retries=1)
+    # ref 2: WRITE parameter volatile P170 = 3000, answered header only
+    movilink(_movilink(2, 0x30, P170, 3000), pd_response(2, 0x40, 0, n_params=1))
+    # ref 3: READ parameter of an index the drive does not have: negative, MOVILINK error class 0x08, code 0x11
+    movilink(_movilink(3, 0x10, 0x1234), pd_response(3, 0xC0, 0, [error_block(0x0811)]))
+    # ref 4: READ minimum of P170
+    movilink(_movilink(4, 0x40, P170), pd_response(4, 0x40, 0, [value_block(0x43, [0])]))
+    # ref 5: a PROFIdrive read of the same double word (SEW supports it, DO 0 = the single axis)
+    calls = sew_access(read_request(5, 0, [P(FIRMWARE)]), pd_response(5, 0x01, 0, [value_block(0x43, [0x311C7289])]))
+    x.txn(calls, 5, "ok", "PROFIdrive Request ID 0x01 on an SEW drive")
     return cap, x

@@ -85,8 +85,8 @@ class Intent:
     ) -> list[Call]:
         """One PROFIdrive transaction: its calls (write, reads), reference
         (None: not in the capture, the request cut before it) and verdict;
-        reads, b5_retries (reads answered DE 80 B5 00), rpc_retransmissions, pnio_status and the figures are derived from
-        the calls, `extra` adds or overrides (e.g. capture_ended=True for a
+        reads, b5_retries (reads answered DE 80 B5 00), rpc_retransmissions,
+        pnio_status and the figures are derived from the calls, `extra` adds or overrides (e.g. capture_ended=True for a
         transaction still open at capture end). `findings` are the
         transaction-level rules (protocol.md 6.4 Q2-Q5, 6.5 T1-T6) the
         pairing must report, as (frame, rule)."""

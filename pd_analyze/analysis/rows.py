@@ -17,7 +17,7 @@ from pd_analyze.model import pd_values as pt
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.verdicts import ANSWERED
 from pd_analyze.protocol.link import ip_text
-from pd_analyze.protocol.profidrive import Address, Block, Parsed
+from pd_analyze.protocol.profidrive import Address, Block, Parsed, error_meaning, service_name, writes_values
 from pd_analyze.protocol.profidrive_view import cell_text, values_of
 
 
@@ -108,11 +108,11 @@ class Rows:
             read_values = values_of(res_block) if res_block is not None and not res_block.is_error else None
             append(ParameterRow._make((  # _make: a tuple is built in C, a named tuple's __new__ in Python
                 number, capture, device, txn.do, label, addr.pnu, addr.subindex, addr.n_elems,
-                pt.ATTRIBUTE.get(addr.attr) or _hex(addr.attr),  # (a default argument is built every time)
+                service_name(request, addr.attr) or pt.ATTRIBUTE.get(addr.attr) or _hex(addr.attr),
                 (pt.FORMAT_NAME.get(fmt.format) or _hex(fmt.format)) if fmt is not None and not fmt.is_error else "",
                 block_values(written), block_values(res_block, read_values), _hex(err),
-                pt.error_text(err) if err >= 0 else "", whole is not None)))
-            if txn.req_id == pt.REQ_CHANGE and written is not None:
+                error_meaning(err, response) if err >= 0 else "", whole is not None)))
+            if written is not None and writes_values(request):
                 self._change(capture, txn, number, i, addr, label, written, res_block, device)
         if whole is not None:
             errors = [f"*:{_hex(whole.error)}"]  # header-level error: the whole request refused
@@ -143,7 +143,7 @@ class Rows:
         before = txn.values_before[i] if i < len(txn.values_before) else [None] * len(keys)
         self._before(keys, before)
         if res_block is not None and res_block.is_error:
-            result = f"error {_hex(res_block.error)}: {pt.error_text(res_block.error)}"
+            result = f"error {_hex(res_block.error)}: {error_meaning(res_block.error, txn.response)}"
         else:
             result = "ok" if txn.verdict in ANSWERED else txn.verdict
         self.changes.append(ChangeRow._make((

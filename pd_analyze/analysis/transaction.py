@@ -11,6 +11,7 @@ from pd_analyze.model.rules import Finding, finding
 from pd_analyze.model.verdicts import ANSWERED, FAILED_UNANSWERED, PRECEDENCE
 from pd_analyze.protocol.profidrive import Address, Parsed
 from pd_analyze.protocol.profidrive_view import cell_text, values_of
+from pd_analyze.protocol.profiles import VendorRequest
 
 # How a transaction that got no final answer ended (its verdict is then timeout, protocol.md 7.4).
 UNANSWERED_ENDS = frozenset({"deadline", "superseded", "capture_end", "evicted"})
@@ -128,17 +129,18 @@ def b5_finding(retries: int, threshold: int, frame: int) -> Finding:
 
 
 def mirroring_findings(ref: int, req_id: int, do: int, n_params: int, r: Parsed,
-                       frame: int) -> tuple[list[Finding], bool]:
+                       frame: int, answers: tuple[int, ...] | None = None) -> tuple[list[Finding], bool]:
     """Q2-Q5: a response mirrors the request's reference, Request ID, DO and No. of parameters (protocol.md
     6.4); (findings, whether Q2 or Q3 failed: the verdict is then reference_mismatch). A request field it
-    does not know is -1 and not compared."""
+    does not know is -1 and not compared. `answers`: the Response IDs of a vendor's own Request ID
+    (protocol.md 5.5), in place of the profile's."""
     out = []
     mismatch = False
     if ref >= 0 and r.ref != ref:
         out.append(finding("reference_mismatch", frame, "pd.ref", r.ref, ref,
                            f"response reference {r.ref} does not mirror the request's {ref}"))
         mismatch = True
-    expected = ANSWERS.get(req_id, (pt.RES_NOT_SUPPORTED,))
+    expected = answers or ANSWERS.get(req_id, (pt.RES_NOT_SUPPORTED,))
     if req_id >= 0 and r.ident not in expected:  # (a request cut before its header: nothing to answer)
         out.append(finding("response_id_mismatch", frame, "pd.resp_id", f"{r.ident:#04x}",
                            "/".join(f"{e:#04x}" for e in expected),
@@ -154,6 +156,12 @@ def mirroring_findings(ref: int, req_id: int, do: int, n_params: int, r: Parsed,
 
 
 ANSWERS = {pt.REQ_READ: (pt.RES_READ, pt.RES_READ_NAK), pt.REQ_CHANGE: (pt.RES_CHANGE, pt.RES_CHANGE_NAK)}
+
+
+def vendor_answers(request: Parsed | None) -> tuple[int, ...] | None:
+    """The Response IDs that answer a vendor's own Request ID (protocol.md 5.5); None for the profile's."""
+    vendor = request.vendor if request is not None else None
+    return vendor.answers if isinstance(vendor, VendorRequest) else None
 
 
 def verdict_of(txn: Transaction) -> str:

@@ -23,9 +23,9 @@ from pd_analyze.analysis.transaction import (
     mirroring_findings,
     reuse_finding,
     superseded_finding,
+    vendor_answers,
     verdict_of,
 )
-from pd_analyze.model import pd_values as pt
 from pd_analyze.model.capped import (
     CHANNEL_HISTORY,
     PENDING_TRANSACTIONS,
@@ -49,7 +49,7 @@ from pd_analyze.model.values import (
 from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol.frames import FrameResult, Pdu
 from pd_analyze.protocol.pnio import Status
-from pd_analyze.protocol.profidrive import footprint
+from pd_analyze.protocol.profidrive import footprint, writes_values
 
 DEFAULT_TXN_TIMEOUT = 10.0
 DEFAULT_B5_THRESHOLD = 50
@@ -219,7 +219,7 @@ class TransactionEngine:
         if len(record) >= 4:
             txn.ref, txn.req_id, txn.do, txn.n_params = record[0], record[1], record[2], record[3]
         txn.malformed = pdu.malformed or parsed is None or not parsed.complete
-        if txn.req_id == pt.REQ_CHANGE and parsed is not None:  # what the change replaces, known before it
+        if writes_values(parsed):  # what the change replaces, known before it
             txn.values_before = [[self.read_values.get(k) for k in elements(txn, addr)] for addr in parsed.addresses]
         self._admit(txn, pdu.frame, closed)
         return txn
@@ -362,7 +362,8 @@ class TransactionEngine:
         if parsed is None or not parsed.complete:
             txn.malformed = True
         else:
-            found, mismatch = mirroring_findings(txn.ref, txn.req_id, txn.do, txn.n_params, parsed, pdu.frame)
+            found, mismatch = mirroring_findings(txn.ref, txn.req_id, txn.do, txn.n_params, parsed, pdu.frame,
+                                                 vendor_answers(txn.request))
             txn.findings += found
             txn.mismatch |= mismatch
         closed.append(self._close(txn, "response"))

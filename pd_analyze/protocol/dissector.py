@@ -424,7 +424,8 @@ class Dissector:
             if response and stub.status is not None and not stub.status.ok:
                 continue
             max_params = self.checker.record.max_params
-            if block.index == INDEX_PD_DPV1 and not profidrive.plausible(block.record, response, max_params):
+            if block.index == INDEX_PD_DPV1 and not profidrive.plausible(block.record, response, max_params,
+                                                                                       self.checker.ids):
                 res.findings.append(finding("not_profidrive", number, "iod.index", "0x002f",
                                             "a plausible PROFIdrive header", "record at index 0x002F is not a "
                                                                              "PROFIdrive parameter block"))
@@ -433,13 +434,13 @@ class Dissector:
             key = _channel(dgram, v, block.target_ar, response)
             if response:
                 request, request_frame = self._pd_requests.get(key, (None, 0))
-                parsed = profidrive.parse_response(block.record, number, res.findings)
+                parsed = profidrive.parse_response(block.record, number, res.findings, self.checker.ids)
                 res.findings += self.checker.response(parsed, number, request)
                 block.pd = (parsed, request)
                 if self.annotate and request_frame:
                     res.layers.append(Layer("Parameter access", 0, [derived("pd.request_frame", request_frame)]))
             else:
-                parsed = profidrive.parse_request(block.record, number, res.findings)
+                parsed = profidrive.parse_request(block.record, number, res.findings, self.checker.ids)
                 res.findings += self.checker.request(parsed, number)
                 block.pd = (parsed, None)
                 self._remember_request(key, parsed, number)

@@ -11,7 +11,8 @@ from datetime import date, timedelta
 
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.layout import Field
-from pd_analyze.protocol.profidrive import HEADER, RESPONSE_HEADER, Address, Block, Parsed
+from pd_analyze.protocol.profidrive import HEADER, RESPONSE_HEADER, Address, Block, Parsed, as_value, error_meaning
+from pd_analyze.protocol.profiles import DEFAULT, VendorRequest
 
 _EPOCH_1984 = date(1984, 1, 1)
 
@@ -127,7 +128,8 @@ Describe = Callable[[str, object], str]  # (limit key, value) -> check text, e.g
 
 def annotate(p: Parsed, data: bytes, base: int, describe: Describe,
              request: Parsed | None = None) -> list[Section]:
-    """The dump's tree of a parsed request/response; `describe(key, value)` gives a check text."""
+    """The dump's tree of a parsed request/response; `describe(key, value)` gives a check text. A vendor's
+    own Request/Response ID (protocol.md 5.5) is shown with its name, service and error words."""
     if not p.header_ok:
         return [("PROFIdrive record (shorter than its header)",
                  [Field("pd.trailing", base, len(data), bytes(data), data.hex(), data.hex(" ") or "(empty)")])]
@@ -136,24 +138,33 @@ def annotate(p: Parsed, data: bytes, base: int, describe: Describe,
     head = layout.annotate(data, 0, (p.ref, p.ident, p.do, p.n), base)
     for fld, key in zip(head, ("ref", "resp_id" if p.response else "req_id", "do", "n_params"), strict=True):
         fld.check = describe(f"{side}.{key}", fld.value)
+    if p.vendor is not None:  # the vendor's own ID: the generic profile does not define it (protocol.md 5.5)
+        head[1].show = f"0x{p.ident:02x} ({p.vendor.name})"
+        head[1].check = _vendor_check(head[1].check)
+    vendor = request.vendor if p.response and request is not None else p.vendor
+    service = vendor if isinstance(vendor, VendorRequest) else None
     sections: list[Section] = [(f"Parameter {side} header", head)]
     for i, a in enumerate(p.addresses):
         at = a.offset
         fields = [Field(f"pd.addr[{i}].{n}", base + at + off, size, bytes(data[at + off:at + off + size]),
-                        v, _show_addr(n, v)) for n, off, size, v in
+                        v, _show_addr(n, v, service)) for n, off, size, v in
                   (("attr", 0, 1, a.attr), ("n_elems", 1, 1, a.n_elems), ("pnu", 2, 2, a.pnu),
                    ("subindex", 4, 2, a.subindex))]
         for fld, key in zip(fields, ("attribute", "n_elems", "pnu", "subindex"), strict=True):
             fld.check = describe(f"request.{key}", fld.value)
+            if service is not None and key in ("attribute", "pnu"):  # the service's, not the profile's
+                fld.check = _vendor_check(fld.check)
         sections.append((f"Parameter address {i + 1}: {a.label()}", fields))
     if p.echo:
         sections.append(("Address echo (AKD manual layout)", [Field("pd.echo", base + 4, 6, bytes(data[4:10]),
                                                                     data[4:10].hex(), data[4:10].hex(" "))]))
     addresses = request.addresses if request is not None and p.response else p.addresses
+    if service is not None:
+        addresses = [as_value(a) for a in addresses]
     for i, block in enumerate(p.blocks):
         addr = addresses[i] if i < len(addresses) else None
-        sections.append((_block_title(i, block, addr, p.response), _block_fields(i, block, data, base, side,
-                                                                                describe, addr)))
+        sections.append((_block_title(i, block, addr, p), _block_fields(i, block, data, base, side, describe,
+                                                                         addr, p)))
     if p.end < len(data):
         rest = data[p.end:]
         sections.append(("Bytes after the parsed record", [Field("pd.trailing", base + p.end, len(rest), bytes(rest),
@@ -163,7 +174,16 @@ def annotate(p: Parsed, data: bytes, base: int, describe: Describe,
 
 
 
-def _show_addr(name: str, value: int) -> str:
+def _vendor_check(check: str) -> str:
+    """A check text without the generic profile's verdict: for fields of a vendor's own service, which the
+    checks hold against the vendor profile only (Checker.request)."""
+    return "; ".join(part for part in check.split("; ") if not part.startswith(f"{DEFAULT} "))
+
+
+def _show_addr(name: str, value: int, vendor: VendorRequest | None = None) -> str:
+    if name == "attr" and vendor is not None and vendor.services:
+        svc = vendor.service(value)
+        return f"0x{value:02x} ({svc.name if svc is not None else 'reserved service'})"
     if name == "attr":
         return f"0x{value:02x} ({pt.ATTRIBUTE.get(value, 'reserved')})"
     if name == "n_elems" and value == 0:
@@ -171,11 +191,13 @@ def _show_addr(name: str, value: int) -> str:
     return str(value)
 
 
-def _block_title(i: int, block: Block, addr: Address | None, response: bool) -> str:
+def _block_title(i: int, block: Block, addr: Address | None, owner: Parsed) -> str:
+    response = owner.response
     label = addr.label(block.n_values if addr is not None and addr.attr == pt.ATTR_VALUE
                        and not block.is_error else None) if addr is not None else f"block {i + 1}"
     if block.is_error:
-        return f"Parameter {i + 1}: {label} error {block.error:#04x} ({pt.error_text(max(block.error, 0))})"
+        number = f"{block.error:#06x}" if block.error > 0xFF else f"{block.error:#04x}"
+        return f"Parameter {i + 1}: {label} error {number} ({error_meaning(block.error, owner)})"
     if block.format in (pt.FMT_ZERO, pt.FMT_AKD_ZERO):
         return f"Parameter {i + 1}: {label} written" if response else f"Parameter {i + 1}: {label} Zero"
     name = pt.FORMAT_NAME.get(block.format, f"format {block.format:#04x}")
@@ -188,7 +210,7 @@ def _block_title(i: int, block: Block, addr: Address | None, response: bool) -> 
 
 
 def _block_fields(i: int, block: Block, data: bytes, base: int, side: str, describe: Describe,
-                  addr: Address | None) -> list[Field]:
+                  addr: Address | None, owner: Parsed) -> list[Field]:
     pos = block.offset
     fmt_show = f"0x{block.format:02x} ({pt.FORMAT_NAME.get(block.format, 'unknown format')})"
     fields = [Field(f"pd.val[{i}].format", base + pos, 1, bytes(data[pos:pos + 1]), block.format, fmt_show,
@@ -201,7 +223,7 @@ def _block_fields(i: int, block: Block, data: bytes, base: int, side: str, descr
             value = int.from_bytes(word, "big")
             if k == 0:
                 fields.append(Field(f"pd.val[{i}].error", base + pos + 2, 2, bytes(word), value,
-                                    f"0x{value:02x} ({pt.error_text(value)})"))
+                                    f"0x{value:02x} ({error_meaning(value, owner)})"))
             elif k == 1:
                 fields.append(Field(f"pd.val[{i}].error_subindex", base + pos + 4, 2, bytes(word), value, str(value)))
             else:
