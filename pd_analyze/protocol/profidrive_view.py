@@ -10,7 +10,7 @@ from collections.abc import Callable
 from datetime import date, timedelta
 
 from pd_analyze.model import pd_values as pt
-from pd_analyze.model.layout import Field
+from pd_analyze.model.layout import Field, show
 from pd_analyze.protocol.profidrive import HEADER, RESPONSE_HEADER, Address, Block, Parsed, as_value, error_meaning
 from pd_analyze.protocol.profiles import DEFAULT, VendorRequest
 
@@ -130,11 +130,11 @@ def annotate(p: Parsed, data: bytes, base: int, describe: Describe,
              request: Parsed | None = None) -> list[Section]:
     """The dump's tree of a parsed request/response; `describe(key, value)` gives a check text. A vendor's
     own Request/Response ID (protocol.md 5.5) is shown with its name, service and error words."""
-    if not p.header_ok:
-        return [("PROFIdrive record (shorter than its header)",
-                 [Field("pd.trailing", base, len(data), bytes(data), data.hex(), data.hex(" ") or "(empty)")])]
     layout = RESPONSE_HEADER if p.response else HEADER
     side = "response" if p.response else "request"
+    if not p.header_ok:  # decoded as far as the bytes go (protocol.md 1.3), the finding says it is cut
+        return [(f"Parameter {side} header (cut: {len(data)} of 4 bytes)",
+                 _fields_present(data, 0, base, tuple(zip(layout.names, layout.sizes, strict=True))))]
     head = layout.annotate(data, 0, (p.ref, p.ident, p.do, p.n), base)
     for fld, key in zip(head, ("ref", "resp_id" if p.response else "req_id", "do", "n_params"), strict=True):
         fld.check = describe(f"{side}.{key}", fld.value)
@@ -158,6 +158,11 @@ def annotate(p: Parsed, data: bytes, base: int, describe: Describe,
     if p.echo:
         sections.append(("Address echo (AKD manual layout)", [Field("pd.echo", base + 4, 6, bytes(data[4:10]),
                                                                     data[4:10].hex(), data[4:10].hex(" "))]))
+    cut_address = not p.response and len(p.addresses) < p.n and p.end < len(data)
+    if cut_address:  # the record ends inside this address
+        i = len(p.addresses)
+        sections.append((f"Parameter address {i + 1} (cut: {len(data) - p.end} of 6 bytes)", _fields_present(
+            data, p.end, base, tuple((f"pd.addr[{i}].{n}", size) for n, size in _ADDRESS_PARTS))))
     addresses = request.addresses if request is not None and p.response else p.addresses
     if service is not None:
         addresses = [as_value(a) for a in addresses]
@@ -165,13 +170,68 @@ def annotate(p: Parsed, data: bytes, base: int, describe: Describe,
         addr = addresses[i] if i < len(addresses) else None
         sections.append((_block_title(i, block, addr, p), _block_fields(i, block, data, base, side, describe,
                                                                          addr, p)))
-    if p.end < len(data):
+    cut = _cut_block(p, data, base, side, describe, addresses)
+    if cut is not None:
+        sections.append(cut)
+    elif p.end < len(data) and not cut_address:
         rest = data[p.end:]
         sections.append(("Bytes after the parsed record", [Field("pd.trailing", base + p.end, len(rest), bytes(rest),
                                                                  rest.hex(), rest.hex(" "))]))
     return sections
 
 
+
+
+_ADDRESS_PARTS = (("attr", 1), ("n_elems", 1), ("pnu", 2), ("subindex", 2))
+
+
+def _fields_present(data: bytes, at: int, base: int, parts: tuple[tuple[str, int], ...]) -> list[Field]:
+    """The fields of a structure the record ends inside, as far as the bytes go: whole ones decoded, the
+    one the record ends inside shown raw as `pd.cut`, the missing ones left out."""
+    out = []
+    for name, size in parts:
+        raw = bytes(data[at:at + size])
+        if len(raw) == size:
+            value = int.from_bytes(raw, "big")
+            out.append(Field(name, base + at, size, raw, value, show(name, value)))
+        elif raw:
+            out.append(Field("pd.cut", base + at, len(raw), raw, raw.hex(),
+                             f"{name} cut: {len(raw)} of {size} bytes before the record ends"))
+        at += size
+    return out
+
+
+def _cut_block(p: Parsed, data: bytes, base: int, side: str, describe: Describe, addresses: list[Address]
+               ) -> Section | None:
+    """A value or error block whose values overrun the record (P6/Q12), decoded as far as the bytes go:
+    Format, No. of values, every whole value, the cut one raw (`pd.cut`). None when the parse did not stop
+    at such a block."""
+    i, at = len(p.blocks), p.end
+    if p.complete or at >= len(data) or (p.blocks and p.blocks[-1].unknown_size):
+        return None
+    fmt = data[at]
+    spec = pt.FORMATS.get(fmt)
+    m = data[at + 1] if at + 1 < len(data) else -1
+    if spec is None or not spec.size or (m >= 0 and at + 2 + m * spec.size <= len(data)):
+        return None  # not a sized block that overruns: the parse stopped for another reason
+    addr = addresses[i] if i < len(addresses) else None
+    label = addr.label() if addr is not None else f"block {i + 1}"
+    if m < 0:  # only its Format is left
+        return (f"Parameter {i + 1}: {label} {spec.name} (cut: no values before the record ends)",
+                _fields_present(data, at, base, ((f"pd.val[{i}].format", 1), (f"pd.val[{i}].n_values", 1))))
+    whole = (len(data) - at - 2) // spec.size
+    present = bytes(data[at + 2:at + 2 + whole * spec.size])
+    block = Block(at, fmt, whole, spec.size, present)
+    if fmt == pt.FMT_ERROR and whole:
+        block.error = int.from_bytes(present[:2], "big")
+    fields = _block_fields(i, block, data, base, side, describe, addr, p)
+    counted = fields[1]  # No. of values as the record declares it, not the whole values present
+    counted.value, counted.show = m, str(m)
+    rest = bytes(data[at + 2 + len(present):])
+    if rest:
+        fields.append(Field("pd.cut", base + at + 2 + len(present), len(rest), rest, rest.hex(),
+                            f"value {whole + 1} cut: {len(rest)} of {spec.size} bytes before the record ends"))
+    return f"Parameter {i + 1}: {label} {spec.name} (cut: {whole} of {m} values before the record ends)", fields
 
 
 def _vendor_check(check: str) -> str:
