@@ -15,7 +15,7 @@ import pytest
 from devtools.fuzz import corpus
 from pd_analyze import capture
 from pd_analyze.capture import MAX_CAPLEN, CaptureError, chunks, pcap
-from pd_analyze.capture.batches import BATCH_FRAMES, FrameBatch, batches, batches_from, split_offsets
+from pd_analyze.capture.batches import BATCH_FRAMES, FrameBatch, batches
 from tests.test_capture import FRAME_A, FRAME_B, block, epb, idb, shb, spb
 from tests.test_capture import pcap as pcap_file
 from tests.test_cli import DAMAGE, _damaged
@@ -392,72 +392,4 @@ def test_standard_input(kind: str) -> None:
     got, want = (json.loads(r.stdout) for r in runs)
     assert got == want and len(want) > 5
 
-
-# --- --jobs: batches from a record, split points --------------------------------------------------------------
-def _record_offsets(path: str) -> list[int]:
-    data = Path(path).read_bytes()
-    order = "<" if data[:4] in (b"\xd4\xc3\xb2\xa1", b"\x4d\x3c\xb2\xa1") else ">"
-    offsets = [24]
-    while offsets[-1] < len(data):
-        offsets.append(offsets[-1] + 16 + struct.unpack_from(order + "I", data, offsets[-1] + 8)[0])
-    return offsets[:-1]
-
-
-def test_batches_from_a_record_equal_pcap_frames_from() -> None:
-    offsets = _record_offsets(SAMPLE)
-    for index in (0, 1, 500, len(offsets) - 1):
-        for size in (1, 64, BATCH_FRAMES):
-            want = list(capture.pcap_frames_from(SAMPLE, offsets[index], 1000 + index))
-            got = [f for b in batches_from(SAMPLE, offsets[index], 1000 + index, size) for f in frames_of(b)]
-            same(got, want)
-            assert got[0].number == 1000 + index and len(got) == len(offsets) - index
-
-
-def test_batches_from_a_damaged_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    small_reads(monkeypatch)
-    data = pcap_file(_records(30))
-    path = tmp_path / "cut.pcap"
-    offsets = [24]
-    for _n, _frac, frame in _records(30):
-        offsets.append(offsets[-1] + 16 + len(frame))
-    for end in range(offsets[5], len(data), 7):
-        path.write_bytes(data[:end])
-        want = outcome(capture.pcap_frames_from(str(path), offsets[5], 6))
-        got = outcome(batches_from(str(path), offsets[5], 6, 4))
-        same(got[0], want[0])
-        assert got[1] == want[1]
-
-
-@pytest.mark.parametrize("parts", [1, 2, 3, 8])
-def test_split_offsets_cover_the_capture_evenly(parts: int) -> None:
-    path = str(REPO.parent / "shared" / "captures" / "cisagov_icsnpp-profinet-io-cm__profinet_io_cm_mixed_1.pcap")
-    if not Path(path).exists():
-        path = SAMPLE
-    everything = list(capture.frames(path))
-    points = split_offsets(path, parts)
-    assert points is not None and points[0] == (24, 1) and len(points) == parts
-    offsets = _record_offsets(path)
-    assert all(offsets[number - 1] == offset for offset, number in points)
-    ends = [number for _offset, number in points[1:]] + [len(everything) + 1]
-    got = []
-    for (offset, number), end in zip(points, ends, strict=True):
-        part = [f for b in batches_from(path, offset, number) for f in frames_of(b)]
-        same(part, everything[number - 1:])  # to the end of the file, numbered alike
-        got += part[:end - number]
-        assert abs((end - number) - len(everything) / parts) <= 1
-    same(got, everything)
-
-
-def test_split_offsets_only_for_uncompressed_intact_pcap(tmp_path: Path) -> None:
-    gz = tmp_path / "x.pcap.gz"
-    gz.write_bytes(gzip.compress(Path(SAMPLE).read_bytes()))
-    cut = tmp_path / "cut.pcap"
-    cut.write_bytes(Path(SAMPLE).read_bytes()[:-5])
-    empty = tmp_path / "empty.pcap"
-    empty.write_bytes(pcap_file([]))
-    for path in (gz, cut, REPO / "sample_pcaps" / "two_interfaces.pcapng", tmp_path / "absent.pcap", tmp_path):
-        assert split_offsets(str(path), 2) is None
-    assert split_offsets(str(empty), 4) == [(24, 1)]
-    few = split_offsets(str(REPO / "sample_pcaps" / "worked_example.pcap"), 10)  # 6 frames: a part each
-    assert few is not None and [number for _offset, number in few] == [1, 2, 3, 4, 5, 6]
 

@@ -1,5 +1,6 @@
-"""Which way a set of captures goes: one process, files in parallel processes, one large file split
-(`analysis.split`), or a chain of files read as one capture.
+"""Which way a set of captures goes: frame by frame or in batches as columns (by size), one process or
+files in parallel processes, or a chain of files read as one capture. One file is analysed in one
+process: its state (calls, transactions, values read) runs through the capture in order.
 
 `run` is the one way in for `analyze()` and the streamed report alike (lists or spools as `Rows`), so
 their tables cannot differ.
@@ -12,7 +13,6 @@ import os
 from pd_analyze.analysis import pipeline
 from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings
 from pd_analyze.analysis.rows import Rows
-from pd_analyze.analysis.split import analyze_split
 
 PARALLEL_MIN_BYTES = 8 * 1024 * 1024  # captures smaller than this in all are analysed in one process
 # Captures smaller than this in all are read frame by frame: for them the columns' imports (numpy,
@@ -33,10 +33,6 @@ def run(files: list[str], rows: Rows, settings: Settings, progress: Progress | N
     if jobs > 1 and ("-" in files or _input_bytes(files) < PARALLEL_MIN_BYTES):
         jobs = 1  # standard input is one stream; for small files, process start-up and shipping the rows
         # back would cost more than the files take
-    if jobs > 1 and len(files) == 1 and way is pipeline:
-        split = analyze_split(files[0], settings, jobs, rows)
-        if split is not None:
-            return [split]
     results: list[CaptureResult] = []
     if jobs > 1 and len(files) > 1:
         from concurrent.futures import ProcessPoolExecutor

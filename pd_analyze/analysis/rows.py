@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from pd_analyze.analysis.schema import ChangeRow, FindingRow, ParameterRow, TransactionRow
-from pd_analyze.analysis.transaction import Element, Transaction, elements, param_label
+from pd_analyze.analysis.transaction import Transaction, elements, param_label
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.verdicts import ANSWERED
@@ -127,9 +127,6 @@ class Rows:
             " ".join(map(str, sorted(txn.frames))),
             txn.t_start, fig["t_write_rtt"], fig["t_total"], fig["t_final_read_rtt"], fig["t_first_read_gap"],
             txn.capture_ended, txn.closed_by)))
-        self._added(capture, txn, number)
-        if txn.values_read:
-            self._read(txn, txn.values_read)
         for f in txn.findings:
             self.add_finding(capture, f, number)
 
@@ -141,7 +138,6 @@ class Rows:
         """The change trail: what was written, how it ended, and the values it replaced (read before it)."""
         keys = elements(txn, addr)
         before = txn.values_before[i] if i < len(txn.values_before) else [None] * len(keys)
-        self._before(keys, before)
         if res_block is not None and res_block.is_error:
             result = f"error {_hex(res_block.error)}: {error_meaning(res_block.error, txn.response)}"
         else:
@@ -149,16 +145,6 @@ class Rows:
         self.changes.append(ChangeRow._make((
             capture, device, txn.do, number, txn.write_req_frame, txn.t_start, label, addr.pnu, addr.subindex,
             block_values(written), result, " ".join(b for b in before if b is not None) if all(before) else "")))
-
-    # What a part of a split capture must remember for its parent (analysis.split.PartRows); nothing here.
-    def _added(self, capture: str, txn: Transaction, number: int) -> None:
-        """A transaction's row was added, its findings follow."""
-
-    def _read(self, txn: Transaction, pairs: list[tuple[Element, str]]) -> None:
-        """Values were read back, per element."""
-
-    def _before(self, keys: list[Element], before: list[str | None]) -> None:
-        """A change's row comes next; `before` are the values last read of its elements (None: unknown)."""
 
 
 def whole_request_error(request: Parsed | None, response: Parsed | None) -> Block | None:

@@ -67,9 +67,8 @@ class Transaction:
     findings: list[Finding] = field(default_factory=list)
     verdict: str = ""
     # A change: per address, the values of its elements last read back before its write request (None:
-    # not read in the capture). A read answered (ok, nak): the values it read, per element.
+    # not read in the capture).
     values_before: list[list[str | None]] = field(default_factory=list)
-    values_read: list[tuple[Element, str]] = field(default_factory=list)
 
     @property
     def device(self) -> bytes:

@@ -77,10 +77,6 @@ class TransactionEngine:
         self.txn_timeout = txn_timeout
         self.b5_threshold = b5_threshold
         self.loose: list[Finding] = []  # findings of frames that belong to no transaction, drained by callers
-        self.number_from = 0  # frames before this only warm up the state (a split capture's lead-in): txn 0
-        # a split part: transactions whose channel's last one lies before the lead-in, so T1 is the parent's
-        # to decide (analysis.split): by id, (the transaction, where T1's finding goes in its findings, frame)
-        self.history_unknown: dict[int, tuple[Transaction, int, int]] = {}
         self._next = 1
         # open transactions by channel, in opening order; the oldest ends as a timeout when the table is full
         self._pending: CappedTable[Channel, Transaction] = CappedTable(PENDING_TRANSACTIONS)
@@ -99,7 +95,7 @@ class TransactionEngine:
         self._now = max(self._now, res.ts)
         closed = self._expire()
         owner = self._frame(res, closed)
-        if owner is not None and owner.txn:
+        if owner is not None:
             owner.findings += res.findings
             if not owner.frames or (owner.frames[-1] < res.frame or res.frame not in owner.frames):
                 owner.frames.append(res.frame)  # results come in frame order: one comparison, as a rule
@@ -232,8 +228,8 @@ class TransactionEngine:
         if self.number_of is not None:
             number = self.number_of(opened_at, position)
         else:
-            number = self._next if first >= self.number_from else 0
-            self._next += 1 if number else 0
+            number = self._next
+            self._next += 1
         txn = Transaction(number, channel, parsed, first, start)  # type: ignore[arg-type]
         txn.frames.extend(pdu.fragments)
         txn.rpc_calls.append(pdu.request)
@@ -247,9 +243,7 @@ class TransactionEngine:
             txn.findings.append(superseded_finding(txn.ref, old.write_req_frame, old.ref, frame))
             closed.append(self._close(old, "superseded"))
         last = self._last_done.get(channel)
-        if last is None and self.number_from and txn.txn:
-            self.history_unknown[id(txn)] = (txn, len(txn.findings), frame)
-        elif last is not None:
+        if last is not None:
             reuse = reuse_finding(last, txn.ref, frame)
             if reuse is not None:
                 txn.findings.append(reuse)
@@ -402,8 +396,7 @@ class TransactionEngine:
             txn.pnio_status = f"DE80{PNIORW_STATE_CONFLICT:02X}00"  # last answer was B5 (txn.last_status)
         # not the transaction itself: it is handed on
         self._last_done.remember(channel, LastDone(txn.write_req_frame, txn.ref, txn.verdict))
-        txn.values_read = elements_read(txn)
-        for key, value in txn.values_read:
+        for key, value in elements_read(txn):
             self.read_values.remember(key, value)
         return txn
 

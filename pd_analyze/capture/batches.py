@@ -24,13 +24,12 @@ import numpy as np
 
 from pd_analyze.capture import pcap
 from pd_analyze.capture.chunks import ChunkReads
-from pd_analyze.capture.pcap import PCAP_MAGICS, pcap_header
+from pd_analyze.capture.pcap import pcap_header
 from pd_analyze.capture.pcapng_chunks import pcapng_columns
 from pd_analyze.capture.raw import MAX_CAPLEN, CaptureError, CaptureInfo, RawFrame
 from pd_analyze.capture.reader import in_decompressed, open_capture
 
 BATCH_FRAMES = 65_536  # frames per batch by default (a batch of full-size frames: about 100 MB)
-_MARKS = 1 << 16  # split_offsets notes at most about this many records while it counts them
 
 
 @dataclass(slots=True)
@@ -79,50 +78,6 @@ def batches(path: str, size: int = BATCH_FRAMES, info: CaptureInfo | None = None
             raise in_decompressed(exc) from None
     finally:
         stream.close()
-
-
-def batches_from(path: str, offset: int, first_number: int, size: int = BATCH_FRAMES) -> Iterator[FrameBatch]:
-    """The frames of a classic pcap from the record at byte `offset`, numbered from `first_number`, in
-    batches (as `capture.pcap_frames_from` yields them one at a time)."""
-    if size < 1:
-        raise ValueError(f"batch size {size}: must be at least 1")
-    with open(path, "rb") as f:
-        head = f.read(24)
-        f.seek(offset)
-        for _base, batch in _pcap_batches(path, f, CaptureInfo(path), size, head, offset, first_number):
-            yield batch
-
-
-def split_offsets(path: str, parts: int) -> list[tuple[int, int]] | None:
-    """(byte offset, frame number) of about `parts` record boundaries of an uncompressed classic pcap,
-    evenly spaced by frame count, the first at frame 1: `batches_from` reads each part from its point to
-    the next one's frame. None for any other file, and for a damaged one (read whole, it reports the damage).
-    Reads the whole file (the records have no index), at the speed of `batches`."""
-    if parts < 1:
-        raise ValueError(f"{parts} parts: must be at least 1")
-    # (offset, number) of frames 1, 1 + step, 1 + 2 * step, ...: every frame's while there are few, every
-    # other one's when there are more than _MARKS, and so on (memory bounded, points exact on small files)
-    marks: list[tuple[int, int]] = []
-    step = 1
-    count = 0
-    try:
-        with open(path, "rb") as f:
-            head = f.read(24)
-            if len(head) < 24 or head[:4] not in PCAP_MAGICS:
-                return None
-            for base, batch in _pcap_batches(path, f, CaptureInfo(path), BATCH_FRAMES, head, 24, 1):
-                first = -(int(batch.number[0]) - 1) % step  # index of the batch's first marked frame
-                offsets = batch.start[first::step] - 16 + base
-                marks += zip(offsets.tolist(), batch.number[first::step].tolist(), strict=True)
-                while len(marks) > _MARKS:
-                    marks, step = marks[::2], step * 2
-                count = int(batch.number[-1])
-    except (OSError, CaptureError):
-        return None
-    if not count:
-        return [(24, 1)]
-    points = [marks[(i * count // parts) // step] for i in range(parts)]
-    return sorted(set(points), key=lambda point: point[1])
 
 
 def _pcap_batches(path: str, stream: BinaryIO, info: CaptureInfo, size: int, head: bytes, origin: int,

@@ -25,33 +25,6 @@ PCAP_MAGICS = {
 }
 
 
-def pcap_split_points(path: str, parts: int) -> list[tuple[int, int, float]] | None:
-    """(frame number, byte offset, time) of every 512th record of an uncompressed classic pcap, to
-    split it among processes; None for any other file (those are analysed in one process)."""
-    with open(path, "rb") as f:
-        head = f.read(24)
-        if head[:4] not in PCAP_MAGICS or len(head) < 24:
-            return None
-        f.seek(0)
-        info = CaptureInfo(path)
-        points = []
-        try:
-            for frame in pcap_frames(path, f, info, with_offsets=True):  # every 512th record
-                points.append((frame.number, frame.iface, frame.ts))  # iface carries the offset here
-        except CaptureError:
-            return None
-    return points if len(points) >= 2 * parts else None
-
-
-def pcap_frames_from(path: str, offset: int, first_number: int, ip_only: bool = False) -> Iterator[RawFrame]:
-    """The frames of a classic pcap from a record at `offset`, numbered from `first_number`."""
-    with open(path, "rb") as f:
-        head = f.read(24)
-        f.seek(offset)
-        for frame in pcap_frames(path, f, CaptureInfo(path), head=head, base=offset, ip_only=ip_only):
-            yield frame._replace(number=frame.number + first_number - 1)
-
-
 def pcap_header(path: str, head: bytes) -> tuple[bool, float, int]:
     """(little-endian, the divisor of a record's fraction of a second, link type) of a file header."""
     try:
@@ -65,19 +38,19 @@ def pcap_header(path: str, head: bytes) -> tuple[bool, float, int]:
     return little, divisor, fh.linktype
 
 
-def pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, with_offsets: bool = False,
-                 head: bytes | None = None, base: int = 24, ip_only: bool = False) -> Iterator[RawFrame]:
+def pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, ip_only: bool = False) -> Iterator[RawFrame]:
     """Classic pcap: dpkt parses the file header; records are cut from large chunks.
 
     dpkt's record loop builds a header object per frame (about 1.7 us) and reads whatever length a
     record claims; this loop costs a fraction of that, and bounds every length before reading.
     """
-    little, divisor, linktype = pcap_header(path, head if head is not None else stream.read(24))
+    little, divisor, linktype = pcap_header(path, stream.read(24))
     info.linktypes = [linktype]
     unpack = struct.Struct("<IIII" if little else ">IIII").unpack_from
-    skip_non_ip = ip_only and linktype == LINKTYPE_ETHERNET and not with_offsets
+    skip_non_ip = ip_only and linktype == LINKTYPE_ETHERNET
     buf = b""
-    pos = 0  # in buf; base is the file offset of buf[0]
+    base = 24  # the file offset of buf[0]
+    pos = 0  # in buf
     number = 0
     run = 0  # frames skipped since the last one yielded (ip_only)
     run_buf, run_pos = b"", 0  # where the last of them is, for its time
@@ -132,11 +105,7 @@ def pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, with_offsets: bo
         if run:
             yield _run_record(number - 1, run_buf, run_pos, unpack, divisor, linktype, run)
             run = 0
-        if with_offsets:  # split points: the offset of every 512th record, no frame data
-            if number % 512 == 1:
-                yield RawFrame(number, sec + frac / divisor, linktype, b"", base + pos)
-        else:
-            yield RawFrame(number, sec + frac / divisor, linktype, buf[pos + 16:end])
+        yield RawFrame(number, sec + frac / divisor, linktype, buf[pos + 16:end])
         pos = end
 
 
