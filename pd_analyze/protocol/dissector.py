@@ -505,14 +505,16 @@ def dissect_frames(frames: Iterable[capture.RawFrame], d: Dissector) -> Iterator
         for frame in frames:
             # Most of a PROFINET capture is cyclic PN-RT, LLDP, ARP...: an Ethernet frame that carries
             # no IPv4 (tagged or not) is counted here without a call (or by the reader, as a run of
-            # them); the result is the same as feed's.
+            # them, timed at its last frame); the result is the same as feed's, its time included.
             if frame.run:
                 accounting.read += frame.run
                 not_ip[link.SKIP_NOT_IPV4] += frame.run
+                d.advance(frame.ts)
                 continue
             if frame.linktype == LINKTYPE_ETHERNET and frame.data[12:14] not in IP_ETHERTYPES:
                 accounting.read += 1
                 not_ip[link.SKIP_NOT_IPV4] += 1
+                d.advance(frame.ts)
                 continue
             yield from d.feed(frame)
     except capture.CaptureError:
