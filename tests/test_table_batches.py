@@ -44,15 +44,27 @@ def samples() -> pd_analyze.Analysis:
 def _batches(name: str, rows: list[tuple], rng: random.Random, size: int = 13,
              whole_keys: bool = False) -> list[list[tuple]]:
     """The rows cut into batches of 1 to size - 1 rows, the batches shuffled (out of txn or frame order).
-    `whole_keys` cuts only between rows of different sort keys, so rows that tie keep their order."""
+    `whole_keys` puts all the rows of one sort key in one batch, in their order, so rows that tie keep their
+    order: also those of several captures that tie (findings of the same frame number in two files), which
+    are not next to each other in the rows."""
     col = list(ROW_TYPES[name]._fields).index(SORT_COLUMN[name])
-    batches, start = [], 0
-    while start < len(rows):
-        end = min(len(rows), start + rng.randrange(1, size))
-        while whole_keys and end < len(rows) and rows[end][col] == rows[end - 1][col]:
-            end += 1
-        batches.append(rows[start:end])
-        start = end
+    batches: list[list[tuple]] = []
+    if whole_keys:
+        ties: dict[object, list[tuple]] = {}
+        for row in rows:
+            ties.setdefault(row[col], []).append(row)
+        units = list(ties.values())
+        while units:
+            want, batch = rng.randrange(1, size), []
+            while units and len(batch) < want:
+                batch += units.pop(0)
+            batches.append(batch)
+    else:
+        start = 0
+        while start < len(rows):
+            end = min(len(rows), start + rng.randrange(1, size))
+            batches.append(rows[start:end])
+            start = end
     rng.shuffle(batches)
     return batches
 
