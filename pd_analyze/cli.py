@@ -315,7 +315,9 @@ def profiles_table(chosen: list[profiles.Profile], fmt: str) -> str:
             lines += [f"    tolerates: {profiles.TOLERATIONS[t]}" for t in sorted(p.tolerate)]
         if p.error_texts:
             lines.append(f"    vendor error texts: {', '.join(f'{k:#04x}' for k in p.error_texts)}")
+        lines += p.ids.listing() if p.ids is not None else []
     return "\n".join(lines)
+
 
 
 REPORT_EXAMPLES = """\b

@@ -113,8 +113,12 @@ def test_report_and_audit(tmp_path):
 def test_profiles_and_fields_listing():
     r = run("profiles")
     out = r.stdout.decode()
-    assert r.returncode == 0 and out.splitlines()[0].split() == ["limit", "generic", "akd", "sinamics", "yaskawa"]
+    assert r.returncode == 0
+    assert out.splitlines()[0].split() == ["limit", "generic", "akd", "sew", "sinamics", "yaskawa"]
     assert "Yaskawa SI-EP3 PROFINET Technical Manual SIEP C730600 89E, p. 38" in out
+    assert "    Request ID 0x40 SEW MOVILINK service (layout read, answered 0x40/0xc0)  <- DFE32B Fieldbus " \
+           "Interface PROFINET IO, ch. 7.2" in out and "      Attribute 0x30: MOVILINK WRITE parameter volatile " \
+           "(change)" in out
     r = run("fields")
     assert "pd.addr[i].pnu" in r.stdout.decode() and "pn_io.profidrive.parameter.number" in r.stdout.decode()
 

@@ -23,7 +23,7 @@ from nbclient import NotebookClient
 
 REPO = Path(__file__).resolve().parents[1]
 NOTEBOOK = REPO / "notebooks" / "fault_trace_analysis.ipynb"
-VERDICTS = {"ok": 53, "nak": 7, "timeout": 1, "pnio_error": 1, "reference_mismatch": 0, "malformed": 0}
+VERDICTS = {"ok": 53, "nak": 7, "timeout": 0, "pnio_error": 2, "reference_mismatch": 0, "malformed": 0}
 
 
 def execute(nb: nbformat.NotebookNode, cwd: Path) -> nbformat.NotebookNode:
@@ -82,7 +82,7 @@ def test_notebook_shows_the_faults(executed: nbformat.NotebookNode) -> None:
     assert re.search(r"192\.168\.1\.22\s+93\.7", latency)  # the slow drive
     assert "P971[0]          12" in text_of(cell_with(executed, 't.nlargest(5, "b5_retries")'))
     changes = text_of(cell_with(executed, 'a.changes[["t"'))
-    assert "error 0x02: low or high limit exceeded" in changes and "timeout" in changes
+    assert "error 0x02: low or high limit exceeded" in changes and "pnio_error" in changes
     drill = text_of(cell_with(executed, "f.loc[f.name.isin("))
     assert drill.count("ndr.status.code1") == 4 and drill.count("0xb5") == 3
     images = pngs(executed)

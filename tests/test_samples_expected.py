@@ -99,7 +99,7 @@ def test_expected_files_are_well_formed() -> None:
 def test_every_pd_sample_and_readme_sample_has_expectations() -> None:
     names = {p.name[: -len(".json")] for p in _expected_files()}
     pd_files = {p.name for p in SAMPLE_DIR.glob("pd_*.pcap")}
-    assert pd_files <= names and len(pd_files) == 10
+    assert pd_files <= names and len(pd_files) == 12
     readme = (SAMPLE_DIR / "README.md").read_text()
     for name in names:
         assert f"`{name}`" in readme, name
@@ -136,7 +136,8 @@ def transactions(name: str) -> tuple[list[dict], list[list]]:
     out = []
     for t in sorted(closed, key=lambda t: t.write_req_frame):
         fig = t.figures()
-        item = {"ref": t.ref, "frames": [t.write_req_frame, max(t.frames)], "verdict": t.verdict,
+        item = {"ref": t.ref if t.ref >= 0 else None,  # (None: a request cut before its reference)
+                "frames": [t.write_req_frame, max(t.frames)], "verdict": t.verdict,
                 "reads": len(t.read_req_frames), "b5_retries": t.b5_retries,
                 "rpc_retransmissions": t.rpc_retransmissions, "pnio_status": t.pnio_status,
                 "capture_ended": t.capture_ended,

@@ -406,10 +406,12 @@ def test_retransmitted_request_is_identical_rpc_pdu() -> None:
     assert p5 == p6 and round(frames[5][0] - frames[4][0], 3) == 0.1
 
 
-# Files allowed more than 40 frames: fault_trace is a 25 s session, the pd_* files one transaction per case.
+# Files allowed more than 40 frames: fault_trace is a 25 s session, the pd_* files one transaction
+# per case.
 MAX_FRAMES = {"fault_trace.pcap": 450, "pd_out_of_range.pcap": 160, "pd_negative.pcap": 70,
               "pd_b5_and_pnio_errors.pcap": 60, "pd_commissioning.pcap": 60, "pd_yaskawa_like.pcap": 50,
-              "pd_interleaved.pcap": 110, "pd_retries_and_duplicates.pcap": 1340, "pd_timeouts.pcap": 150}  # fmt: skip
+              "pd_interleaved.pcap": 110, "pd_retries_and_duplicates.pcap": 1340, "pd_timeouts.pcap": 150,
+              "pd_edge_cases.pcap": 80}  # fmt: skip
 
 
 def test_all_pcap_samples_parse_with_dpkt() -> None:
@@ -570,7 +572,7 @@ INTERLEAVED = {"pd_interleaved.pcap", "pd_timeouts.pcap"}  # sessions on their o
 
 def test_pd_samples_registered_deterministic_with_expectations() -> None:
     names = [s.name for s in catalog.SAMPLES if s.name.startswith("pd_")]
-    assert names == list(catalog.EXPECTED) and len(names) == 10
+    assert names == list(catalog.EXPECTED) and len(names) == 12
     first, second = build.build_expected(), build.build_expected()
     assert first == second
     built = build.build_all()

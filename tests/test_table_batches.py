@@ -44,7 +44,9 @@ def samples() -> pd_analyze.Analysis:
 def _batches(name: str, rows: list[tuple], rng: random.Random, size: int = 13,
              whole_keys: bool = False) -> list[list[tuple]]:
     """The rows cut into batches of 1 to size - 1 rows, the batches shuffled (out of txn or frame order).
-    `whole_keys` cuts only between rows of different sort keys, so rows that tie keep their order."""
+    `whole_keys` puts all the rows of one sort key in one batch, in their order, so rows that tie keep their
+    order: also those of several captures that tie (findings of the same frame number in two files), which
+    are not next to each other in the rows."""
     col = list(ROW_TYPES[name]._fields).index(SORT_COLUMN[name])
     if whole_keys:  # rows that tie need not be neighbours (frame 6 of two captures): bring them together first
         groups: dict[object, list[tuple]] = {}

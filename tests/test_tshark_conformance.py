@@ -666,13 +666,10 @@ def error_subindex_label(c: tf.Conformance, n: int, record: int) -> View | None:
     return view
 
 
-# Differences that protocol.md 8.3 does not list yet (tshark behaviour seen with 4.0.17): accepted
-# only in their exact form, tshark's side pinned to the record bytes, to be added to 8.3 (or removed).
-
-@pd_rule("NOT IN 8.3: Response ID 0x80 body not decoded by tshark",
-         "protocol.md 3.3/4.1 (0x80 carries one error block, normally 0x21); tshark 4.0.17 decodes the 0x80 "
-         "header only (8.3 #8 lists only its missing name): proposed 8.3 #14, compare the header only",
-         registry=PD_UNLISTED)
+@pd_rule("8.3 #14 Response ID 0x80 body not decoded",
+         "protocol.md 8.3 #14 (Response ID 0x80, request not supported: tshark decodes only the 4-byte header, "
+         "not the error block that follows; 3.3/4.1: one error block, normally 0x21): compare the header "
+         "fields only")
 def not_supported_body(c: tf.Conformance, n: int, record: int) -> View | None:
     p = _pd_record(c, n, record)
     if p is None or p.ident != RES_NOT_SUPPORTED:
@@ -683,6 +680,11 @@ def not_supported_body(c: tf.Conformance, n: int, record: int) -> View | None:
             return None  # tshark decoded a block after all: not this behaviour
         return _header_only(name, side, items)
     return view
+
+
+# Differences that protocol.md 8.3 does not list yet (tshark behaviour seen with 4.0.17) go to PD_UNLISTED:
+# accepted only in their exact form, tshark's side pinned to the record bytes, to be added to 8.3 (or
+# removed). None is left: the last one, the 0x80 body, is 8.3 #14 above.
 
 
 # Documented analyser behaviour (not a tshark bug): the record is decoded differently on purpose.
@@ -728,50 +730,26 @@ def akd_echo(c: tf.Conformance, n: int, record: int) -> View | None:
     return view
 
 
-# Analyser gaps: tshark is right, the analyser shows the bytes raw (pd.trailing). Delete with the fix.
-
-@pd_rule("ANALYSER GAP: a PROFIdrive header shorter than 4 bytes is shown raw",
-         "protocol.md 1.3 (decode as far as the bytes go) vs profidrive.annotate, which shows a record shorter "
-         "than its header as pd.trailing (Q1 pd_response_too_short / P1); tshark shows the bytes present as "
-         "header fields. Fix: annotate the present header bytes (HEADER/RESPONSE_HEADER fields)",
-         registry=PD_GAPS)
-def short_header(c: tf.Conformance, n: int, record: int) -> View | None:
+@pd_rule("whole request refused with No. of parameters 0: the analyser decodes the one error block",
+         "protocol.md 3.3 (a header-level error: one error block for the whole request while No. of parameters "
+         "mirrors the request, here 0); tshark reads No. of parameters blocks, none: compare the header only",
+         registry=PD_DOCUMENTED)
+def no_parameter_refused(c: tf.Conformance, n: int, record: int) -> View | None:
     p = _pd_record(c, n, record)
-    if p is None or p.parsed is None or p.parsed.header_ok:
+    if p is None or p.parsed is None or not p.stub.response or p.parsed.n != 0 or len(p.blocks) != 1 \
+            or not p.blocks[0].is_error:
         return None
-    present = _header_bytes(p)
 
     def view(name: str, side: str, items: Items) -> Items | None:
-        if side == "ours":
-            return items
-        return [] if [v for _, v in items] == present.get(name, []) else None
+        if side == "theirs" and any(b >= 0 for b, _ in items):
+            return None  # tshark decoded the block after all: not this behaviour
+        return _header_only(name, side, items)
     return view
 
 
-@pd_rule("ANALYSER GAP: a block overrunning the record is shown raw",
-         "protocol.md 1.3 (decode as far as the bytes go) vs profidrive._block, which drops a block whose values "
-         "overrun the record (P6 block_overrun / Q12 response_block_overrun; the bytes become pd.trailing); "
-         "tshark shows its Format, No. of values and the whole values present. Fix: keep the block's head and "
-         "complete values in the annotation", registry=PD_GAPS)
-def overrunning_block(c: tf.Conformance, n: int, record: int) -> View | None:
-    p = _pd_record(c, n, record)
-    if p is None or p.parsed is None or not {"block_overrun", "response_block_overrun"} & c.an[n].findings:
-        return None
-    k, pos, data = len(p.blocks), p.parsed.end, p.data
-    if pos + 2 > len(data):
-        return None
-    fmt, m = data[pos], data[pos + 1]
-    size = tf.VALUE_SIZE.get(tf.VALUE_FIELD_OF_FORMAT.get(fmt, ""), 0)
-    count = min(m, (len(data) - pos - 2) // size) if size else 0
-    tail: dict[str, list[object]] = {"pd.val[i].format": [fmt], "pd.val[i].n_values": [m]}
-    for target, item in tf.pd_values(fmt, data[pos + 2:pos + 2 + size * count]):
-        tail.setdefault(target, []).append(item)
-
-    def view(name: str, side: str, items: Items) -> Items | None:
-        if side == "theirs" and not tf.compare_lists(name, [v for b, v in items if b >= k], tail.get(name, [])):
-            return None
-        return [(b, v) for b, v in items if b < k]
-    return view
+# Analyser gaps (tshark is right, the analyser shows the bytes raw) go to PD_GAPS, deleted with their fix.
+# None is left: a record shorter than its header and a block overrunning the record are decoded as far as
+# the bytes go (protocol.md 1.3; profidrive_view._fields_present, _cut_block).
 
 
 def _view_of(rules: list[tuple[NamedRule, View]]) -> View:

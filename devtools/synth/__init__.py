@@ -21,6 +21,7 @@ The imports flow one way, each module from those above it:
     pd_range_samples              PROFIdrive: one injected range violation per transaction
     pd_vendor_samples             PROFIdrive: global/DPV1 index, AKD-like and Yaskawa-like drives
     txn_samples                   transactions: interleaved channels, retries and duplicates, timeouts
+    edge_samples                  edges: cut writes, channels of one AR, busy drives, padding, whole-request errors
     build                         imports every sample module; build_all(), build_expected()
     __main__                      the command line
     mixed_capture                 a large mixed capture for benchmarks and scale tests

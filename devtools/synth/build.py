@@ -10,6 +10,7 @@ from __future__ import annotations
 from . import basic_samples, format_samples, trace_samples  # noqa: F401  (imported to register their files)
 from . import pd_samples, pd_range_samples, pd_vendor_samples, txn_samples  # noqa: F401
 from . import audit_samples  # noqa: F401
+from . import edge_samples  # noqa: F401
 
 # isort: on
 from .catalog import EXPECTED, INTENTS, PARAMETER_SETS, SAMPLES, STATIC_EXPECTED

@@ -45,7 +45,7 @@ B5_TEXT = STATUS_B5.hex().upper()
 @dataclass
 class _Txn:
     calls: list[Call]
-    ref: int
+    ref: int | None
     verdict: str
     note: str
     findings: list[tuple[Frame, str]]
@@ -76,7 +76,7 @@ class Intent:
     def txn(
         self,
         calls: Sequence[Call],
-        ref: int,
+        ref: int | None,
         verdict: str,
         note: str = "",
         *,
@@ -84,9 +84,9 @@ class Intent:
         **extra: Any,
     ) -> list[Call]:
         """One PROFIdrive transaction: its calls (write, reads), reference
-        and verdict; reads, b5_retries (reads answered DE 80 B5 00),
-        rpc_retransmissions, pnio_status and the figures are derived from
-        the calls, `extra` adds or overrides (e.g. capture_ended=True for a
+        (None: not in the capture, the request cut before it) and verdict;
+        reads, b5_retries (reads answered DE 80 B5 00), rpc_retransmissions,
+        pnio_status and the figures are derived from the calls, `extra` adds or overrides (e.g. capture_ended=True for a
         transaction still open at capture end). `findings` are the
         transaction-level rules (protocol.md 6.4 Q2-Q5, 6.5 T1-T6) the
         pairing must report, as (frame, rule)."""
@@ -149,8 +149,8 @@ class Intent:
         status = ""
         if ending is not None:
             status = f"{ending.fault:08X}" if ending.fault is not None else (ending.status or b"").hex().upper()
-        elif t.verdict == "timeout" and b5:
-            status = B5_TEXT  # the last answer was B5 (txn.last_status)
+        elif t.verdict in ("timeout", "pnio_error") and b5:
+            status = B5_TEXT  # the last answer was B5 (a timeout), or every one (7.3 step 5)
         final = reads[-1] if reads else None
         delivered = final is not None and final.response and final.status == STATUS_OK and t.verdict != "timeout"
 

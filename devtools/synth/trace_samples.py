@@ -1,7 +1,7 @@
 """The two samples the notebook, the HTML report and the untrusted-string tests read.
 
 fault_trace.pcap: three drives commissioned at once by three controllers on their own clocks, with
-NAKs, B5 polling, a refused write, a timeout and its retry. crafted_strings.pcap: hostile text in every
+NAKs, B5 polling, a refused write, a busy drive given up and its retry. crafted_strings.pcap: hostile text in every
 place a capture carries it (markup, terminal control, spreadsheet formulas).
 
 Built from constants and seeded Random only, byte for byte the same on every run; keep
@@ -63,8 +63,9 @@ def fault_trace_capture() -> tuple[Capture, Intent]:
         calls = s.parameter_access(request, response, **kw)
         if "write_status" in kw:
             verdict = "pnio_error"
-        elif response is None:
-            verdict = "timeout"  # no answer after the B5 polls: closed by the 10 s deadline
+        elif response is None:  # the controller stops polling; the 10 s deadline passes inside the capture
+            # every read answered B5: the drive refused each time (protocol.md 7.3 step 5), else silence
+            verdict = "pnio_error" if kw.get("b5_retries") else "timeout"
         else:
             verdict = "nak" if response[1] & 0x80 else "ok"
         x.txn(calls, request[0], verdict, findings=[(x.write_req(calls), "retry")] if retry else ())
@@ -110,13 +111,13 @@ def fault_trace_capture() -> tuple[Capture, Intent]:
         read1(d2, 63, f32, 1400.0 + k, 1200, b5_retries=2 + k % 4, **slow)
     change1(d2, 1300, u16, 21, 400, error=0x11)
 
-    # drive 3 (.23): a refused write, a timeout and its retry, NAKs on subindex and data type
+    # drive 3 (.23): a refused write, a busy drive given up and its retry, NAKs on subindex and data type
     d3 = drive(3, 260, 1800, 600)
     read1(d3, 964, w16, 0x1234, 500)
     r = nxt(d3)  # a 20-parameter read the device's parameter buffer cannot take
     access(d3, read_request(r, 1, [P(2000 + i) for i in range(20)]), None, 500, write_status=df_b1)
     read1(d3, 1082, f32, 1500.0, 500)
-    r = nxt(d3)  # after three B5 the drive stops answering: a timeout (10 s deadline)
+    r = nxt(d3)  # three B5, then the controller stops polling: given up on a busy drive (pnio_error DE80B500)
     access(d3, change_request(r, 1, [(P(1082), value_block(f32, [2800.0]))]), None, 12_000, b5_retries=3)
     change1(d3, 1082, f32, 2800.0, 500, ref=r, b5_retries=1)  # the controller retries with the same reference
     r = nxt(d3)

@@ -188,16 +188,18 @@ def pd_retries_and_duplicates_capture() -> Built:
     # ref 5: two B5, then the drive stays silent; the controller writes again 10.5 s after the first write
     t0 = s.clock.now_ns
     calls = s.parameter_access(read_request(5, 1, [P(967)]), None, b5_retries=2)
-    x.txn(calls, 5, "timeout", "two B5, then no answer: closed by the 10 s deadline at the retry")
+    x.txn(calls, 5, "pnio_error", "two B5, then the controller stops polling: closed by the 10 s deadline at "
+          "the retry, every read refused B5 (protocol.md 7.3 step 5)")
     s.clock.now_ns = t0 + 10_500 * MS
     calls = s.parameter_access(read_request(5, 1, [P(967)]), _word(5))
-    x.txn(calls, 5, "ok", "retry after the timeout", findings=[(x.write_req(calls), "retry")])
+    x.txn(calls, 5, "ok", "retry after the busy refusal", findings=[(x.write_req(calls), "retry")])
     # ref 5 once more, after it succeeded: reference reused (T1)
     calls = s.parameter_access(read_request(5, 1, [P(968)]), _word(5))
     x.txn(calls, 5, "ok", "reference 5 reused after ok", findings=[(x.write_req(calls), "reference_reused")])
-    # ref 6 gets one B5; the controller writes ref 7 while it is pending (T3): ref 6 ends as a timeout
+    # ref 6 gets one B5; the controller writes ref 7 while it is pending (T3): ref 6 is given up, its one
+    # read refused B5: pnio_error DE80B500 (protocol.md 7.3 step 5)
     calls = s.parameter_access(read_request(6, 1, [P(969)]), None, b5_retries=1)
-    x.txn(calls, 6, "timeout", "superseded by the write of ref 7")
+    x.txn(calls, 6, "pnio_error", "superseded by the write of ref 7 after a B5 answer")
     calls = s.parameter_access(read_request(7, 1, [P(970)]), _word(7))
     x.txn(calls, 7, "ok", "written while ref 6 was pending", findings=[(x.write_req(calls), "write_while_pending")])
 
@@ -230,8 +232,8 @@ def pd_retries_and_duplicates_capture() -> Built:
     x.txn(
         calls,
         2,
-        "timeout",
-        "60 B5 answers within 8.9 s, then the controller gives up",
+        "pnio_error",
+        "60 B5 answers within 8.9 s, then the controller gives up: every read refused (7.3 step 5)",
         findings=[(calls[51].response[0], "b5_polling")],
     )
     s.clock.advance_us(1_500_000)  # the deadline of ref 2 passes before the next frame
@@ -253,9 +255,10 @@ def pd_retries_and_duplicates_capture() -> Built:
 
 @pd_sample("pd_timeouts.pcap")
 def pd_timeouts_capture() -> Built:
-    """Transactions that end without a parameter response (protocol.md 7.3 step 4, 7.5): closed by the
-    10 s deadline while other traffic goes on, after no read at all, after B5 answers, after an
-    unanswered write or read (R7 rpc_unanswered after 5 s), and one still open when the capture ends.
+    """Transactions that end without a parameter response (protocol.md 7.3 steps 4 and 5, 7.5): closed by
+    the 10 s deadline while other traffic goes on, after no read at all, after B5 answers only (a busy
+    drive given up: pnio_error), after an unanswered write or read (R7 rpc_unanswered after 5 s), and one
+    still open when the capture ends.
     Four sessions on their own clocks, merged by time; session 1 keeps polling every second."""
     cap = Capture()
     x = Intent(cap)
@@ -280,7 +283,8 @@ def pd_timeouts_capture() -> Built:
     x.txn(calls, 1, "timeout", "write accepted, no read: closed by the deadline at 11.2 s, mid-capture")
     at(s, 13.0)
     calls = s.parameter_access(read_request(2, 1, [P(964)]), None, b5_retries=3, read_gap_us=500_000)
-    x.txn(calls, 2, "timeout", "three B5 within 1.5 s, then silence: last answer B5, closed at 23 s")
+    x.txn(calls, 2, "pnio_error", "three B5 within 1.5 s, then the controller stops polling: closed at 23 s, "
+          "every read refused B5 (protocol.md 7.3 step 5)")
 
     # session 3 (.13 -> .23)
     s = sess(3, 2.4)

@@ -40,6 +40,7 @@ class Analysis:
     profile: str
     txn_timeout: float
     rpc_timeout: float
+    chain: tuple[str, ...] = ()  # the files of a --chain analysis, numbered as one capture
     _cache: dict = field(default_factory=dict, repr=False)
 
     @cached_property
@@ -109,7 +110,7 @@ class Analysis:
         capture = str(row.capture.iloc[0])
         frames = {int(n) for n in str(row.frames.iloc[0]).split()}
         out = []
-        for res in annotated_frames(capture, frames, self.profile, self.rpc_timeout):
+        for res in annotated_frames(capture, frames, self.profile, self.rpc_timeout, self.chain):
             for layer in res.layers:
                 out += [{"frame": res.frame, "layer": layer.title, "name": f.name, "offset": f.offset,
                          "length": f.length, "raw": f.raw.hex(" "), "value": f.value, "show": f.show,
@@ -163,5 +164,6 @@ def analyze(paths: str | Iterable[str], profile: str = profiles.DEFAULT, timeout
     """
     profiles.load(profile)  # an unknown profile fails here, before any work
     rows = Rows()
-    results = run(expand(paths), rows, Settings(profile, timeout, rpc_timeout), progress, jobs, chain)
-    return Analysis(rows, results, profile, timeout, rpc_timeout)
+    files = expand(paths)
+    results = run(files, rows, Settings(profile, timeout, rpc_timeout), progress, jobs, chain)
+    return Analysis(rows, results, profile, timeout, rpc_timeout, tuple(files) if chain else ())

@@ -86,7 +86,7 @@ def wire(fmt: str, text: str, from_cell: bool = False) -> bytes | str:
     user writes it (plain text). Raises NotAValueError when the text is no value of the format."""
     spec = _spec(fmt)
     if spec is None or spec.kind in TEXT_KINDS:
-        return text if from_cell or spec is None else cell_text(text)
+        return text if from_cell or spec is None else cell_text(text, 0)  # (a text has no width)
     kind, size = spec.kind, spec.size
     if kind == "octets":
         return _octets(text)

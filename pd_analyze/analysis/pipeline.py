@@ -42,9 +42,9 @@ def analyze_chain(files: list[str], settings: Settings, progress: Progress | Non
             result = CaptureResult(path, Accounting())
             results.append(result)
             try:
-                for frame in capture.frames(path, ip_only=True):
-                    offset += frame.run or 1  # a run of skipped frames ends at its number
-                    yield frame._replace(number=offset)
+                for frame in chain_numbered(path, offset):
+                    offset = frame.number
+                    yield frame
             except CaptureError as exc:
                 result.error = error_text(exc)
             result.accounting = difference(d.accounting, before)
@@ -54,6 +54,13 @@ def analyze_chain(files: list[str], settings: Settings, progress: Progress | Non
 
     run_frames(frames(), d, settings.engine(), rows, capture_of, results, progress)
     return results
+
+
+def chain_numbered(path: str, offset: int) -> Iterator[capture.RawFrame]:
+    """One file of a chain, its frames numbered on after `offset` (the files numbered as one capture)."""
+    for frame in capture.frames(path, ip_only=True):
+        offset += frame.run or 1  # a run of skipped frames ends at its number
+        yield frame._replace(number=offset)
 
 
 def run_frames(source: Iterable[capture.RawFrame], d: Dissector, engine: TransactionEngine, rows: Rows,

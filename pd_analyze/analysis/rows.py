@@ -18,7 +18,7 @@ from pd_analyze.model.rules import Finding
 from pd_analyze.model.values import status_text
 from pd_analyze.model.verdicts import ANSWERED
 from pd_analyze.protocol.link import ip_text
-from pd_analyze.protocol.profidrive import Address, Block
+from pd_analyze.protocol.profidrive import Address, Block, Parsed, error_meaning, service_name, writes_values
 from pd_analyze.protocol.profidrive_view import cell_text, values_of
 
 
@@ -94,8 +94,12 @@ class Rows:
         addresses = request.addresses if request is not None else []
         written_blocks = request.blocks if request is not None else []
         append = self.parameters.append
+        whole = whole_request_error(request, response)
+        if whole is not None and not addresses:  # a request of no parameter: one row, no PNU
+            append(ParameterRow._make((number, capture, device, txn.do, "", None, None, None, "", "", "", "",
+                                       _hex(whole.error), pt.error_text(whole.error), True)))
         for i, addr in enumerate(addresses):
-            res_block = blocks[i] if i < len(blocks) else None
+            res_block = whole if whole is not None else blocks[i] if i < len(blocks) else None
             written = written_blocks[i] if i < len(written_blocks) else None
             err = res_block.error if res_block is not None and res_block.is_error else -1
             label = addr.label()
@@ -105,15 +109,15 @@ class Rows:
             read_values = values_of(res_block) if res_block is not None and not res_block.is_error else None
             append(ParameterRow._make((  # _make: a tuple is built in C, a named tuple's __new__ in Python
                 number, capture, device, txn.do, label, addr.pnu, pt.pnu_name(addr.pnu), addr.subindex, addr.n_elems,
-                pt.ATTRIBUTE.get(addr.attr) or _hex(addr.attr),  # (a default argument is built every time)
+                service_name(request, addr.attr) or pt.ATTRIBUTE.get(addr.attr) or _hex(addr.attr),
                 (pt.FORMAT_NAME.get(fmt.format) or _hex(fmt.format)) if fmt is not None and not fmt.is_error else "",
                 block_values(written), block_values(res_block, read_values), _hex(err),
-                pt.error_text(err) if err >= 0 else "",
-                res_block.error_subindex if err >= 0 and res_block.error_subindex >= 0 else None)))
-            if txn.req_id == pt.REQ_CHANGE and written is not None:
+                error_meaning(err, response) if err >= 0 else "",
+                res_block.error_subindex if err >= 0 and res_block.error_subindex >= 0 else None, whole is not None)))
+            if written is not None and writes_values(request):
                 self._change(capture, txn, number, i, addr, label, written, res_block, device)
-        if response is not None and len(blocks) == 1 and blocks[0].is_error and len(addresses) > 1:
-            errors = [f"*:{_hex(blocks[0].error)}"]  # header-level error: the whole request refused
+        if whole is not None:
+            errors = [f"*:{_hex(whole.error)}"]  # header-level error: the whole request refused
         fig = txn.figures()
         v = txn.channel
         self.transactions.append(TransactionRow._make((
@@ -139,13 +143,23 @@ class Rows:
         keys = elements(txn, addr)
         before = txn.values_before[i] if i < len(txn.values_before) else [None] * len(keys)
         if res_block is not None and res_block.is_error:
-            result = f"error {_hex(res_block.error)}: {pt.error_text(res_block.error)}"
+            result = f"error {_hex(res_block.error)}: {error_meaning(res_block.error, txn.response)}"
         else:
             result = "ok" if txn.verdict in ANSWERED else txn.verdict
         self.changes.append(ChangeRow._make((
             capture, device, txn.do, number, txn.write_req_frame, txn.t_start, label, addr.pnu,
             pt.pnu_name(addr.pnu), addr.subindex,
             block_values(written), result, " ".join(b for b in before if b is not None) if all(before) else "")))
+
+
+def whole_request_error(request: Parsed | None, response: Parsed | None) -> Block | None:
+    """The one error block a device answered for the whole request (protocol.md 3.3: a header-level error
+    such as 0x22/0x23 with No. of parameters mirrored, or any one error block for a request of no or of
+    several parameters), None when the errors are per parameter."""
+    if request is None or response is None or len(response.blocks) != 1 or len(request.addresses) == 1:
+        return None
+    block = response.blocks[0]
+    return block if block.is_error else None
 
 
 def finding_row(capture: str, f: Finding, txn: int | None) -> FindingRow:

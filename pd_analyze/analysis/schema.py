@@ -87,6 +87,8 @@ COLUMNS: Mapping[str, tuple[Column, ...]] = MappingProxyType({
         ("error_text", "string", "meaning of the error number"),
         ("error_subindex", "Int64", "the error's second value: subindex of the first faulty element, empty when "
                                     "the drive gives none"),
+        ("whole_request", "boolean", "the error refused the whole request (one error block for all its "
+                                     "parameters, protocol.md 3.3), not this parameter alone"),
     ),
     "findings": _cols(
         ("capture", "category", "capture file"), ("frame", "Int64", "frame number"),

@@ -11,9 +11,22 @@ from pd_analyze.model.rules import Finding, finding
 from pd_analyze.model.verdicts import ANSWERED, FAILED_UNANSWERED, PRECEDENCE
 from pd_analyze.protocol.profidrive import Address, Parsed
 from pd_analyze.protocol.profidrive_view import cell_text, values_of
+from pd_analyze.protocol.profiles import VendorRequest
 
 # How a transaction that got no final answer ended (its verdict is then timeout, protocol.md 7.4).
 UNANSWERED_ENDS = frozenset({"deadline", "superseded", "capture_end", "evicted"})
+# The ends where the controller gave up inside the capture: its next write, or the deadline passed (7.3 step 5)
+GAVE_UP_ENDS = frozenset({"deadline", "superseded"})
+
+
+def refused_busy(closed_by: str, capture_ended: bool, b5_retries: int, reads: int) -> bool:
+    """protocol.md 7.3 step 5: every read of a transaction the controller gave up on was answered DE 80 B5.
+    The drive answered each time (it refused, it did not go silent): pnio_error with DE80B500, not a
+    timeout. A capture that ends before the deadline leaves it a timeout (capture_ended)."""
+    if not b5_retries or b5_retries != reads:
+        return False
+    return closed_by in GAVE_UP_ENDS or (closed_by == "capture_end" and not capture_ended)
+
 
 Channel = tuple  # device, controller, AR, API, slot, subslot, index (protocol.md 7.2)
 Element = tuple  # device, DO, PNU, subindex: one array element of one drive's parameter
@@ -47,7 +60,7 @@ class Transaction:
     pnio_status: str = ""
     malformed: bool = False
     mismatch: bool = False
-    closed_by: str = ""  # "response", "pnio_error", "deadline", "superseded", "capture_end"
+    closed_by: str = ""  # "response", "pnio_error", "deadline", "superseded", "capture_end", "evicted"
     capture_ended: bool = False
     fallback: bool = False
     frames: list[int] = field(default_factory=list)
@@ -116,18 +129,19 @@ def b5_finding(retries: int, threshold: int, frame: int) -> Finding:
 
 
 def mirroring_findings(ref: int, req_id: int, do: int, n_params: int, r: Parsed,
-                       frame: int) -> tuple[list[Finding], bool]:
+                       frame: int, answers: tuple[int, ...] | None = None) -> tuple[list[Finding], bool]:
     """Q2-Q5: a response mirrors the request's reference, Request ID, DO and No. of parameters (protocol.md
     6.4); (findings, whether Q2 or Q3 failed: the verdict is then reference_mismatch). A request field it
-    does not know is -1 and not compared."""
+    does not know is -1 and not compared. `answers`: the Response IDs of a vendor's own Request ID
+    (protocol.md 5.5), in place of the profile's."""
     out = []
     mismatch = False
     if ref >= 0 and r.ref != ref:
         out.append(finding("reference_mismatch", frame, "pd.ref", r.ref, ref,
                            f"response reference {r.ref} does not mirror the request's {ref}"))
         mismatch = True
-    expected = ANSWERS.get(req_id, (pt.RES_NOT_SUPPORTED,))
-    if r.ident not in expected:
+    expected = answers or ANSWERS.get(req_id, (pt.RES_NOT_SUPPORTED,))
+    if req_id >= 0 and r.ident not in expected:  # (a request cut before its header: nothing to answer)
         out.append(finding("response_id_mismatch", frame, "pd.resp_id", f"{r.ident:#04x}",
                            "/".join(f"{e:#04x}" for e in expected),
                            f"Response ID {r.ident:#04x} does not answer Request ID {req_id:#04x}"))
@@ -144,11 +158,18 @@ def mirroring_findings(ref: int, req_id: int, do: int, n_params: int, r: Parsed,
 ANSWERS = {pt.REQ_READ: (pt.RES_READ, pt.RES_READ_NAK), pt.REQ_CHANGE: (pt.RES_CHANGE, pt.RES_CHANGE_NAK)}
 
 
+def vendor_answers(request: Parsed | None) -> tuple[int, ...] | None:
+    """The Response IDs that answer a vendor's own Request ID (protocol.md 5.5); None for the profile's."""
+    vendor = request.vendor if request is not None else None
+    return vendor.answers if isinstance(vendor, VendorRequest) else None
+
+
 def verdict_of(txn: Transaction) -> str:
     """protocol.md 7.4: the first verdict, in PRECEDENCE order, whose condition holds."""
     holds = {
         "malformed": txn.malformed,
-        "pnio_error": txn.closed_by == "pnio_error",
+        "pnio_error": txn.closed_by == "pnio_error" or refused_busy(
+            txn.closed_by, txn.capture_ended, txn.b5_retries, len(txn.read_req_frames)),
         "timeout": txn.closed_by in UNANSWERED_ENDS,
         "reference_mismatch": txn.mismatch,
         "nak": txn.response is not None and bool(txn.response.ident & 0x80),

@@ -23,9 +23,9 @@ from pd_analyze.analysis.transaction import (
     mirroring_findings,
     reuse_finding,
     superseded_finding,
+    vendor_answers,
     verdict_of,
 )
-from pd_analyze.model import pd_values as pt
 from pd_analyze.model.capped import (
     CHANNEL_HISTORY,
     PENDING_TRANSACTIONS,
@@ -49,7 +49,7 @@ from pd_analyze.model.values import (
 from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol.frames import FrameResult, Pdu
 from pd_analyze.protocol.pnio import Status
-from pd_analyze.protocol.profidrive import footprint
+from pd_analyze.protocol.profidrive import footprint, writes_values
 
 DEFAULT_TXN_TIMEOUT = 10.0
 DEFAULT_B5_THRESHOLD = 50
@@ -64,9 +64,10 @@ def _cost(txn: Transaction) -> int:
 class _Call:
     """What an open write/read call is about, by its request frame."""
 
-    kind: str  # "write" or "read"
+    kind: str  # "write", "read", or "cut": a write cut before its first IOD block (its response may name it)
     txns: list[Transaction | None]  # per PROFIdrive block (write), or the one read target
     channel: Channel | None = None
+    request: Pdu | None = None  # a cut write's request PDU
 
 
 class TransactionEngine:
@@ -79,7 +80,8 @@ class TransactionEngine:
         self._next = 1
         # open transactions by channel, in opening order; the oldest ends as a timeout when the table is full
         self._pending: CappedTable[Channel, Transaction] = CappedTable(PENDING_TRANSACTIONS)
-        self._by_ar: dict[tuple, OrderedDict[Channel, Transaction]] = {}  # the same by device, controller, AR
+        # the same by device, controller, AR and index: the fallback pairing's key (protocol.md 7.2)
+        self._by_ar: dict[tuple, OrderedDict[Channel, Transaction]] = {}
         self._last_done: CappedTable[Channel, LastDone] = CappedTable(CHANNEL_HISTORY)  # for T1, T4
         self._calls: CappedTable[int, _Call] = CappedTable(TXN_CALLS)  # by request frame number
         self.read_values: CappedTable[Element, str] = CappedTable(READ_VALUES)  # the last read back, per element
@@ -116,7 +118,7 @@ class TransactionEngine:
         """Take over a pending transaction followed elsewhere (the columnar path), with the calls it waits
         on: (request frame, "write" or "read"). `reorder` puts the pending ones back in time order after."""
         self._pending.put(txn.channel, txn, _cost(txn) + FRAME_COST * len(txn.frames))
-        self._by_ar.setdefault(txn.channel[:3], OrderedDict())[txn.channel] = txn
+        self._by_ar.setdefault(_fallback_key(txn.channel), OrderedDict())[txn.channel] = txn
         for frame, kind in waiting:
             self._remember(frame, _Call(kind, [txn], txn.channel if kind == "read" else None))
 
@@ -174,6 +176,8 @@ class TransactionEngine:
             call = self._calls.pop(pdu.request.frame, None)
             if call is None:
                 return None
+            if call.kind == "cut":
+                return self._cut_write_response(pdu, call, res, closed)
             if call.kind == "write":
                 return self._write_response(pdu, call, res, closed)
             return self._read_response(pdu, call, res, closed)
@@ -193,6 +197,10 @@ class TransactionEngine:
                 continue
             opened.append(self._open(pdu, block, res, closed, len(opened)))
         if not any(opened):
+            if pdu.malformed and not stub.blocks and not pdu.retransmission:
+                # cut before its IOD header was complete (snaplen, damage): the index is unknown until the
+                # response, paired by activity and sequence number, names it (protocol.md 7.3 step 1)
+                self._remember(pdu.frame, _Call("cut", [], None, pdu))
             return None
         self._remember(pdu.frame, _Call("write", opened))
         return next(t for t in opened if t is not None)
@@ -202,37 +210,69 @@ class TransactionEngine:
         v = block.values
         channel = (pdu.dst, pdu.src, v[rec.B_AR], v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], v[rec.B_INDEX])
         parsed = block.pd[0] if isinstance(block.pd, tuple) else None
-        first = pdu.fragments[0] if pdu.fragments else pdu.frame  # timed at its first frame (7.6)
-        start = pdu.first_ts if pdu.first_ts is not None else pdu.ts
-        if self.number_of is not None:
-            number = self.number_of(pdu.frame, position)
-        else:
-            number = self._next
-            self._next += 1
-        txn = Transaction(number, channel, parsed, first, start)
-        txn.frames.extend(pdu.fragments)
-        txn.rpc_calls.append(pdu.request)
+        txn = self._new(pdu, channel, parsed, pdu.frame, position)
         record = block.record
         if len(record) >= 4:
             txn.ref, txn.req_id, txn.do, txn.n_params = record[0], record[1], record[2], record[3]
         txn.malformed = pdu.malformed or parsed is None or not parsed.complete
-        if txn.req_id == pt.REQ_CHANGE and parsed is not None:  # what the change replaces, known before it
+        if writes_values(parsed):  # what the change replaces, known before it
             txn.values_before = [[self.read_values.get(k) for k in elements(txn, addr)] for addr in parsed.addresses]
+        self._admit(txn, pdu.frame, closed)
+        return txn
+
+    def _new(self, pdu: Pdu, channel: Channel, parsed: object, opened_at: int, position: int) -> Transaction:
+        """A transaction of the write request `pdu`, numbered at the frame that opens it (`opened_at`: the
+        request's, or a cut request's response)."""
+        first = pdu.fragments[0] if pdu.fragments else pdu.frame  # timed at its first frame (7.6)
+        start = pdu.first_ts if pdu.first_ts is not None else pdu.ts
+        if self.number_of is not None:
+            number = self.number_of(opened_at, position)
+        else:
+            number = self._next
+            self._next += 1
+        txn = Transaction(number, channel, parsed, first, start)  # type: ignore[arg-type]
+        txn.frames.extend(pdu.fragments)
+        txn.rpc_calls.append(pdu.request)
+        return txn
+
+    def _admit(self, txn: Transaction, frame: int, closed: list[Transaction]) -> None:
+        """A new transaction becomes its channel's pending one: T3 on a pending one, T1/T4, the caps."""
+        channel = txn.channel
         old = self._pending.get(channel)
         if old is not None:
-            txn.findings.append(superseded_finding(txn.ref, old.write_req_frame, old.ref, pdu.frame))
+            txn.findings.append(superseded_finding(txn.ref, old.write_req_frame, old.ref, frame))
             closed.append(self._close(old, "superseded"))
         last = self._last_done.get(channel)
         if last is not None:
-            reuse = reuse_finding(last, txn.ref, pdu.frame)
+            reuse = reuse_finding(last, txn.ref, frame)
             if reuse is not None:
                 txn.findings.append(reuse)
         self._pending.put(channel, txn, _cost(txn))
-        self._by_ar.setdefault(channel[:3], OrderedDict())[channel] = txn
+        self._by_ar.setdefault(_fallback_key(channel), OrderedDict())[channel] = txn
         while len(self._pending) > 1 and self._pending.full():
             oldest = self._pending.oldest()
-            closed.append(self._evict(oldest, pdu.frame, "transaction table full"))
-        return txn
+            closed.append(self._evict(oldest, frame, "transaction table full"))
+
+    def _cut_write_response(self, pdu: Pdu, call: _Call, res: FrameResult,
+                            closed: list[Transaction]) -> Transaction | None:
+        """The answer to a write cut before its IOD header was complete: when it names a PROFIdrive index
+        (a single write, not 0xE040), the transaction opens at the request's frame with what could be read
+        of it (nothing of its record): malformed, and its reads pair with it as usual (protocol.md 7.3
+        step 1). Numbered here, at the answer (the frame that opens it)."""
+        req = call.request
+        stub = pdu.stub
+        block = stub.blocks[0] if stub is not None and stub.blocks else None
+        if req is None or pdu.ptype != PTYPE_RESPONSE or block is None or block.layout is not rec.WRITE_RES \
+                or block.index not in PROFIDRIVE_INDICES:
+            return None
+        v = block.values
+        channel = (pdu.src, pdu.dst, v[rec.B_AR], v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], v[rec.B_INDEX])
+        txn = self._new(req, channel, None, pdu.frame, 0)
+        txn.malformed = True  # the record is cut (H5/R1 on the request's frame)
+        if req.frame not in txn.frames:
+            txn.frames.append(req.frame)
+        self._admit(txn, req.frame, closed)
+        return self._write_response(pdu, _Call("write", [txn]), res, closed)
 
     def _write_response(self, pdu: Pdu, call: _Call, res: FrameResult,
                         closed: list[Transaction]) -> Transaction | None:
@@ -264,14 +304,15 @@ class TransactionEngine:
         channel = (pdu.dst, pdu.src, ar, v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], v[rec.B_INDEX])
         txn = self._pending.get(channel)
         if txn is None:
-            txn = next(iter(self._by_ar.get(channel[:3], {}).values()), None)  # the oldest pending there
+            # the oldest pending on the same index: a read never fetches another index's response (7.2)
+            txn = next(iter(self._by_ar.get(_fallback_key(channel), {}).values()), None)
             if txn is not None and not txn.fallback:
                 txn.fallback = True
                 txn.findings.append(finding(
                     "fallback_pairing", pdu.frame, "iod.index", f"{v[rec.B_SLOT]}/{v[rec.B_SUBSLOT]}/"
                     f"{v[rec.B_INDEX]:#06x}", f"{txn.channel[4]}/{txn.channel[5]}/{txn.channel[6]:#06x}",
                     f"read addressed differently from the write of frame {txn.write_req_frame} (paired by device, "
-                    "controller and AR)"))
+                    "controller, AR and index)"))
         if txn is None:
             self.loose.append(finding("read_without_request", pdu.frame, "iod.index", f"{v[rec.B_INDEX]:#06x}",
                                       "a pending parameter request", "read on a PROFIdrive index with no "
@@ -315,7 +356,8 @@ class TransactionEngine:
         if parsed is None or not parsed.complete:
             txn.malformed = True
         else:
-            found, mismatch = mirroring_findings(txn.ref, txn.req_id, txn.do, txn.n_params, parsed, pdu.frame)
+            found, mismatch = mirroring_findings(txn.ref, txn.req_id, txn.do, txn.n_params, parsed, pdu.frame,
+                                                 vendor_answers(txn.request))
             txn.findings += found
             txn.mismatch |= mismatch
         closed.append(self._close(txn, "response"))
@@ -340,11 +382,11 @@ class TransactionEngine:
         channel = txn.channel
         if self._pending.get(channel) is txn:
             self._pending.pop(channel)
-        same_ar = self._by_ar.get(channel[:3])
+        same_ar = self._by_ar.get(_fallback_key(channel))
         if same_ar is not None and same_ar.get(channel) is txn:  # it was pending (and maybe evicted just now)
             del same_ar[channel]
             if not same_ar:
-                del self._by_ar[channel[:3]]
+                del self._by_ar[_fallback_key(channel)]
             self._forget_calls(txn)
         txn.closed_by = why
         txn.verdict = verdict_of(txn)
@@ -367,6 +409,12 @@ class TransactionEngine:
 
     def _remember(self, frame: int, call: _Call) -> None:
         self._calls.remember(frame, call)  # the oldest are forgotten
+
+
+def _fallback_key(channel: Channel) -> tuple:
+    """Device, controller, AR and index: what a read must share with a write addressed differently
+    (protocol.md 7.2; slot and subslot may differ, the index may not)."""
+    return channel[0], channel[1], channel[2], channel[6]
 
 
 def _write_statuses(pdu: Pdu, count: int) -> list[Status | None]:

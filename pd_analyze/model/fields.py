@@ -196,6 +196,7 @@ _FIELDS = _defs(
     F("pd.request_frame", FRAMEREF, "Frame of the parameter request (Write) this response answers"),
     F("pd.echo", BYTES, "Parameter address echoed before the first block (AKD manual layout)"),
     F("pd.trailing", BYTES, "Bytes after the parsed parameter request/response"),
+    F("pd.cut", BYTES, "The bytes of a field the record ends inside (decoded as far as the bytes go)"),
     F("record.trailing", BYTES, "Bytes after the record that RecordDataLength does not cover"),
     # what the analysis says of a frame (display filters, `-T fields`): of the transactions it belongs to
     # and of the findings at it, as the report's tables hold them

@@ -171,7 +171,7 @@ _RULES = (
     R("T3", "write_while_pending", WARNING, SEQUENCE, PD, "write while a transaction is pending"),
     R("T1", "reference_reused", WARNING, SEQUENCE, PD, "Request Reference reused from the previous transaction"),
     R("T4", "retry", INFO, SEQUENCE, PD, "re-write after pnio_error/timeout with the same reference"),
-    R("T6", "fallback_pairing", WARNING, SEQUENCE, PD, "read paired by device, controller and AR only"),
+    R("T6", "fallback_pairing", WARNING, SEQUENCE, PD, "read paired by device, controller, AR and index only"),
     R("T2", "read_without_request", WARNING, SEQUENCE, PD, "read with no pending write on the channel"),
     R("Q2", "reference_mismatch", ERROR, SEQUENCE, PD, "Request Reference not mirrored"),
     R("Q3", "response_id_mismatch", ERROR, SEQUENCE, PD, "Response ID does not answer the Request ID"),

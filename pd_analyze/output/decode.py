@@ -67,12 +67,12 @@ def decode(data: bytes, response: bool | None, checker: Checker, dpv1: bool = Fa
         raise ValueError("say --request or --response (or give --dpv1 with function 0x5F/0x5E)")
     req = None
     if request is not None:
-        req = profidrive.parse_request(request, 0, [])
+        req = profidrive.parse_request(request, 0, [], checker.ids)
     if response:
-        parsed = profidrive.parse_response(data, 0, findings)
+        parsed = profidrive.parse_response(data, 0, findings, checker.ids)
         findings += checker.response(parsed, 0, req)
     else:
-        parsed = profidrive.parse_request(data, 0, findings)
+        parsed = profidrive.parse_request(data, 0, findings, checker.ids)
         findings += checker.request(parsed, 0)
     sections += profidrive_view.annotate(parsed, data, base, checker.describe, req)
     return Decoded(response, sections, findings)

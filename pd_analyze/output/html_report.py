@@ -218,7 +218,9 @@ def drilldown(analysis: Analysis, txns: pd.DataFrame) -> dict[int, list[dict[str
     out: dict[int, list[dict[str, object]]] = {}
     if txns.empty:
         return out
-    for capture, group in txns.groupby("capture", observed=True, sort=False):
+    # a --chain analysis numbers the frames of all its files as one capture: one pass over the chain
+    groups = [("", txns)] if analysis.chain else txns.groupby("capture", observed=True, sort=False)
+    for capture, group in groups:
         wanted: dict[int, list[int]] = {}
         for row in group.itertuples():
             out[int(row.txn)] = []
@@ -226,7 +228,7 @@ def drilldown(analysis: Analysis, txns: pd.DataFrame) -> dict[int, list[dict[str
                 wanted.setdefault(number, []).append(int(row.txn))
         if not wanted:
             continue
-        for res in annotated_frames(str(capture), wanted, analysis.profile, analysis.rpc_timeout):
+        for res in annotated_frames(str(capture), wanted, analysis.profile, analysis.rpc_timeout, analysis.chain):
             item = _frame_item(res)
             for txn in wanted[res.frame]:
                 out[txn].append(item)

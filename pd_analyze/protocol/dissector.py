@@ -424,7 +424,8 @@ class Dissector:
             if response and stub.status is not None and not stub.status.ok:
                 continue
             max_params = self.checker.record.max_params
-            if block.index == INDEX_PD_DPV1 and not profidrive.plausible(block.record, response, max_params):
+            if block.index == INDEX_PD_DPV1 and not profidrive.plausible(block.record, response, max_params,
+                                                                                       self.checker.ids):
                 res.findings.append(finding("not_profidrive", number, "iod.index", "0x002f",
                                             "a plausible PROFIdrive header", "record at index 0x002F is not a "
                                                                              "PROFIdrive parameter block"))
@@ -433,13 +434,13 @@ class Dissector:
             key = _channel(dgram, v, block.target_ar, response)
             if response:
                 request, request_frame = self._pd_requests.get(key, (None, 0))
-                parsed = profidrive.parse_response(block.record, number, res.findings)
+                parsed = profidrive.parse_response(block.record, number, res.findings, self.checker.ids)
                 res.findings += self.checker.response(parsed, number, request)
                 block.pd = (parsed, request)
                 if self.annotate and request_frame:
                     res.layers.append(Layer("Parameter access", 0, [derived("pd.request_frame", request_frame)]))
             else:
-                parsed = profidrive.parse_request(block.record, number, res.findings)
+                parsed = profidrive.parse_request(block.record, number, res.findings, self.checker.ids)
                 res.findings += self.checker.request(parsed, number)
                 block.pd = (parsed, None)
                 self._remember_request(key, parsed, number)
@@ -504,14 +505,16 @@ def dissect_frames(frames: Iterable[capture.RawFrame], d: Dissector) -> Iterator
         for frame in frames:
             # Most of a PROFINET capture is cyclic PN-RT, LLDP, ARP...: an Ethernet frame that carries
             # no IPv4 (tagged or not) is counted here without a call (or by the reader, as a run of
-            # them); the result is the same as feed's.
+            # them, timed at its last frame); the result is the same as feed's, its time included.
             if frame.run:
                 accounting.read += frame.run
                 not_ip[link.SKIP_NOT_IPV4] += frame.run
+                d.advance(frame.ts)
                 continue
             if frame.linktype == LINKTYPE_ETHERNET and frame.data[12:14] not in IP_ETHERTYPES:
                 accounting.read += 1
                 not_ip[link.SKIP_NOT_IPV4] += 1
+                d.advance(frame.ts)
                 continue
             yield from d.feed(frame)
     except capture.CaptureError:

@@ -131,6 +131,9 @@ class Stub:
     blocks: list[Block] = field(default_factory=list)
     trailing: int = 0  # bytes after the last block/record
     truncated: bool = False
+    # Write-Multiple: the bytes the outer RecordDataLength counts after the last inner record, up to the
+    # next multiple of 4 (1-3 pad bytes, protocol.md 2.8: optional, both forms valid); empty when none
+    last_pad: bytes = b""
     args_max: int = -1  # requests only
     args_len: int = -1
     max_count: int = -1
@@ -236,7 +239,8 @@ def _multi(stub: bytes, out: Stub, outer: Block, response: bool, frame: int,
         aligned = (pos + 3) & ~3
         if aligned > pos:
             pad = stub[pos:min(aligned, end)]
-            if aligned >= end:
+            if aligned >= end:  # the last record's pad bytes, counted by the outer RecordDataLength
+                out.last_pad = pad
                 break
             if any(pad):
                 findings.append(rules.finding(
@@ -272,4 +276,6 @@ def multi_pads(stub: Stub) -> list[tuple[int, int]]:
         end = prev.record_offset + len(prev.record)
         if nxt.offset > end:
             pads.append((end, nxt.offset - end))
+    if inner and stub.last_pad:  # after the last record (protocol.md 2.8)
+        pads.append((inner[-1].record_offset + len(inner[-1].record), len(stub.last_pad)))
     return pads

@@ -193,7 +193,16 @@ def _multi_sum(stub: Stub, frame: int) -> list[Finding]:
                         "Write-Multiple without inner writes")]
     end = inner[-1].record_offset + len(inner[-1].record)
     want = outer.record_offset + outer.record_len
-    if end != want and not stub.truncated:
+    if stub.truncated:
+        return []
+    # protocol.md 2.8 / H11: the outer length either ends with the last record or also counts its 1-3 pad
+    # bytes up to the next multiple of 4 (writers differ; both are valid); the pad bytes must be zero
+    if stub.last_pad and want == end + len(stub.last_pad) and want % 4 == 0:
+        if any(stub.last_pad):
+            return [finding("multi_write_padding", frame, "iod.multi_pad", stub.last_pad.hex(), "00",
+                            "Write-Multiple pad bytes after the last record not zero")]
+        return []
+    if end != want:
         return [finding("multi_write_structure", frame, "iod.record_len", outer.record_len,
                         end - outer.record_offset, "outer RecordDataLength differs from the inner blocks")]
     return []

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.layout import Layout
 from pd_analyze.model.rules import Finding, finding
-from pd_analyze.protocol.profiles import generic_record
+from pd_analyze.protocol.profiles import VendorIds, VendorRequest, VendorResponse, generic_record
 
 HEADER = Layout("PROFIdrive header", ">", (("pd.ref", "B"), ("pd.req_id", "B"), ("pd.do", "B"),
                                            ("pd.n_params", "B")))
@@ -38,6 +38,34 @@ class Address:
         if self.attr == pt.ATTR_VALUE and count > 1:
             return f"P{self.pnu}[{self.subindex}..{self.subindex + count - 1}]"
         return f"P{self.pnu}[{self.subindex}]"
+
+
+def as_value(a: Address) -> Address:
+    """A vendor service's address read as a value access: its Attribute names the vendor's service (e.g.
+    MOVILINK WRITE volatile 0x30, protocol.md 5.5), not the PROFIdrive Description or Text."""
+    return Address(a.offset, pt.ATTR_VALUE, a.n_elems, a.pnu, a.subindex)
+
+
+def service_name(p: Parsed | None, attribute: int) -> str | None:
+    """The vendor service a request's Attribute names (protocol.md 5.5), None for a PROFIdrive request."""
+    service = p.vendor.service(attribute) if p is not None and isinstance(p.vendor, VendorRequest) else None
+    return service.name if service is not None else None
+
+
+def writes_values(p: Parsed | None) -> bool:
+    """A request that writes values: a change parameter, or a vendor service laid out as one (5.5)."""
+    if p is None or p.response:
+        return False
+    if isinstance(p.vendor, VendorRequest):
+        return p.vendor.layout_of(p.addresses[0].attr if p.addresses else 0) == "change"
+    return p.ident == pt.REQ_CHANGE
+
+
+def error_meaning(value: int, response: Parsed | None = None) -> str:
+    """An error value as the response's profile names it: a vendor error word (5.5) or a PROFIdrive number."""
+    vendor = response.vendor if response is not None and isinstance(response.vendor, VendorResponse) else None
+    text = vendor.error_text(value) if vendor is not None else None
+    return text if text is not None else pt.error_text(max(value, 0))
 
 
 @dataclass(slots=True)
@@ -79,6 +107,7 @@ class Parsed:
     end: int = 0  # bytes consumed by the parse
     complete: bool = False  # every expected part decoded (False: malformed)
     echo: int = 0  # AKD address echo bytes skipped (protocol.md 5.3)
+    vendor: VendorRequest | VendorResponse | None = None  # a profile's own Request/Response ID (5.5)
 
     @property
     def header_ok(self) -> bool:
@@ -92,8 +121,9 @@ def footprint(p: Parsed) -> int:
 
 
 # --- parsing ----------------------------------------------------------------------------------
-def parse_request(data: bytes, frame: int, findings: list[Finding]) -> Parsed:
-    """A parameter request (Write to a PROFIdrive index): header, addresses, value blocks."""
+def parse_request(data: bytes, frame: int, findings: list[Finding], ids: VendorIds | None = None) -> Parsed:
+    """A parameter request (Write to a PROFIdrive index): header, addresses, value blocks. `ids`: the
+    selected profile's own Request IDs, laid out as it declares (protocol.md 5.5); others stay reserved."""
     p = Parsed(False, len(data))
     if len(data) < 4:
         findings.append(finding("pd_too_short", frame, "pd.n_params", len(data), ">= 4",
@@ -110,7 +140,11 @@ def parse_request(data: bytes, frame: int, findings: list[Finding]) -> Parsed:
         p.addresses.append(Address(pos, *_ADDRESS.unpack_from(data, pos)))
         pos += 6
     p.end = pos
-    if p.ident != pt.REQ_CHANGE:
+    change = p.ident == pt.REQ_CHANGE
+    if ids is not None and p.ident in ids.requests:
+        p.vendor = vendor = ids.requests[p.ident]
+        change = vendor.layout_of(p.addresses[0].attr if p.addresses else 0) == "change"
+    if not change:
         p.complete = True
         return p
     p.blocks, p.end, p.complete = _blocks(data, pos, p.n, frame, findings, False)
@@ -121,8 +155,9 @@ def parse_request(data: bytes, frame: int, findings: list[Finding]) -> Parsed:
     return p
 
 
-def parse_response(data: bytes, frame: int, findings: list[Finding]) -> Parsed:
-    """A parameter response (Read response from a PROFIdrive index)."""
+def parse_response(data: bytes, frame: int, findings: list[Finding], ids: VendorIds | None = None) -> Parsed:
+    """A parameter response (Read response from a PROFIdrive index); `ids` as for parse_request: a vendor's
+    positive Response ID carries value blocks or nothing (a write service), a negative one error blocks."""
     p = Parsed(True, len(data))
     if len(data) < 4:
         findings.append(finding("pd_response_too_short", frame, "pd.n_params", len(data), ">= 4",
@@ -130,15 +165,22 @@ def parse_response(data: bytes, frame: int, findings: list[Finding]) -> Parsed:
         return p
     p.ref, p.ident, p.do, p.n = RESPONSE_HEADER.unpack(data)
     p.end = 4
-    if p.ident == pt.RES_CHANGE:
+    if ids is not None and p.ident in ids.responses:
+        p.vendor = ids.responses[p.ident]
+        if len(data) == 4 and not p.vendor.negative:  # the answer to a write service: header only
+            p.complete = True
+            return p
+    elif p.ident == pt.RES_CHANGE:
         p.complete = True
         return p
-    if p.ident not in (pt.RES_READ, pt.RES_READ_NAK, pt.RES_CHANGE_NAK, pt.RES_NOT_SUPPORTED):
+    elif p.ident not in (pt.RES_READ, pt.RES_READ_NAK, pt.RES_CHANGE_NAK, pt.RES_NOT_SUPPORTED):
         # Unknown Response ID: Q1 reports it and the body is not guessed at. A header-only record is
         # still completely decoded (its verdict comes from Q3, protocol.md 7.4); a body is not.
         p.complete = len(data) == 4
         return p
-    count = 1 if p.ident == pt.RES_NOT_SUPPORTED and p.n == 0 else p.n
+    # No. of parameters 0 mirrors a request of no parameter: a negative answer refuses it with one error
+    # block for the whole request (3.3), as a 0x80 does
+    count = 1 if p.n == 0 and (p.ident == pt.RES_NOT_SUPPORTED or (p.ident & 0x80 and len(data) > 4)) else p.n
     trial: list[Finding] = []
     blocks, end, ok = _blocks(data, 4, count, frame, trial, True)
     if (trial or not ok) and len(data) > 10 and count == 1:
@@ -281,14 +323,16 @@ def _date_size(data: bytes, pos: int, m: int, rest: int, response: bool) -> int:
     return 8 if (left - 7 * m) % 2 and not (left - 8 * m) % 2 else 7
 
 
-def plausible(data: bytes, response: bool | None = None, max_params: int | None = None) -> bool:
+def plausible(data: bytes, response: bool | None = None, max_params: int | None = None,
+              ids: VendorIds | None = None) -> bool:
     """Index 0x002F carries PROFIdrive only if the header is plausible (protocol.md 1.4): Request or
     Response ID valid, 1 <= n <= `max_params` (default: the generic profile's record limit), reference
     != 0, lengths consistent.
 
     `response` names the direction (False: parameter request of a write, True: parameter response
     of a read); None accepts either reading, for callers that do not pass it. Request and Response
-    IDs 0x01/0x02 coincide, so the direction decides which length rule applies.
+    IDs 0x01/0x02 coincide, so the direction decides which length rule applies. `ids`: the selected
+    profile's own IDs count as valid, with their declared layouts.
     """
     if len(data) < 4:
         return False
@@ -298,7 +342,10 @@ def plausible(data: bytes, response: bool | None = None, max_params: int | None 
     if ref == 0 or not 1 <= n <= max_params:
         return False
     if response is None:
-        return plausible(data, False, max_params) or plausible(data, True, max_params)
+        return plausible(data, False, max_params, ids) or plausible(data, True, max_params, ids)
+    if ids is not None and ident in (ids.responses if response else ids.requests):
+        vendor = (parse_response if response else parse_request)(data, 0, [], ids)
+        return vendor.complete and vendor.end == len(data)
     if not response:
         if ident == pt.REQ_READ:
             return len(data) == 4 + 6 * n

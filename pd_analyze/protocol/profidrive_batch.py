@@ -8,7 +8,8 @@ frame goes to the per-frame dissector: a record shorter than its header or than 
 unknown Response ID, a block overrunning the record, a format of unknown size, a Date (0x32), a pad byte
 missing before a following block (the per-frame parse looks ahead there), the AKD address echo, a
 header-level error (fewer blocks than parameters), a change request with fewer value blocks than
-addresses.
+addresses, a record of No. of parameters 0 (its table row and a negative answer's one error block are
+the per-frame path's), a Request or Response ID of the selected profile's own (protocol.md 5.5).
 
 More precisely, whatever may make the per-frame parse report a structural finding other than
 pad_nonzero / pad_missing_final (pd_too_short, pd_response_too_short, block_overrun,
@@ -110,9 +111,13 @@ def decode(buf: bytes, start: np.ndarray, length: np.ndarray, response: np.ndarr
     ref, ident, do, n_u8 = _header(b, start, length >= 4)
     n = n_u8.astype(np.int64)
     regular = length >= 4  # pd_too_short, pd_response_too_short
+    regular &= n_u8 > 0  # No. of parameters 0: one parameter row of its own, and a negative answer's one block
     addr_end = 4 + 6 * n
     regular &= response | (length >= addr_end)  # pd_too_short: a request ends inside its addresses
     regular &= ~response | _KNOWN_RESPONSE[ident]  # Q1's unknown Response ID: the body is not decoded
+    ids = checker.ids
+    if ids is not None:  # a profile's own Request/Response IDs (protocol.md 5.5) are the per-frame parse's
+        regular &= ~np.isin(ident, np.array([*ids.requests, *ids.responses], np.uint8))
     # the blocks each record has: a change request's one per address, a response's (3.3)
     blocks = np.zeros(count, np.int64)
     change = regular & ~response & (ident == pt.REQ_CHANGE)

@@ -11,8 +11,8 @@ from functools import cache
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.fields import value_text
 from pd_analyze.model.rules import Finding, finding
-from pd_analyze.protocol.profidrive import Block, Parsed
-from pd_analyze.protocol.profiles import DEFAULT, Limit, Profile, generic, load
+from pd_analyze.protocol.profidrive import Block, Parsed, as_value
+from pd_analyze.protocol.profiles import DEFAULT, Limit, Profile, VendorIds, VendorRequest, generic, load
 
 
 class Checker:
@@ -44,6 +44,11 @@ class Checker:
         return self.vendor.tolerate if self.vendor else frozenset()
 
     @property
+    def ids(self) -> VendorIds | None:
+        """The vendor profile's own Request/Response IDs (protocol.md 5.5), None when it has none."""
+        return self.vendor.ids if self.vendor else None
+
+    @property
     def error_texts(self) -> dict[int, str]:
         return dict(self.vendor.error_texts) if self.vendor else {}
 
@@ -55,12 +60,16 @@ class Checker:
         columnar decode checks whole columns against them)."""
         return tuple(lim for _, lim in self._limits(key))
 
-    def limit(self, key: str, name: str, value: int, frame: int, out: list[Finding]) -> None:
-        """Findings for every profile limit of `key` that `value` breaks."""
+    def limit(self, key: str, name: str, value: int, frame: int, out: list[Finding], vendor_only: bool = False
+              ) -> None:
+        """Findings for every profile limit of `key` that `value` breaks; `vendor_only`: the vendor's
+        limits only (a field of the vendor's own Request/Response ID, which the profile does not define)."""
         within = self._within.get(key)
         if within is not None and within[0] <= value <= within[1]:
             return
         for profile, lim in self._by_key.get(key, ()):
+            if vendor_only and profile is self.generic:
+                continue
             if not lim.allows(value):
                 shown = value_text(name, value)
                 out.append(finding(lim.rule, frame, name, shown, lim.text(),
@@ -80,22 +89,26 @@ class Checker:
         out: list[Finding] = []
         if not p.header_ok:
             return out
+        vendor = p.vendor is not None  # a vendor service: its ID, attributes and indexes are the vendor's
         self.limit("request.ref", "pd.ref", p.ref, frame, out)
-        self.limit("request.req_id", "pd.req_id", p.ident, frame, out)
+        self.limit("request.req_id", "pd.req_id", p.ident, frame, out, vendor)
         self.limit("request.do", "pd.do", p.do, frame, out)
         self.limit("request.n_params", "pd.n_params", p.n, frame, out)
         for i, a in enumerate(p.addresses):
             attr, n_elems, pnu, subindex = _address_fields(i)
-            self.limit("request.attribute", attr, a.attr, frame, out)
+            self.limit("request.attribute", attr, a.attr, frame, out, vendor)
             self.limit("request.n_elems", n_elems, a.n_elems, frame, out)
-            self.limit("request.pnu", pnu, a.pnu, frame, out)
+            self.limit("request.pnu", pnu, a.pnu, frame, out, vendor)
             self.limit("request.subindex", subindex, a.subindex, frame, out)
-        if p.ident == pt.REQ_READ:
+        change = p.ident == pt.REQ_CHANGE
+        if isinstance(p.vendor, VendorRequest):  # laid out as its service declares (protocol.md 5.5)
+            change = p.vendor.layout_of(p.addresses[0].attr if p.addresses else 0) == "change"
+        elif p.ident != pt.REQ_READ and not change:
+            return out
+        if not change:
             if p.complete and p.end < p.length:
                 out.append(finding("read_request_length", frame, "pd.trailing", p.length, 4 + 6 * p.n,
                                    f"read request carries {p.length - p.end} bytes after its addresses"))
-            return out
-        if p.ident != pt.REQ_CHANGE:
             return out
         out += self._change_blocks(p, frame)
         if p.complete and p.end < p.length:
@@ -108,8 +121,9 @@ class Checker:
         if p.complete and len(p.blocks) != p.n:
             out.append(finding("change_blocks", frame, "pd.n_params", len(p.blocks), p.n,
                                f"change request has {len(p.blocks)} value blocks for {p.n} addresses"))
-        for i, (block, addr) in enumerate(zip(p.blocks, p.addresses, strict=False)):
+        for i, (block, address) in enumerate(zip(p.blocks, p.addresses, strict=False)):
             name = f"pd.val[{i}]"
+            addr = address if p.vendor is None else as_value(address)  # a vendor service's attribute
             if block.unknown_size:
                 continue
             if block.format in (pt.FMT_ZERO, pt.FMT_ERROR, pt.FMT_AKD_ZERO):
@@ -159,10 +173,10 @@ class Checker:
         if not p.header_ok:
             return out
         self.limit("response.ref", "pd.ref", p.ref, frame, out)
-        self.limit("response.resp_id", "pd.resp_id", p.ident, frame, out)
+        self.limit("response.resp_id", "pd.resp_id", p.ident, frame, out, p.vendor is not None)
         self.limit("response.do", "pd.do", p.do, frame, out)
         self.limit("response.n_params", "pd.n_params", p.n, frame, out)
-        if p.ident == pt.RES_CHANGE:
+        if p.ident == pt.RES_CHANGE and p.vendor is None:
             body = p.length - 4
             if body and "trailing_00_00" in self.tolerate and body == 2 and p.blocks == [] and p.end == 4:
                 out.append(finding("akd_trailing_zero", frame, "pd.trailing", "00 00", "no body",
@@ -231,6 +245,9 @@ class Checker:
                 out.append(finding("error_subindex_presence", frame, f"{name}.error_subindex", 2, 1,
                                    f"error {block.error:#04x} carries a second value it does not define"))
         klass = pt.error_class(block.error)
+        ids = self.ids
+        if ids is not None and ids.error_text(block.error) is not None:
+            return out  # a vendor error word (protocol.md 5.5), shown as its class and additional code
         if klass == "reserved":
             out.append(finding("error_reserved", frame, f"{name}.error", f"{block.error:#04x}",
                                "table 4.5 or 0x65 ... 0xFF", "error number reserved in the profile"))

@@ -10,8 +10,9 @@ from collections.abc import Callable
 from datetime import date, timedelta
 
 from pd_analyze.model import pd_values as pt
-from pd_analyze.model.layout import Field
-from pd_analyze.protocol.profidrive import HEADER, RESPONSE_HEADER, Address, Block, Parsed
+from pd_analyze.model.layout import Field, show
+from pd_analyze.protocol.profidrive import HEADER, RESPONSE_HEADER, Address, Block, Parsed, as_value, error_meaning
+from pd_analyze.protocol.profiles import DEFAULT, VendorRequest
 
 _EPOCH_1984 = date(1984, 1, 1)
 
@@ -129,41 +130,122 @@ Describe = Callable[[str, object], str]  # (limit key, value) -> check text, e.g
 
 def annotate(p: Parsed, data: bytes, base: int, describe: Describe,
              request: Parsed | None = None) -> list[Section]:
-    """The dump's tree of a parsed request/response; `describe(key, value)` gives a check text."""
-    if not p.header_ok:
-        return [("PROFIdrive record (shorter than its header)",
-                 [Field("pd.trailing", base, len(data), bytes(data), data.hex(), data.hex(" ") or "(empty)")])]
+    """The dump's tree of a parsed request/response; `describe(key, value)` gives a check text. A vendor's
+    own Request/Response ID (protocol.md 5.5) is shown with its name, service and error words."""
     layout = RESPONSE_HEADER if p.response else HEADER
     side = "response" if p.response else "request"
+    if not p.header_ok:  # decoded as far as the bytes go (protocol.md 1.3), the finding says it is cut
+        return [(f"Parameter {side} header (cut: {len(data)} of 4 bytes)",
+                 _fields_present(data, 0, base, tuple(zip(layout.names, layout.sizes, strict=True))))]
     head = layout.annotate(data, 0, (p.ref, p.ident, p.do, p.n), base)
     for fld, key in zip(head, ("ref", "resp_id" if p.response else "req_id", "do", "n_params"), strict=True):
         fld.check = describe(f"{side}.{key}", fld.value)
+    if p.vendor is not None:  # the vendor's own ID: the generic profile does not define it (protocol.md 5.5)
+        head[1].show = f"0x{p.ident:02x} ({p.vendor.name})"
+        head[1].check = _vendor_check(head[1].check)
+    vendor = request.vendor if p.response and request is not None else p.vendor
+    service = vendor if isinstance(vendor, VendorRequest) else None
     sections: list[Section] = [(f"Parameter {side} header", head)]
     for i, a in enumerate(p.addresses):
         at = a.offset
         fields = [Field(f"pd.addr[{i}].{n}", base + at + off, size, bytes(data[at + off:at + off + size]),
-                        v, _show_addr(n, v)) for n, off, size, v in
+                        v, _show_addr(n, v, service)) for n, off, size, v in
                   (("attr", 0, 1, a.attr), ("n_elems", 1, 1, a.n_elems), ("pnu", 2, 2, a.pnu),
                    ("subindex", 4, 2, a.subindex))]
         for fld, key in zip(fields, ("attribute", "n_elems", "pnu", "subindex"), strict=True):
             fld.check = describe(f"request.{key}", fld.value)
+            if service is not None and key in ("attribute", "pnu"):  # the service's, not the profile's
+                fld.check = _vendor_check(fld.check)
         sections.append((f"Parameter address [{i}]: {_named(a.label(), a.pnu)}", fields))
     if p.echo:
         sections.append(("Address echo (AKD manual layout)", [Field("pd.echo", base + 4, 6, bytes(data[4:10]),
                                                                     data[4:10].hex(), data[4:10].hex(" "))]))
+    cut_address = not p.response and len(p.addresses) < p.n and p.end < len(data)
+    if cut_address:  # the record ends inside this address
+        i = len(p.addresses)
+        sections.append((f"Parameter address [{i}] (cut: {len(data) - p.end} of 6 bytes)", _fields_present(
+            data, p.end, base, tuple((f"pd.addr[{i}].{n}", size) for n, size in _ADDRESS_PARTS))))
     addresses = request.addresses if request is not None and p.response else p.addresses
+    if service is not None:
+        addresses = [as_value(a) for a in addresses]
     for i, block in enumerate(p.blocks):
         addr = addresses[i] if i < len(addresses) else None
-        sections.append((_block_title(i, block, addr, p.response), _block_fields(i, block, data, base, side,
-                                                                                describe, addr)))
-    if p.end < len(data):
+        sections.append((_block_title(i, block, addr, p), _block_fields(i, block, data, base, side, describe,
+                                                                         addr, p)))
+    cut = _cut_block(p, data, base, side, describe, addresses)
+    if cut is not None:
+        sections.append(cut)
+    elif p.end < len(data) and not cut_address:
         rest = data[p.end:]
         sections.append(("Bytes after the parsed record", [Field("pd.trailing", base + p.end, len(rest), bytes(rest),
                                                                  rest.hex(), rest.hex(" "))]))
     return sections
 
 
-def _show_addr(name: str, value: int) -> str:
+
+
+_ADDRESS_PARTS = (("attr", 1), ("n_elems", 1), ("pnu", 2), ("subindex", 2))
+
+
+def _fields_present(data: bytes, at: int, base: int, parts: tuple[tuple[str, int], ...]) -> list[Field]:
+    """The fields of a structure the record ends inside, as far as the bytes go: whole ones decoded, the
+    one the record ends inside shown raw as `pd.cut`, the missing ones left out."""
+    out = []
+    for name, size in parts:
+        raw = bytes(data[at:at + size])
+        if len(raw) == size:
+            value = int.from_bytes(raw, "big")
+            out.append(Field(name, base + at, size, raw, value, show(name, value)))
+        elif raw:
+            out.append(Field("pd.cut", base + at, len(raw), raw, raw.hex(),
+                             f"{name} cut: {len(raw)} of {size} bytes before the record ends"))
+        at += size
+    return out
+
+
+def _cut_block(p: Parsed, data: bytes, base: int, side: str, describe: Describe, addresses: list[Address]
+               ) -> Section | None:
+    """A value or error block whose values overrun the record (P6/Q12), decoded as far as the bytes go:
+    Format, No. of values, every whole value, the cut one raw (`pd.cut`). None when the parse did not stop
+    at such a block."""
+    i, at = len(p.blocks), p.end
+    if p.complete or at >= len(data) or (p.blocks and p.blocks[-1].unknown_size):
+        return None
+    fmt = data[at]
+    spec = pt.FORMATS.get(fmt)
+    m = data[at + 1] if at + 1 < len(data) else -1
+    if spec is None or not spec.size or (m >= 0 and at + 2 + m * spec.size <= len(data)):
+        return None  # not a sized block that overruns: the parse stopped for another reason
+    addr = addresses[i] if i < len(addresses) else None
+    label = addr.label() if addr is not None else f"block [{i}]"
+    if m < 0:  # only its Format is left
+        return (f"Parameter [{i}]: {label} {spec.name} (cut: no values before the record ends)",
+                _fields_present(data, at, base, ((f"pd.val[{i}].format", 1), (f"pd.val[{i}].n_values", 1))))
+    whole = (len(data) - at - 2) // spec.size
+    present = bytes(data[at + 2:at + 2 + whole * spec.size])
+    block = Block(at, fmt, whole, spec.size, present)
+    if fmt == pt.FMT_ERROR and whole:
+        block.error = int.from_bytes(present[:2], "big")
+    fields = _block_fields(i, block, data, base, side, describe, addr, p)
+    counted = fields[1]  # No. of values as the record declares it, not the whole values present
+    counted.value, counted.show = m, str(m)
+    rest = bytes(data[at + 2 + len(present):])
+    if rest:
+        fields.append(Field("pd.cut", base + at + 2 + len(present), len(rest), rest, rest.hex(),
+                            f"value {whole + 1} cut: {len(rest)} of {spec.size} bytes before the record ends"))
+    return f"Parameter [{i}]: {label} {spec.name} (cut: {whole} of {m} values before the record ends)", fields
+
+
+def _vendor_check(check: str) -> str:
+    """A check text without the generic profile's verdict: for fields of a vendor's own service, which the
+    checks hold against the vendor profile only (Checker.request)."""
+    return "; ".join(part for part in check.split("; ") if not part.startswith(f"{DEFAULT} "))
+
+
+def _show_addr(name: str, value: int, vendor: VendorRequest | None = None) -> str:
+    if name == "attr" and vendor is not None and vendor.services:
+        svc = vendor.service(value)
+        return f"0x{value:02x} ({svc.name if svc is not None else 'reserved service'})"
     if name == "attr":
         return f"0x{value:02x} ({pt.ATTRIBUTE.get(value, 'reserved')})"
     if name == "n_elems" and value == 0:
@@ -179,12 +261,14 @@ def _named(label: str, pnu: int | None) -> str:
     return f"{label} ({name})" if name else label
 
 
-def _block_title(i: int, block: Block, addr: Address | None, response: bool) -> str:
+def _block_title(i: int, block: Block, addr: Address | None, owner: Parsed) -> str:
+    response = owner.response
     label = addr.label(block.n_values if addr is not None and addr.attr == pt.ATTR_VALUE
                        and not block.is_error else None) if addr is not None else f"block [{i}]"
     label = _named(label, addr.pnu if addr is not None else None)
     if block.is_error:
-        return f"Parameter [{i}]: {label} error {block.error:#04x} ({pt.error_text(max(block.error, 0))})"
+        number = f"{block.error:#06x}" if block.error > 0xFF else f"{block.error:#04x}"
+        return f"Parameter [{i}]: {label} error {number} ({error_meaning(block.error, owner)})"
     if block.format in (pt.FMT_ZERO, pt.FMT_AKD_ZERO):
         return f"Parameter [{i}]: {label} written" if response else f"Parameter [{i}]: {label} Zero"
     name = pt.FORMAT_NAME.get(block.format, f"format {block.format:#04x}")
@@ -197,7 +281,7 @@ def _block_title(i: int, block: Block, addr: Address | None, response: bool) -> 
 
 
 def _block_fields(i: int, block: Block, data: bytes, base: int, side: str, describe: Describe,
-                  addr: Address | None) -> list[Field]:
+                  addr: Address | None, owner: Parsed) -> list[Field]:
     pos = block.offset
     fmt_show = f"0x{block.format:02x} ({pt.FORMAT_NAME.get(block.format, 'unknown format')})"
     fields = [Field(f"pd.val[{i}].format", base + pos, 1, bytes(data[pos:pos + 1]), block.format, fmt_show,
@@ -210,7 +294,7 @@ def _block_fields(i: int, block: Block, data: bytes, base: int, side: str, descr
             value = int.from_bytes(word, "big")
             if k == 0:
                 fields.append(Field(f"pd.val[{i}].error", base + pos + 2, 2, bytes(word), value,
-                                    f"0x{value:02x} ({pt.error_text(value)})"))
+                                    f"0x{value:02x} ({error_meaning(value, owner)})"))
             elif k == 1:
                 fields.append(Field(f"pd.val[{i}].error_subindex", base + pos + 4, 2, bytes(word), value, str(value)))
             else:

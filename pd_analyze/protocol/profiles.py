@@ -116,6 +116,90 @@ class RecordLimit:
         )
 
 
+LAYOUTS = ("read", "change")  # a vendor request laid out as a request parameter or a change parameter (3.1)
+ERROR_WORDS = ("", "class_code")  # how a vendor shows error values above the profile's (5.5)
+
+
+@dataclass(frozen=True, slots=True)
+class Service:
+    """What a vendor request does, named by its Attribute's high nibble (e.g. SEW MOVILINK, protocol.md 5.5)."""
+
+    name: str
+    layout: str  # "read": addresses only; "change": addresses, then one value block each
+
+
+@dataclass(frozen=True, slots=True)
+class VendorRequest:
+    """A vendor's own Request ID carried in the PROFIdrive record, with its layout and the answers it gets."""
+
+    ident: int
+    name: str
+    layout: str
+    answers: tuple[int, ...]  # the Response IDs that answer it (Q3)
+    source: str
+    services: Mapping[int, Service] = field(default_factory=dict)  # by Attribute & 0xF0; empty: none
+
+    def service(self, attribute: int) -> Service | None:
+        return self.services.get(attribute & 0xF0) if self.services else None
+
+    def layout_of(self, attribute: int) -> str:
+        """The layout of a request whose first address carries `attribute`."""
+        service = self.service(attribute)
+        return service.layout if service is not None else self.layout
+
+
+@dataclass(frozen=True, slots=True)
+class VendorResponse:
+    """A vendor's own Response ID: positive ones carry value blocks (or nothing), negative ones error blocks."""
+
+    ident: int
+    name: str
+    negative: bool
+    source: str
+    error_words: str = ""  # the profile's error_words: how its error values above 0xFF read
+
+    def error_text(self, value: int) -> str | None:
+        return error_word_text(self.error_words, value)
+
+
+@dataclass(frozen=True, slots=True)
+class VendorIds:
+    """A profile's own request and response IDs (protocol.md 5.5): what the parse and the checks add to the
+    PROFIdrive ones under that profile. Under any other profile the IDs stay reserved."""
+
+    requests: Mapping[int, VendorRequest]
+    responses: Mapping[int, VendorResponse]
+    error_words: str = ""  # "class_code": an error value above 0xFF is a class (high byte) and a code (low)
+
+    def error_text(self, value: int) -> str | None:
+        return error_word_text(self.error_words, value)
+
+    def listing(self) -> list[str]:
+        """The IDs as `pd-analyze profiles` lists them, each with its source."""
+        lines = []
+        for r in self.requests.values():
+            answers = "/".join(f"{a:#04x}" for a in r.answers)
+            lines.append(f"    Request ID {r.ident:#04x} {r.name} (layout {r.layout}, answered {answers})"
+                         f"  <- {r.source}")
+            lines += [f"      Attribute {attr:#04x}: {svc.name} ({svc.layout})" for attr, svc in r.services.items()]
+        for res in self.responses.values():
+            lines.append(f"    Response ID {res.ident:#04x} {res.name}  <- {res.source}")
+        if self.error_words:
+            lines.append("    error values above 0x64: class (high byte) and additional code (low byte)")
+        return lines
+
+
+def error_word_text(words: str, value: int) -> str | None:
+    """A vendor's error word as class and additional code (protocol.md 5.5: above the PROFIdrive numbers
+    0x00 ... 0x64); None when it is a PROFIdrive error number or the profile has no error words."""
+    if words != "class_code" or value <= 0x64:
+        return None
+    high, low = value >> 8, value & 0xFF
+    if high == 0 and value >= 0x80:  # one manual writes 0x0080 + additional code
+        return f"vendor error: 0x0080 + additional code {value - 0x80:#04x}"
+    return f"vendor error: class {high:#04x}, additional code {low:#04x}"
+
+
 @dataclass(frozen=True, slots=True)
 class Profile:
     name: str
@@ -127,6 +211,7 @@ class Profile:
     vendor_ids: tuple[int, ...] = ()
     path: str = ""
     record: RecordLimit | None = None  # the generic profile always has one
+    ids: VendorIds | None = None  # the profile's own request/response IDs, if it has any
 
     def limits_for(self, key: str) -> tuple[Limit, ...]:
         return tuple(lim for lim in self.limits if lim.key == key)
@@ -151,7 +236,8 @@ def _profile(data: dict, where: str, default_rule: str) -> Profile:
     name = data.get("name")
     if not isinstance(name, str) or not name:
         raise fail("missing 'name' (a short profile name)")
-    unknown = set(data) - {"name", "title", "description", "limit", "error_texts", "tolerate", "vendor_ids", "record"}
+    unknown = set(data) - {"name", "title", "description", "limit", "error_texts", "tolerate", "vendor_ids", "record",
+                           "request_id", "response_id", "error_words"}
     if unknown:
         raise fail(f"unknown top-level keys {sorted(unknown)}")
 
@@ -209,7 +295,65 @@ def _profile(data: dict, where: str, default_rule: str) -> Profile:
     elif name == DEFAULT:
         raise fail("the generic profile needs its [record] max_length and source (protocol.md 3.6)")
     return Profile(name, str(data.get("title", name)), str(data.get("description", "")), tuple(limits),
-                   MappingProxyType(texts), tolerate, vendor_ids, where, record)
+                   MappingProxyType(texts), tolerate, vendor_ids, where, record, _ids(data, typed, fail))
+
+
+def _ids(data: dict, typed, fail) -> VendorIds | None:  # noqa: ANN001
+    """[[request_id]] and [[response_id]] tables: a vendor's own IDs in the PROFIdrive record (5.5)."""
+    def number(table: dict, key: str, what: str) -> int:
+        value = typed(table, key, int, f"an integer ({what})", -1)
+        if not 0 <= value <= 0xFF:
+            raise fail(f"{what}: {key} must be 0x00 ... 0xFF")
+        return value
+
+    def text(table: dict, key: str, what: str) -> str:
+        value = typed(table, key, str, "a string", "")
+        if not value:
+            raise fail(f"{what}: every entry needs its '{key}'")
+        return value
+
+    def layout(table: dict, what: str) -> str:
+        value = typed(table, "layout", str, f"one of {', '.join(LAYOUTS)}", "read")
+        if value not in LAYOUTS:
+            raise fail(f"{what}: layout {value!r} is not one of {', '.join(LAYOUTS)}")
+        return value
+
+    requests: dict[int, VendorRequest] = {}
+    for n, item in enumerate(typed(data, "request_id", list, "an array of tables ([[request_id]])", []), 1):
+        what = f"request_id #{n}"
+        if not isinstance(item, dict):
+            raise fail(f"{what} is not a table")
+        ident = number(item, "id", what)
+        if ident in (0x01, 0x02):
+            raise fail(f"{what}: 0x01 and 0x02 are the profile's own Request IDs")
+        answers = typed(item, "answers", list, "a list of Response IDs", [])
+        if not answers or not all(isinstance(a, int) and not isinstance(a, bool) for a in answers):
+            raise fail(f"{what}: 'answers' must list the Response IDs that answer it")
+        services = {}
+        for k, svc in enumerate(typed(item, "service", list, "an array of tables ([[request_id.service]])", []), 1):
+            where = f"{what} service #{k}"
+            if not isinstance(svc, dict):
+                raise fail(f"{where} is not a table")
+            attribute = number(svc, "attribute", where)
+            services[attribute & 0xF0] = Service(text(svc, "name", where), layout(svc, where))
+        requests[ident] = VendorRequest(ident, text(item, "name", what), layout(item, what), tuple(answers),
+                                        text(item, "source", what), MappingProxyType(services))
+    words = typed(data, "error_words", str, f"one of {ERROR_WORDS}", "")
+    if words not in ERROR_WORDS:
+        raise fail(f"error_words {words!r} is not one of {', '.join(repr(w) for w in ERROR_WORDS)}")
+    responses: dict[int, VendorResponse] = {}
+    for n, item in enumerate(typed(data, "response_id", list, "an array of tables ([[response_id]])", []), 1):
+        what = f"response_id #{n}"
+        if not isinstance(item, dict):
+            raise fail(f"{what} is not a table")
+        ident = number(item, "id", what)
+        if ident in (0x01, 0x02, 0x80, 0x81, 0x82):
+            raise fail(f"{what}: {ident:#04x} is one of the profile's own Response IDs")
+        responses[ident] = VendorResponse(ident, text(item, "name", what), bool(ident & 0x80),
+                                          text(item, "source", what), words)
+    if not requests and not responses and not words:
+        return None
+    return VendorIds(MappingProxyType(requests), MappingProxyType(responses), words)
 
 
 def _range(value: object, fail, n: int, key: str) -> tuple[int, int]:  # noqa: ANN001

@@ -21,6 +21,7 @@ from pd_analyze.analysis.transaction import (
     LastDone,
     b5_finding,
     mirroring_findings,
+    refused_busy,
     reuse_finding,
     superseded_finding,
 )
@@ -63,9 +64,10 @@ class Outcome:
 
 
 @cache
-def _verdict(why: str, mismatch: bool, nak: bool) -> str:
-    """protocol.md 7.4 for a columnar transaction (never malformed: such records go to the per-frame path)."""
-    holds = {"malformed": False, "pnio_error": why == "pnio_error", "timeout": why in UNANSWERED_ENDS,
+def _verdict(why: str, mismatch: bool, nak: bool, busy: bool) -> str:
+    """protocol.md 7.4 for a columnar transaction (never malformed: such records go to the per-frame path);
+    `busy`: every read answered B5 until the controller gave up (7.3 step 5)."""
+    holds = {"malformed": False, "pnio_error": why == "pnio_error" or busy, "timeout": why in UNANSWERED_ENDS,
              "reference_mismatch": mismatch, "nak": nak, "ok": True}
     return next(verdict for verdict in PRECEDENCE if holds[verdict])
 
@@ -273,7 +275,8 @@ class ChannelMachine:
         if self.pending.get(txn.channel) is txn:
             del self.pending[txn.channel]
         txn.closed_by = why
-        txn.verdict = _verdict(why, txn.mismatch, ident >= 0 and bool(ident & 0x80))
+        busy = refused_busy(why, txn.capture_ended, txn.b5, len(txn.read_frames))
+        txn.verdict = _verdict(why, txn.mismatch, ident >= 0 and bool(ident & 0x80), busy)
         if why in UNANSWERED_ENDS and not txn.pnio_status and txn.b5:
             txn.pnio_status = f"DE80{PNIORW_STATE_CONFLICT:02X}00"  # the last answer was B5
         self.out.done[txn.channel] = LastDone(txn.write_frame, txn.ref, txn.verdict)

@@ -108,6 +108,14 @@ class TableBuilder:
         wb = np.where(change[owner] & (j < rc.n_blocks[req][owner]), rc.first_block[req][owner] + j, -1)
         rb = np.where(has_res[owner] & (j < np.where(has_res, rc.n_blocks[s], 0)[owner]),
                       rc.first_block[s][owner] + j, -1)
+        # a header-level error (one error block answering several parameters, protocol.md 3.3): every
+        # parameter row carries it, marked whole_request (rows.whole_request_error); a request of no
+        # parameter is never regular here (profidrive_batch), so every request has its address rows
+        first_res = np.where(has_res, rc.first_block[s], 0)
+        whole = has_res & (np.where(has_res, rc.n_blocks[s], 0) == 1) & (na > 1)
+        whole[whole] &= bc.format[first_res[whole]] == pt.FMT_ERROR
+        whole_row = whole[owner]
+        rb = np.where(whole_row, first_res[owner], rb)
         err = _at(bc.error, rb, -1)
         err_sub = np.where(err >= 0, _at(bc.error_subindex, rb, -1), -1)
         src = np.where(wb >= 0, wb, rb)
@@ -134,6 +142,7 @@ class TableBuilder:
             written, read, pa.array([_hex(e) for e in errs], pa.large_string()),
             pa.array([self._error_text(e) if e >= 0 else "" for e in errs], pa.large_string()),
             pa.array(err_sub, pa.int64(), mask=err_sub < 0),
+            pa.array(whole_row, pa.bool_()),
         ], schema=batch_schema("parameters")))
         # --- per transaction: its label, its errors -------------------------------------------------------
         params: list[list[str]] = [[] for _ in range(n)]
@@ -142,11 +151,8 @@ class TableBuilder:
             params[o].append(label)
             if e >= 0:
                 errors[o].append(f"{label}:{_hex(e)}")
-        header_level = has_res & (np.where(has_res, rc.n_blocks[s], 0) == 1) & (na > 1)
-        for o in np.flatnonzero(header_level).tolist():
-            first = int(rc.first_block[s[o]])
-            if bc.format[first] == pt.FMT_ERROR:
-                errors[o] = [f"*:{_hex(int(bc.error[first]))}"]
+        for o in np.flatnonzero(whole).tolist():
+            errors[o] = [f"*:{_hex(int(bc.error[first_res[o]]))}"]
         # --- changes: one row per value block written ---------------------------------------------------
         changes = np.flatnonzero(wb >= 0).tolist()
         if changes:
