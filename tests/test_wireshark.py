@@ -86,8 +86,8 @@ def test_annotate_comments_say_verdicts_errors_and_rules(tmp_path: Path) -> None
     assert comments[22] == "pd-analyze: txn 5 nak; P2[0] error 0x01 parameter value cannot be changed"
     assert comments[27].endswith("P2019[0]: pnio_error") and comments[28] == "pd-analyze: txn 7 pnio_error"
     assert comments[291].startswith("pd-analyze: txn 42 request P1082[0]: ok; I T4 ")
-    timeout = [text for text in comments.values() if ": timeout" in text]
-    assert timeout == ["pd-analyze: txn 15 request P1082[0]: timeout (deadline)"]
+    assert comments[60] == "pd-analyze: txn 15 request P1082[0]: pnio_error"  # a busy drive given up (7.3 step 5)
+    assert not [text for text in comments.values() if ": timeout" in text]
 
 
 def test_annotate_keeps_existing_comments_and_filters_frames(tmp_path: Path) -> None:
@@ -124,12 +124,18 @@ def _same_rows(original: pd.DataFrame, extracted: pd.DataFrame) -> None:
     """The extracted file's transactions are the selected rows, frame numbers aside. A timeout is closed
     by what follows it, which the extracted file may not hold: the deadline passed by later traffic, or the
     next transaction of its channel (superseded), becomes the end of the file or the deadline; closed_by
-    and capture_ended say so, the verdict and every figure are the same."""
+    and capture_ended say so, the verdict and every figure are the same. A busy drive given up (every read
+    B5 until the controller wrote again or the deadline passed: pnio_error DE80B500, protocol.md 7.3 step 5)
+    is, for the same reason, a timeout at the end of the extracted file when what gave it up is not in it."""
     a = original.drop(columns=RENUMBERED).reset_index(drop=True).astype(str)
     b = extracted.drop(columns=RENUMBERED).reset_index(drop=True).astype(str)
     closers = ["deadline", "superseded", "capture_end"]
-    moved = (a["verdict"] == "timeout") & a["closed_by"].isin(closers) & b["closed_by"].isin(closers)
+    busy = (a["verdict"] == "pnio_error") & (a["pnio_status"] == "DE80B500")
+    moved = ((a["verdict"] == "timeout") | busy) & a["closed_by"].isin(closers) & b["closed_by"].isin(closers)
     a.loc[moved, ["closed_by", "capture_ended"]] = b.loc[moved, ["closed_by", "capture_ended"]]
+    given_up = busy & (b["verdict"] == "timeout") & (b["closed_by"] == "capture_end")
+    status = ["verdict", "pnio_status", "pnio_error_text", "closed_by", "capture_ended"]
+    a.loc[given_up, status] = b.loc[given_up, status]
     pd.testing.assert_frame_equal(a, b)
 
 

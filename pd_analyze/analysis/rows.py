@@ -96,8 +96,9 @@ class Rows:
         append = self.parameters.append
         whole = whole_request_error(request, response)
         if whole is not None and not addresses:  # a request of no parameter: one row, no PNU
-            append(ParameterRow._make((number, capture, device, txn.do, "", None, None, None, "", "", "", "",
-                                       _hex(whole.error), pt.error_text(whole.error), True)))
+            append(ParameterRow._make((number, capture, device, txn.do, "", None, "", None, None, "", "", "", "",
+                                       _hex(whole.error), error_meaning(whole.error, response),
+                                       whole.error_subindex if whole.error_subindex >= 0 else None, True)))
         for i, addr in enumerate(addresses):
             res_block = whole if whole is not None else blocks[i] if i < len(blocks) else None
             written = written_blocks[i] if i < len(written_blocks) else None
