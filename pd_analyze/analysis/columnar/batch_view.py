@@ -86,12 +86,6 @@ class BatchView:
         return float(self.batch.ts[-1])
 
     @property
-    def last_fed_ts(self) -> float:
-        """The time of the batch's last frame the per-frame dissector's clock would have seen."""
-        ts = self.batch.ts[fed(self.batch)]
-        return float(ts[-1]) if len(ts) else float("-inf")
-
-    @property
     def last_pnio(self) -> float:
         """The time of the batch's last PNIO RPC frame the columns decoded (-inf: none)."""
         ts = self.ts[self.pnio]

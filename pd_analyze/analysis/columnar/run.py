@@ -72,9 +72,6 @@ class ColumnarRun:
         self.accounting = Accounting()  # the frames the columns took; the dissector counts its own
         self.next_number = 1
         self.last_ts = float("-inf")  # the latest capture time seen
-        # the latest time of a frame the per-frame dissector's clock sees (batch_view.fed): an Ethernet frame
-        # without an IPv4 EtherType does not move it, so the end of the capture must not either
-        self.last_fed_ts = float("-inf")
         self.last_pnio = float("-inf")  # the latest time of a PNIO RPC frame (the engines' "now")
         self._ref_opens: list[int] = []  # frames of the transactions the per-frame engine opened in this batch
         self._col_opens: list[int] = []  # the same, columnar
@@ -98,9 +95,6 @@ class ColumnarRun:
                     self._columns(part, view)
                 del view  # (the next part's decode does not wait for this one's memory)
         self.last_ts = max(self.last_ts, float(ts.max()))
-        fed_ts = ts[fed(batch)]
-        if len(fed_ts):
-            self.last_fed_ts = max(self.last_fed_ts, float(fed_ts.max()))
         if self.progress is not None and self.results:
             self.progress(self.results[-1].path, self.read)
 
@@ -110,7 +104,7 @@ class ColumnarRun:
         self._count_skipped(view)
         bad = view.reference_groups(state)
         calls = pair(view.p, view.candidates(bad), view.frame_no, view.ts, state.open_calls, state.answered,
-                     settings.rpc_timeout, max(view.last_fed_ts, self.d._now), bad)
+                     settings.rpc_timeout, max(view.last_ts, self.d._now), bad)
         if calls_overflow(view, calls, bad, state):  # (nothing of the batch is kept yet)
             del view, calls  # the per-frame path takes the batch: its columns are not needed any more
             self._all_to_frames()
@@ -135,7 +129,7 @@ class ColumnarRun:
         machine.close_due(now)
         for txn in self.engine.advance(now):
             self._add_reference(txn)
-        self.d.advance(view.last_fed_ts)
+        self.d.advance(view.last_ts)
         self._drain()
         for t in kept:
             t.number = self._base + bisect_left(self._col_opens, t.write_frame) + bisect_left(self._ref_opens,
@@ -164,7 +158,7 @@ class ColumnarRun:
     def finish(self) -> None:
         """End of capture: everything still open goes to the per-frame path, which ends it as it would."""
         self._all_to_frames()
-        self.d.advance(self.last_fed_ts)
+        self.d.advance(self.last_ts)
         for txn in self.engine.advance(self.last_pnio):
             self._add_reference(txn)
         for res in self.d.finish(self.read):
@@ -231,9 +225,10 @@ class ColumnarRun:
         self._base, self._col_opens, self._ref_opens = self.next_number, [], []
         acc = self.d.accounting
         for pos, take in enumerate(fed(batch).tolist()):
-            if not take:  # as dissect_frames counts it
+            if not take:  # as dissect_frames counts it, its time passing too
                 acc.read += 1
                 acc.skipped[SKIP_NOT_IPV4] += 1
+                self.d.advance(float(batch.ts[pos]))
                 continue
             for res in self.d.feed(batch.raw_frame(pos)):
                 for txn in self.engine.feed(res):
