@@ -128,6 +128,15 @@ def main() -> None:
     """
 
 
+def _some_readable(paths: list[str]) -> None:
+    """Exit 2 with each reason when no input can be read: nothing to report on, no files, no output."""
+    unreadable = [error for error in map(unreadable_reason, paths) if error]
+    if len(unreadable) == len(paths):
+        for error in unreadable:
+            click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
+        sys.exit(EXIT_USAGE)
+
+
 def _inputs(captures: tuple[str, ...], read: str | None) -> list[str]:
     paths = ([read] if read else []) + list(captures)
     if not paths:
@@ -391,11 +400,7 @@ def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fm
                                "`pd-analyze audit --expect`")
     expected = _expected(expect_path) if expect_path else None
     paths = _files(captures, read, profile)
-    unreadable = [error for error in map(unreadable_reason, paths) if error]
-    if len(unreadable) == len(paths):  # nothing to report on: no files written, no "Wrote"
-        for error in unreadable:
-            click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
-        sys.exit(EXIT_USAGE)
+    _some_readable(paths)
     _writable(out_dir)
     progress = _progress() if jobs == 1 else None
     try:
@@ -579,6 +584,7 @@ def params_command(captures: tuple[str, ...], read: str | None, out_dir: str | N
     if out_dir is not None and fmt == "text":
         raise click.UsageError("--out writes csv, json or parquet")
     paths = _files(captures, read, profile)
+    _some_readable(paths)
     if out_dir is not None:
         _writable(out_dir)
     state, results = collect(paths, Settings(profile, timeout, rpc_timeout), _progress() if jobs == 1 else None,

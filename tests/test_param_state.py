@@ -325,6 +325,12 @@ def test_params_and_diff_work_on_every_sample(path: Path) -> None:
     assert r.returncode == 0, r.stderr
 
 
+def test_params_of_an_unreadable_capture_prints_only_the_error(tmp_path: Path) -> None:
+    r = run("params", str(tmp_path / "missing.pcap"))
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr.strip() == f"pd-analyze: {tmp_path / 'missing.pcap'}: no such file"
+
+
 # --- the HTML report ------------------------------------------------------------------------------------------
 
 def test_html_report_has_a_state_table_per_drive_with_the_set(tmp_path: Path) -> None:
