@@ -289,7 +289,7 @@ def test_fault_report_sorts_filters_and_drills_down(browser, reports: dict[str, 
     type_filter(browser, "changes", "result", "!ok")  # and the change given up on a busy drive
     assert column(browser, "changes", "result").count("pnio_error") == 1 and len(column(browser, "changes", "t")) == 6
 
-    type_filter(browser, "transactions", "pnio_status", "=DE80B500")
+    type_filter(browser, "transactions", "pnio_error_text", "DE80B500")
     assert column(browser, "transactions", "txn") == ["15"]
     browser.find_element(By.CSS_SELECTOR, "div[data-table='transactions'] tbody a[href='#txn-15']").click()
     WebDriverWait(browser, 5).until(lambda d: d.find_elements(By.CSS_SELECTOR, "#txn-15 .fhead"))  # on hashchange
@@ -305,7 +305,7 @@ def test_250000_transaction_report_in_chromium(browser, big_report: tuple[Path, 
     load(browser, big_report[0])
     assert plots_drawn(browser) == 5
     assert len(column(browser, "transactions", "txn")) == html_report.PAGE_SIZE
-    type_filter(browser, "transactions", "pnio_status", "=DE80B500")  # txn 15 of each copy, given up busy
+    type_filter(browser, "transactions", "pnio_error_text", "DE80B500")  # txn 15 of each copy, given up busy
     host = "div[data-table='transactions']"
     assert browser.execute_script(f"return document.querySelector(\"{host}\").dataset.matching") == "556"
     click_header(browser, "transactions", "txn")
