@@ -92,14 +92,10 @@ class BatchView:
         return float(ts[-1]) if len(ts) else float("-inf")
 
     @staticmethod
-    def of(batch: FrameBatch, checker: Checker) -> BatchView:
-        """The batch decoded (pnio_batch, profidrive_batch): what needs no state across batches."""
-        return BatchView._of(batch, pnio_batch.decode(batch, checker), checker)
-
-    @staticmethod
     def parts(batch: FrameBatch, checker: Checker) -> Iterator[tuple[FrameBatch, BatchView]]:
-        """The batch decoded, in consecutive parts when its records declare more than
-        PARAMETERS_PER_DECODE parameters (memory stays flat whatever the records hold)."""
+        """The batch decoded (pnio_batch, profidrive_batch: what needs no state across batches), in
+        consecutive parts when its records declare more than PARAMETERS_PER_DECODE parameters (memory stays
+        flat whatever the records hold)."""
         decoded = pnio_batch.decode(batch, checker)
         p = decoded.pdus
         has_record = p.has_block & (p.rec_len >= 4)
