@@ -40,6 +40,16 @@ class Section:
 
 
 def pcapng_frames(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[RawFrame]:
+    for section, block, packet in _walk(path, stream, info):
+        if packet is not None:
+            ts, linktype, start, caplen, iface_id = packet
+            yield RawFrame(section.number, ts, linktype, block[start:start + caplen], iface_id)
+
+
+def _walk(path: str, stream: BinaryIO, info: CaptureInfo
+          ) -> Iterator[tuple[Section, bytes, tuple[float, int, int, int, int] | None]]:
+    """Every block of a pcapng file, read whole and checked, with its section and, for a packet,
+    read_block's tuple (the section then counts it)."""
     pos = 0
     section = Section()
     while True:
@@ -51,10 +61,7 @@ def pcapng_frames(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[Ra
             section.ifaces = []
         blen = block_length(path, head, 0, section.little, pos)
         block = head + _read_exact(path, stream, blen - 8, pos)
-        packet = read_block(path, section, info, block, 0, pos)
-        if packet is not None:
-            ts, linktype, start, caplen, iface_id = packet
-            yield RawFrame(section.number, ts, linktype, block[start:start + caplen], iface_id)
+        yield section, block, read_block(path, section, info, block, 0, pos)
         pos += blen
 
 
@@ -191,18 +198,7 @@ class Block(NamedTuple):
 
 def pcapng_blocks(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[Block]:
     """Every block of a pcapng file, checked and counted as `pcapng_frames` reads them."""
-    pos = 0
-    section = Section()
-    while True:
-        head = _read_exact(path, stream, 8, pos, allow_eof=True)
-        if not head:
-            return
-        if struct.unpack("<I", head[:4])[0] == PCAPNG_SHB:
-            section.little = _shb_little(path, stream, pos)
-            section.ifaces = []
-        blen = block_length(path, head, 0, section.little, pos)
-        block = head + _read_exact(path, stream, blen - 8, pos)
-        packet = read_block(path, section, info, block, 0, pos)
+    for section, block, packet in _walk(path, stream, info):
         btype = struct.unpack_from("<I" if section.little else ">I", block)[0]
         if packet is None:
             yield Block(block, btype, section.little)
@@ -211,5 +207,4 @@ def pcapng_blocks(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[Bl
             iface = section.ifaces[iface_id]
             yield Block(block, btype, section.little, section.number, ts, linktype, start, caplen, iface_id,
                         iface.divisor, iface.offset)
-        pos += blen
 

@@ -55,8 +55,7 @@ def annotate(capture: str, out: str, settings: Settings, flt: DisplayFilter | No
                 result.errors.append(str(exc))
     finally:
         notes.close()
-    result.errors += [f"{c.path}: {c.error}" for c in notes.captures if c.error and f"{c.path}: {c.error}"
-                      not in result.errors]
+    result.errors += notes.errors_besides(result.errors)
     return result
 
 

@@ -97,8 +97,7 @@ def extract(capture: str, out: str, settings: Settings, selection: Selection) ->
                 result.errors.append(str(exc))
     finally:
         notes.close()
-    result.errors += [f"{c.path}: {c.error}" for c in notes.captures if c.error and f"{c.path}: {c.error}"
-                      not in result.errors]
+    result.errors += notes.errors_besides(result.errors)
     return result
 
 

@@ -182,6 +182,10 @@ class Notes:
         self._entries.close()
         self._spool.close()
 
+    def errors_besides(self, known: list[str]) -> list[str]:
+        """The analysis's capture errors ('path: error') not among `known` (the copy met some itself)."""
+        return [e for e in (f"{c.path}: {c.error}" for c in self.captures if c.error) if e not in known]
+
 
 def collect(path: str, settings: Settings, on_transaction: Callable[[Any], None] | None = None,
             on_parameter: Callable[[Any], None] | None = None) -> Notes:
