@@ -27,7 +27,7 @@ from pd_analyze.capture.chunks import ChunkReads
 from pd_analyze.capture.pcap import pcap_header
 from pd_analyze.capture.pcapng_chunks import pcapng_columns
 from pd_analyze.capture.raw import MAX_CAPLEN, CaptureError, CaptureInfo, RawFrame
-from pd_analyze.capture.reader import in_decompressed, open_capture
+from pd_analyze.capture.reader import opened
 
 BATCH_FRAMES = 65_536  # frames per batch by default (a batch of full-size frames: about 100 MB)
 
@@ -68,23 +68,15 @@ def batches(path: str, size: int = BATCH_FRAMES, info: CaptureInfo | None = None
     if size < 1:
         raise ValueError(f"batch size {size}: must be at least 1")
     info = info or CaptureInfo(path)
-    stream, fmt = open_capture(path, info)
-    try:
-        try:
-            if fmt == "pcap":
-                for _base, batch in _pcap_batches(path, stream, info, size, stream.read(24), 24, 1):
-                    yield batch
-            else:
-                for columns in pcapng_columns(path, stream, info):
-                    chunk = FrameBatch(*columns)
-                    for i in range(0, len(chunk), size):
-                        yield chunk.part(i, i + size)
-        except CaptureError as exc:
-            if not info.compressed or exc.offset is None:
-                raise
-            raise in_decompressed(exc) from None
-    finally:
-        stream.close()
+    with opened(path, info) as (stream, fmt):
+        if fmt == "pcap":
+            for _base, batch in _pcap_batches(path, stream, info, size, stream.read(24), 24, 1):
+                yield batch
+        else:
+            for columns in pcapng_columns(path, stream, info):
+                chunk = FrameBatch(*columns)
+                for i in range(0, len(chunk), size):
+                    yield chunk.part(i, i + size)
 
 
 def _pcap_batches(path: str, stream: BinaryIO, info: CaptureInfo, size: int, head: bytes, origin: int,

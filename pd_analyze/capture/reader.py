@@ -15,6 +15,7 @@ import struct
 import sys
 import zlib
 from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import BinaryIO
 
 from pd_analyze.capture.gzip_stream import GZIP_MAGIC, _Gunzip
@@ -30,15 +31,22 @@ def frames(path: str, info: CaptureInfo | None = None, ip_only: bool = False) ->
     LLDP, ARP: most of a PROFINET capture) may come as one `run` record instead of a frame each, so
     the analysis skips them without an object per frame (classic pcap; other formats ignore it)."""
     info = info or CaptureInfo(path)
+    with opened(path, info) as (stream, fmt):
+        yield from pcap_frames(path, stream, info, ip_only=ip_only) if fmt == "pcap" else \
+            pcapng_frames(path, stream, info)
+
+
+@contextmanager
+def opened(path: str, info: CaptureInfo) -> Iterator[tuple[BinaryIO, str]]:
+    """The capture open (open_capture), closed at the end; damage inside a gzip file is told at its
+    offset in the decompressed data (in_decompressed)."""
     stream, fmt = open_capture(path, info)
     try:
-        try:
-            yield from pcap_frames(path, stream, info, ip_only=ip_only) if fmt == "pcap" else \
-                pcapng_frames(path, stream, info)
-        except CaptureError as exc:
-            if not info.compressed or exc.offset is None:
-                raise
-            raise in_decompressed(exc) from None
+        yield stream, fmt
+    except CaptureError as exc:
+        if not info.compressed or exc.offset is None:
+            raise
+        raise in_decompressed(exc) from None
     finally:
         stream.close()
 
