@@ -305,19 +305,69 @@ def test_summary_lists_failed_parameters_per_drive_with_the_reason_and_the_slowe
     drives = text.split("Failed, timed-out and refused parameters per drive (device, slot, DO; worst first):\n")[1]
     drives = drives.split("\n\n")[0].splitlines()
     assert drives[0] == "  192.168.1.21 slot 1 DO 1: 5"
-    assert "         1  P964[0]: DE80B200 read: access invalid slot/subslot" in drives
-    assert "         1  P964[0]: 1C010014 RPC fault/reject: nca_server_too_busy" in drives
+    assert "         1  P964[0] (drive unit identification): DE80B200 read: access invalid slot/subslot" in drives
+    assert "         1  P964[0] (drive unit identification): 1C010014 RPC fault/reject: nca_server_too_busy" in drives
     assert "         1  P2000[0] P2001[0] P2002[0] ... (39 parameters): DF80B100 write: access write length error " \
            "(parameter request above the record limit or shorter than its header, or read buffer too small)" in drives
-    assert "         1  P971[0]: timeout: the capture ended before an answer came (its last read 1004.0 ms after the " \
-           "write, 2 B5 answers)" in drives
+    assert "         1  P971[0] (transfer into non-volatile memory): timeout: the capture ended before an answer " \
+           "came (its last read 1004.0 ms after the write, 2 B5 answers)" in drives
     # a busy drive given up (every read B5 until the deadline) is pnio_error DE80B500 (protocol.md 7.3 step 5)
-    assert "         1  P964[0]: DE80B500 read: access state conflict (PROFIdrive: response not ready yet / request " \
-           "still processed)" in drives
-    assert "         1  P964[0]: timeout: no answer within the transaction timeout (the controller gave up: last " \
-           "read 5.0 ms after the write, 1 B5 answer)" in drives
+    assert "         1  P964[0] (drive unit identification): DE80B500 read: access state conflict (PROFIdrive: " \
+           "response not ready yet / request still processed)" in drives
+    assert "         1  P964[0] (drive unit identification): timeout: no answer within the transaction timeout (the " \
+           "controller gave up: last read 5.0 ms after the write, 1 B5 answer)" in drives
     slowest = text.split("Slowest parameters, ms (write to final response):\n")[1].splitlines()
-    assert slowest[0] == "     111.5  192.168.1.21 slot 1 DO 1 P971[0] (transaction 2)"
+    assert slowest[0] == ("     111.5  192.168.1.21 slot 1 DO 1 P971[0] (transfer into non-volatile memory) "
+                          "(transaction 2)")
+
+
+def _drive_lines(text: str) -> list[str]:
+    part = text.split("Failed, timed-out and refused parameters per drive (device, slot, DO; worst first):\n")[1]
+    return part.split("\n\n")[0].splitlines()
+
+
+def test_summary_names_each_refused_parameter_of_a_nak_in_the_order_of_the_capture():
+    from pd_analyze.output import report
+
+    drives = _drive_lines(report.summary(analyze(NEGATIVE)))
+    assert drives[:4] == [
+        "  192.168.1.21 slot 1 DO 1: 17",
+        "         1  P9999[0]: refused: error 0x00 (impermissible parameter number (PNU does not exist))",
+        "         1  P1082[0]: refused: error 0x02 (low or high limit exceeded)",
+        "         1  P2[0]: refused: error 0x01 (parameter value cannot be changed)"]  # transaction 1, then 2
+    assert "         1  P2000[0] P2001[0] P2002[0] ... (20 parameters): refused as a whole request: error 0x22 " \
+           "(too many parameter requests (multi-parameter))" not in drives[:11]  # beyond the first ten ...
+    assert drives[11] == "    ... 7 more (the transactions and parameters tables list them all)"  # ... and counted
+    assert drives[12:] == ["  192.168.1.21 slot 1 DO 9: 1",
+                           "         1  P964[0] (drive unit identification): refused: error 0x19 (axis / DO does not "
+                           "exist)"]
+    assert len(_drive_lines(report.summary(analyze(NEGATIVE), top=30))) == 1 + 17 + 2
+
+
+def test_summary_names_a_drive_by_its_station_name_when_the_capture_has_it(tmp_path):
+    """A drive that answered a PN-DCP Identify (frame 25) is named '192.168.1.21 (pump-1)' wherever the summary
+    lists drives; the other keeps its address. The same text from analyze() and the streamed report, the
+    columnar path (which finds the name in its batches) and the per-frame one (in a pass of its own)."""
+    from pd_analyze.analysis.capture_run import Settings
+    from pd_analyze.output import report
+
+    path = str(SAMPLES / "audit_commissioning.pcap")
+    text = report.summary(analyze(path))
+    for columns in (False, True):
+        assert report.stream([path], str(tmp_path / str(columns)), "csv", Settings(columns=columns)).summary == text
+    lines = text.splitlines()
+    assert "  192.168.1.21 (pump-1)      2  (nak=2)" in lines
+    assert "       2  192.168.1.21 (pump-1) DO 1 P1300[0] error 0x02 (low or high limit exceeded)" in lines
+    assert _drive_lines(text) == ["  192.168.1.21 (pump-1) slot 1 DO 1: 2",
+                                  "         2  P1300[0]: refused: error 0x02 (low or high limit exceeded)"]
+    slowest = text.split("Slowest parameters, ms (write to final response):\n")[1].splitlines()
+    assert slowest[2] == "       2.4  192.168.1.21 (pump-1) slot 1 DO 1 P1300[0] (transaction 3)"
+    assert slowest[4] == "       2.4  192.168.1.22 slot 1 DO 1 P1120[0] (transaction 5)"
+    latency = text.split("Latency per device, ms (write to final response; slowest first):\n")[1].splitlines()
+    assert latency[:3] == [
+        "  device                     n      p50      p90      p99      max  write rtt p50",
+        "  192.168.1.21 (pump-1)      4      2.4      2.4      2.4      2.4  0.9",
+        "  192.168.1.22               2      2.4      2.4      2.4      2.4  0.9"]
 
 
 # --- 10. The HTML report -------------------------------------------------------------------------------------

@@ -81,12 +81,20 @@ def test_api_frame_is_typed_and_matches_the_streamed_state() -> None:
 
 
 def test_station_names_from_pn_dcp() -> None:
-    from pd_analyze.analysis.stations import stations
+    from pd_analyze.analysis.jobs import run
+    from pd_analyze.analysis.rows import Rows
+    from pd_analyze.analysis.stations import names_in_file
     from pd_analyze.protocol.dcp import station
 
     real = ROOT.parent / "shared" / "captures" / "cisagov_icsnpp-profinet-io-cm__profinet_io_cm_mixed_1.pcap"
-    assert stations([str(real)]) == {"192.168.1.2": "versamax-pns11"}  # frame 466, as tshark reads it
-    assert stations(["-", str(ROOT / "sample_pcaps" / "absent.pcap")]) == {}  # stdin is not read twice
+    for columns in (False, True):  # found by the columnar batches and by the per-frame path's own pass alike
+        for size in (1, 100, 0):
+            results = run([str(real), A], Rows(), Settings(columns=columns, batch_frames=size))
+            assert [r.stations for r in results] == [{"192.168.1.2": "versamax-pns11"},  # frame 466, as tshark
+                                                     {"192.168.1.21": "pump-1"}], (columns, size)
+        chain = run([A, str(real)], Rows(), Settings(columns=columns), chain=True)
+        assert [r.stations for r in chain] == [{"192.168.1.21": "pump-1"}, {"192.168.1.2": "versamax-pns11"}]
+    assert names_in_file("-") == {} and names_in_file(str(ROOT / "sample_pcaps" / "absent.pcap")) == {}
     eth = bytes(12) + b"\x88\x92"
     ident = bytes.fromhex("feff0501000010010000") + (28).to_bytes(2, "big")
     ip = bytes.fromhex("0102000e0000") + bytes([10, 0, 0, 7]) + bytes(8)

@@ -79,8 +79,9 @@ class Analysis:
     def parameter_state(self) -> pd.DataFrame:
         """Per device, DO, PNU and subindex: the last value confirmed written and read back (param_state)."""
         from pd_analyze.analysis.param_state import state_of
+        from pd_analyze.analysis.stations import merged
 
-        return state_of(self.rows, [c.path for c in self.captures]).frame()
+        return state_of(self.rows, merged(self.captures)).frame()
 
     def check_expected(self, expected: str, strict: bool = False) -> pd.DataFrame:
         """The findings of the parameter state against an intended set (CSV file; see analysis.intended),

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from pd_analyze.analysis.transactions import DEFAULT_TXN_TIMEOUT, TransactionEngine
 from pd_analyze.capture import CaptureError
@@ -46,6 +46,7 @@ class CaptureResult:
     accounting: Accounting
     error: str = ""
     transactions: int = 0
+    stations: dict[str, str] = field(default_factory=dict)  # IP address -> PN-DCP station name (analysis.stations)
 
 
 def error_text(exc: CaptureError) -> str:

@@ -20,7 +20,7 @@ Description and Text reads are not.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from operator import attrgetter
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -29,7 +29,7 @@ from pd_analyze.analysis.jobs import run
 from pd_analyze.analysis.param_values import cells_agree, one_value, split_cell
 from pd_analyze.analysis.rows import Rows, _shifted, _shifted_table
 from pd_analyze.analysis.schema import TIME, Column, micros
-from pd_analyze.analysis.stations import stations
+from pd_analyze.analysis.stations import merged
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.pd_values import pnu_name
 from pd_analyze.model.verdicts import ANSWERED
@@ -275,12 +275,6 @@ def state_frame(rows: list[tuple]) -> pd.DataFrame:
     return df
 
 
-def device_label(device: str, names: dict[str, str]) -> str:
-    """A device as people name it: its address, and its station name where the capture has one."""
-    name = names.get(device, "")
-    return f"{device} ({name})" if name else device
-
-
 def device_order(device: str) -> tuple:
     parts = device.split(".")
     if len(parts) == 4 and all(p.isdigit() for p in parts):
@@ -351,10 +345,10 @@ class StateRows(Rows):
             self.tables.clear()
 
 
-def state_of(rows: Rows, paths: Iterable[str] = ()) -> StateTable:
+def state_of(rows: Rows, stations: Mapping[str, str] | None = None) -> StateTable:
     """The state of an analysis' rows (Analysis.rows: rows made one by one and the columns' tables), with the
-    station names of the captures at `paths`."""
-    table = StateTable(stations=stations(paths))
+    captures' station names (IP address -> name; analysis.stations.merged)."""
+    table = StateTable(stations=dict(stations or {}))
     table.add_rows(rows.transactions, rows.parameters)
     table.add_tables(rows.tables.get("transactions", ()), rows.tables.get("parameters", ()))
     return table
@@ -366,5 +360,5 @@ def collect(files: list[str], settings: Settings, progress: Progress | None = No
     rows = StateRows(inner)
     results = run(files, rows, settings, progress, jobs, chain)
     rows.fold()
-    rows.state.stations = stations(files)
+    rows.state.stations = merged(results)
     return rows.state, results

@@ -11,6 +11,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pd_analyze import capture
 from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings, difference, error_text, snapshot
 from pd_analyze.analysis.rows import Rows
+from pd_analyze.analysis.stations import names_in_file
 from pd_analyze.analysis.transaction import Transaction
 from pd_analyze.analysis.transactions import TransactionEngine, iter_closed
 from pd_analyze.capture import CaptureError
@@ -26,6 +27,7 @@ def analyze_file(path: str, settings: Settings, progress: Progress | None = None
     result = CaptureResult(path, d.accounting)
     frames = capture.frames(path, ip_only=True)
     run_frames(frames, d, settings.engine(), rows, lambda _frame: path, [result], progress, offset)
+    result.stations = names_in_file(path)
     return rows, result
 
 
@@ -53,6 +55,8 @@ def analyze_chain(files: list[str], settings: Settings, progress: Progress | Non
         return files[max(0, bisect_right(starts, frame) - 1)] if files else ""
 
     run_frames(frames(), d, settings.engine(), rows, capture_of, results, progress)
+    for result in results:
+        result.stations = names_in_file(result.path)
     return results
 
 

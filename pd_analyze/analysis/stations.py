@@ -1,50 +1,79 @@
 """Station names of the drives: the name each device announces with its IP address in PN-DCP Identify or Get
-responses (protocol.dcp), read in a pass of its own over the captures.
+responses (protocol.dcp), gathered while a capture is analysed, kept per capture (CaptureResult.stations) and
+shown beside the address wherever a drive is named (summary, parameter state).
 
-The report paths skip non-IP frames without looking at them (most of a PROFINET capture is cyclic PN-RT), so
-the names are gathered here instead, only for the parameter state. Standard input (`-`) cannot be read twice:
-its drives keep their address alone. A capture that cannot be read gives no name; its error is reported by
-the analysis itself. When a device announces several names, the last one counts (a name set during
-commissioning).
+The report paths skip non-IP frames without dissecting them (most of a PROFINET capture is cyclic PN-RT), so
+the names are found beside them: the columnar path picks the DCP responses out of each batch by its columns
+(`names_in_batch`); the per-frame path, read for small captures, looks at every frame in a pass of its own
+(`names_in_file`), so that its frame loop keeps skipping cheaply. When a device announces several names, the
+last one counts (a name set during commissioning), across the captures in the order given.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+from typing import TYPE_CHECKING
 
-import numpy as np
-
+from pd_analyze import capture
 from pd_analyze.capture import CaptureError
-from pd_analyze.capture.batches import FrameBatch, batches
 from pd_analyze.model.values import LINKTYPE_ETHERNET
 from pd_analyze.protocol.dcp import FRAME_IDS, PN_RT, station
 
+if TYPE_CHECKING:
+    import numpy as np
+
+    from pd_analyze.analysis.capture_run import CaptureResult
+    from pd_analyze.capture.batches import FrameBatch
+
 STDIN = "-"
-_FRAME_IDS = np.array(sorted(FRAME_IDS), dtype=np.uint16)
 _ETYPE_AT = (12, 16)  # EtherType untagged, and behind one VLAN tag (DCP is not expected behind two)
 
 
-def stations(paths: Iterable[str]) -> dict[str, str]:
-    """IP address -> station name, from every capture but standard input."""
+def names_in_batch(batch: FrameBatch, names: dict[str, str]) -> None:
+    """Add the announcements among a batch's frames to `names` (IP address -> station name)."""
+    for i in _pn_rt(batch):
+        start = int(batch.start[i])
+        found = station(bytes(batch.buf[start:start + int(batch.caplen[i])]))
+        if found is not None:
+            names[found[0]] = found[1]
+
+
+def names_in_file(path: str) -> dict[str, str]:
+    """IP address -> station name, from every frame of a capture file. A capture that cannot be read to its
+    end gives the names before the damage; its error is reported by the analysis itself. Standard input
+    (`-`) cannot be read twice: its drives keep their address alone on this path."""
     names: dict[str, str] = {}
-    for path in paths:
-        if path == STDIN:
-            continue
-        try:
-            for batch in batches(path):
-                for i in _pn_rt(batch):
-                    start = int(batch.start[i])
-                    found = station(bytes(batch.buf[start:start + int(batch.caplen[i])]))
-                    if found is not None:
-                        names[found[0]] = found[1]
-        except (CaptureError, OSError):
-            continue
+    if path == STDIN:
+        return names
+    try:
+        for frame in capture.frames(path):
+            found = station(frame.data) if frame.linktype == LINKTYPE_ETHERNET else None
+            if found is not None:
+                names[found[0]] = found[1]
+    except (CaptureError, OSError):
+        pass
     return names
+
+
+def merged(captures: Iterable[CaptureResult]) -> dict[str, str]:
+    """The names of several captures, the later capture's where a device has two."""
+    names: dict[str, str] = {}
+    for result in captures:
+        names.update(result.stations)
+    return names
+
+
+def device_label(device: str, names: Mapping[str, str]) -> str:
+    """A device as people name it: its address, and its station name where the capture has one."""
+    name = names.get(device, "")
+    return f"{device} ({name})" if name else device
 
 
 def _pn_rt(batch: FrameBatch) -> np.ndarray:
     """Indexes of a batch's Ethernet frames with EtherType 0x8892 (PN-RT) and a DCP response FrameID, found
     without a Python loop: most frames of a PROFINET capture are cyclic PN-RT or IP, a handful DCP."""
+    import numpy as np
+
     data = np.frombuffer(batch.buf, dtype=np.uint8)
     hit = np.zeros(len(batch), dtype=bool)
     for at in _ETYPE_AT:
@@ -53,3 +82,6 @@ def _pn_rt(batch: FrameBatch) -> np.ndarray:
         frame_id = data[first + 2].astype(np.uint16) << 8 | data[first + 3]
         hit |= ok & (data[first] == PN_RT[0]) & (data[first + 1] == PN_RT[1]) & np.isin(frame_id, _FRAME_IDS)
     return np.flatnonzero(hit)
+
+
+_FRAME_IDS = sorted(FRAME_IDS)

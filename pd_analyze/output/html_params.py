@@ -15,11 +15,11 @@ from pd_analyze.analysis.intended import AS_INTENDED, ExpectedSet, Outcome, outc
 from pd_analyze.analysis.param_state import (
     STATE_COLUMNS,
     StateTable,
-    device_label,
     device_order,
     state_of,
     state_row,
 )
+from pd_analyze.analysis.stations import device_label, merged
 from pd_analyze.model.pd_values import pnu_name
 
 if TYPE_CHECKING:
@@ -45,7 +45,7 @@ def _cell(value: object) -> object:
 
 def section(analysis: Analysis, expected: ExpectedSet | None = None) -> tuple[dict[str, dict[str, Any]], str]:
     """The tables to embed (by data-table key) and the section's HTML."""
-    return render_state(state_of(analysis.rows, [c.path for c in analysis.captures]), expected)
+    return render_state(state_of(analysis.rows, merged(analysis.captures)), expected)
 
 
 def render_state(state: StateTable, expected: ExpectedSet | None) -> tuple[dict[str, dict[str, Any]], str]:

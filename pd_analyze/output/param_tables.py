@@ -15,8 +15,9 @@ import json
 import os
 from collections.abc import Iterable, Sequence
 
-from pd_analyze.analysis.param_state import STATE_COLUMNS, StateTable, device_label
+from pd_analyze.analysis.param_state import STATE_COLUMNS, StateTable
 from pd_analyze.analysis.schema import TIME, Column
+from pd_analyze.analysis.stations import device_label
 from pd_analyze.output.writers import csv_time, json_time, neutralise
 
 STATE_TABLE = "parameter_state"

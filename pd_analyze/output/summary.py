@@ -18,6 +18,8 @@ from collections.abc import Iterable, Sequence
 from typing import TYPE_CHECKING, Any
 
 from pd_analyze.analysis.schema import sort_key
+from pd_analyze.analysis.stations import device_label, merged
+from pd_analyze.model import pd_values as pt
 from pd_analyze.model.rules import SEVERITIES
 from pd_analyze.model.verdicts import VERDICTS
 from pd_analyze.protocol.frames import ranked
@@ -98,18 +100,42 @@ def _reason(verdict: object, status: object, closed_by: object, b5: object, last
     return "reference mismatch: the response does not answer the request"
 
 
+def _refused(errors: object, params: object) -> list[tuple[str, str]]:
+    """(parameter, reason) of each error a NAK carries (`transactions.errors`: 'P1082[0]:0x02 *:0x22'); an error
+    of the whole request (`*`) names the request's parameters."""
+    out = []
+    for item in str(errors).split() if not _missing(errors) else ():
+        label, _, code = item.rpartition(":")
+        try:
+            text = f"error {code} ({pt.error_text(int(code, 16))})"
+        except ValueError:
+            text = f"error {code}"
+        if label == "*":
+            out.append((_text(params), f"refused as a whole request: {text}"))
+        else:
+            out.append((label, f"refused: {text}"))
+    return out
+
+
 def _few(params: str, most: int = 4) -> str:
-    """A transaction's parameter list, shortened when long: 'P2000[0] P2001[0] P2002[0] ... (39 parameters)'."""
+    """A transaction's parameter list, shortened when long: 'P2000[0] P2001[0] P2002[0] ... (39 parameters)'; one
+    parameter with its standard name where it has one: 'P964[0] (drive unit identification)'."""
     labels = params.split()
     if not labels:
         return "(parameters not decoded)"
+    if len(labels) == 1:
+        pnu = labels[0][1:].partition("[")[0]
+        name = pt.pnu_name(int(pnu)) if labels[0].startswith("P") and pnu.isdigit() else ""
+        return f"{params} ({name})" if name else params
     return params if len(labels) <= most else " ".join(labels[:most - 1]) + f" ... ({len(labels)} parameters)"
 
 
 class Summary:
     """Accumulates the summary from table rows; `text()` renders it."""
 
-    FAILED = _FAILED  # the verdicts listed per drive, and how many slowest transactions are kept (for add_batch)
+    # the verdicts listed per drive (a NAK by its refused parameters), and how many slowest transactions are
+    # kept (for add_batch)
+    FAILED = _FAILED | {"nak"}
     SLOWEST = TOP
 
     def __init__(self) -> None:
@@ -120,7 +146,8 @@ class Summary:
         self.naks: Counter[tuple] = Counter()
         self.by_error: Counter[str] = Counter()
         self.by_do: Counter[int] = Counter()
-        self.first: dict[tuple[str, object], tuple] = {}  # ("error" / "do", value): first place in the table
+        # ("error" / "do" / "refused", value): first place in the table (ranked lists: equal counts in this order)
+        self.first: dict[tuple[str, object], tuple] = {}
         self.b5_total = self.b5_transactions = 0
         self.b5_max: tuple[int, tuple, object] | None = None  # retries, place in the table, txn
         self.added = Counter()  # rows added per table: a row's place among equal keys
@@ -161,7 +188,7 @@ class Summary:
                 if self.b5_max is None or b5 > self.b5_max[0] or (b5 == self.b5_max[0] and place < self.b5_max[1]):
                     self.b5_max = (b5, place, r.txn)
             self.drive_row(r.txn, self.added["transactions"], verdict, device, r.slot, r.do, r.params,
-                           r.pnio_error_text, r.closed_by, r.b5_retries, r.t_total, r.t_last_read)
+                           r.pnio_error_text, r.closed_by, r.b5_retries, r.t_total, r.t_last_read, r.errors)
             total = r.t_total
             if not _missing(total) and not _missing(device):
                 totals, rtts = self.latency.setdefault(device, (array("d"), array("d")))
@@ -171,12 +198,21 @@ class Summary:
 
     def drive_row(self, txn: object, number: int, verdict: object, device: object, slot: object, do: object,
                   params: object, status: object, closed_by: object, b5: object, total: object,
-                  last_read: object = None) -> None:
-        """One transaction's part in the per-drive lists: a failure with its reason in words, and its
-        time among the slowest. `number`: its place among the rows added (ties in the order added)."""
+                  last_read: object = None, errors: object = None) -> None:
+        """One transaction's part in the per-drive lists: a failure with its reason in words (a NAK: each
+        parameter it refused, with the error), and its time among the slowest. `number`: its place among the
+        rows added (ties in the order added)."""
+        slot, do = (None if _missing(v) else v for v in (slot, do))
+        place = (_LAST if _missing(txn) else txn, number)
         if verdict in _FAILED:
-            why = _reason(verdict, status, closed_by, b5, last_read)
-            self.refused[(_text(device), slot, do, _text(params), why)] += 1
+            entries = [(_text(params), _reason(verdict, status, closed_by, b5, last_read))]
+        else:
+            entries = _refused(errors, params) if verdict == "nak" else []
+        for label, why in entries:
+            key = (_text(device), slot, do, label, why)
+            self.refused[key] += 1
+            if place < self.first.get(("refused", key), (_LAST,)):
+                self.first[("refused", key)] = place
         if not _missing(total):
             entry = (-total, (_LAST if _missing(txn) else txn, number), _text(device), slot, do, _text(params), txn)
             if len(self.slowest) < TOP:
@@ -227,7 +263,13 @@ class Summary:
                 self.rules[(r.rule, r.name)] += 1
 
     def text(self, captures: Sequence[CaptureResult], top: int = TOP) -> str:
-        """Accounting per capture; verdicts; failures by device; NAKs; B5 retries; latency; findings."""
+        """Accounting per capture; verdicts; failures by device; NAKs; B5 retries; latency; findings. A device
+        is named by its address and, where the captures have it, its PN-DCP station name."""
+        names = merged(captures)
+
+        def label(device: object) -> str:
+            return device_label(_text(device), names)
+
         lines = []
         for c in captures:
             acc = c.accounting
@@ -250,12 +292,12 @@ class Summary:
             for dev, total in _ranked(totals, top):
                 counts = self.failed[dev]  # type: ignore[index]
                 detail = ", ".join(f"{v}={counts[v]}" for v in VERDICTS if counts[v])
-                lines.append(f"  {dev!s:<16} {total:>6}  ({detail})")
+                lines.append(f"  {label(dev):<16} {total:>6}  ({detail})")
         if self.naks:
             lines.append("")
             lines.append("NAKs by PNU and error number (worst first):")
             for (dev, do, param, err, text), n in _ranked(self.naks, top):  # type: ignore[misc]
-                lines.append(f"  {n:>6}  {_text(dev)} DO {_text(do)} {_text(param)} error {_text(err)} "
+                lines.append(f"  {n:>6}  {label(dev)} DO {_text(do)} {_text(param)} error {_text(err)} "
                              f"({_text(text)})")
             first = {k[1]: v for k, v in self.first.items() if k[0] == "error"}
             lines.append("  by error number: " + ", ".join(
@@ -265,19 +307,26 @@ class Summary:
         if self.refused:
             lines.append("")
             lines.append("Failed, timed-out and refused parameters per drive (device, slot, DO; worst first):")
-            drives: dict[tuple, int] = {}
-            for (dev, slot, do, _params, _why), n in self.refused.items():
-                drives[(dev, _text(slot), _text(do))] = drives.get((dev, _text(slot), _text(do)), 0) + n
-            for (dev, slot, do), total in _ranked(drives, top):  # type: ignore[misc]
-                lines.append(f"  {dev} slot {slot} DO {do}: {total}")
-                mine = {k: n for k, n in self.refused.items() if (k[0], _text(k[1]), _text(k[2])) == (dev, slot, do)}
-                for (_d, _s, _o, params, why), n in _ranked(mine, top):  # type: ignore[misc]
+            drives: dict[tuple, dict[tuple, int]] = {}
+            for (dev, slot, do, params, why), n in self.refused.items():
+                drives.setdefault((dev, slot, do), {})[(params, why)] = n
+            totals = {drive: sum(entries.values()) for drive, entries in drives.items()}
+            for (dev, slot, do), total in _ranked(totals, top):  # type: ignore[misc]
+                lines.append(f"  {label(dev)} slot {_text(slot)} DO {_text(do)}: {total}")
+                entries = drives[(dev, slot, do)]
+                first = {entry: self.first[("refused", (dev, slot, do, *entry))] for entry in entries}
+                for (params, why), n in _ranked_by_first(entries, first)[:top]:  # type: ignore[misc]
                     lines.append(f"    {n:>6}  {_few(params)}: {why}")
+                if len(entries) > top:
+                    lines.append(f"    ... {len(entries) - top} more (the transactions and parameters tables list "
+                                 "them all)")
+            if len(totals) > top:
+                lines.append(f"  ... {len(totals) - top} more drives")
         if self.slowest:
             lines.append("")
             lines.append("Slowest parameters, ms (write to final response):")
             for neg, _place, dev, slot, do, params, txn in self.slowest:
-                lines.append(f"  {_ms(-neg):>8}  {dev} slot {_text(slot)} DO {_text(do)} {_few(params)} "
+                lines.append(f"  {_ms(-neg):>8}  {label(dev)} slot {_text(slot)} DO {_text(do)} {_few(params)} "
                              f"(transaction {_text(txn)})")
         lines.append("")
         lines.append(f"B5 retries: {self.b5_total} in {self.b5_transactions} transactions"
@@ -286,14 +335,15 @@ class Summary:
         if self.latency:
             lines.append("")
             lines.append("Latency per device, ms (write to final response; slowest first):")
-            lines.append(f"  {'device':<16} {'n':>6} {'p50':>8} {'p90':>8} {'p99':>8} {'max':>8}  write rtt p50")
+            width = max(16, *(len(label(dev)) for dev in self.latency))
+            lines.append(f"  {'device':<{width}} {'n':>6} {'p50':>8} {'p90':>8} {'p99':>8} {'max':>8}  write rtt p50")
             stats = []
             for dev in sorted(self.latency):
                 totals, rtts = (sorted(a) for a in self.latency[dev])
                 stats.append((dev, len(totals), quantile(totals, 0.5), quantile(totals, 0.9),
                               quantile(totals, 0.99), totals[-1], quantile(rtts, 0.5)))
             for dev, n, p50, p90, p99, most, w50 in sorted(stats, key=lambda s: -s[3])[:top]:
-                lines.append(f"  {dev:<16} {n:>6} {_ms(p50):>8} {_ms(p90):>8} {_ms(p99):>8} "
+                lines.append(f"  {label(dev):<{width}} {n:>6} {_ms(p50):>8} {_ms(p90):>8} {_ms(p99):>8} "
                              f"{_ms(most):>8}  {_ms(w50)}")
         if self.findings:
             lines.append("")

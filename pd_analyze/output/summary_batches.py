@@ -148,7 +148,7 @@ def findings(acc: Summary, t: pa.Table) -> None:
 
 
 _DRIVE_COLS = ["txn", "verdict", "device", "slot", "do", "params", "pnio_error_text", "closed_by", "b5_retries",
-               "t_total", "t_last_read"]
+               "t_total", "t_last_read", "errors"]
 
 
 def _drives(acc: Summary, t: pa.Table, base: int) -> None:
@@ -169,7 +169,7 @@ def _drives(acc: Summary, t: pa.Table, base: int) -> None:
         total = row["t_total"]
         acc.drive_row(row["txn"], base + i + 1, row["verdict"], row["device"], row["slot"], row["do"], row["params"],
                       row["pnio_error_text"], row["closed_by"], row["b5_retries"],
-                      None if total is None or total != total else total, _number(row["t_last_read"]))
+                      None if total is None or total != total else total, _number(row["t_last_read"]), row["errors"])
 
 
 def _number(value: object) -> object:

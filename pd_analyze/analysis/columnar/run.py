@@ -38,6 +38,7 @@ from pd_analyze.analysis.columnar.txn_rows import (
 )
 from pd_analyze.analysis.columnar.txn_tables import TableBuilder
 from pd_analyze.analysis.rows import Rows
+from pd_analyze.analysis.stations import names_in_batch
 from pd_analyze.analysis.transaction import Transaction
 from pd_analyze.capture import CaptureError
 from pd_analyze.capture.batches import FrameBatch
@@ -95,6 +96,8 @@ class ColumnarRun:
                     self._columns(part, view)
                 del view  # (the next part's decode does not wait for this one's memory)
         self.last_ts = max(self.last_ts, float(ts.max()))
+        if self.results:  # (the file being read: a chain appends each file's result before its batches)
+            names_in_batch(batch, self.results[-1].stations)
         if self.progress is not None and self.results:
             self.progress(self.results[-1].path, self.read)
 
