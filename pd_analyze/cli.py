@@ -324,6 +324,9 @@ def profiles_table(chosen: list[profiles.Profile], fmt: str) -> str:
             lines += [f"    tolerates: {profiles.TOLERATIONS[t]}" for t in sorted(p.tolerate)]
         if p.error_texts:
             lines.append(f"    vendor error texts: {', '.join(f'{k:#04x}' for k in p.error_texts)}")
+        if p.pnu_names:
+            shown = ", ".join(f"P{k}" for k in sorted(p.pnu_names)[:8]) + (", ..." if len(p.pnu_names) > 8 else "")
+            lines.append(f"    parameter names: {len(p.pnu_names)} ({shown})")
         lines += p.ids.listing() if p.ids is not None else []
     return "\n".join(lines)
 

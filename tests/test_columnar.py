@@ -23,6 +23,7 @@ from pd_analyze.analysis.capture_run import CaptureResult, Settings
 from pd_analyze.analysis.columnar.run import ColumnarRun
 from pd_analyze.analysis.pipeline import run_frames
 from pd_analyze.analysis.rows import Rows
+from pd_analyze.analysis.stations import names_in_frames
 from pd_analyze.capture import RawFrame
 from pd_analyze.capture.batches import FrameBatch
 from pd_analyze.output.report import summary
@@ -136,6 +137,7 @@ def tables_of(frames: Sequence[RawFrame], size: int | None, settings: Settings) 
     if size is None:
         d = settings.dissector()
         run_frames(iter(frames), d, settings.engine(), rows, lambda _f: "case", results, None)
+        names_in_frames(frames, results[0].stations)  # (analyze_file's own pass over the file)
         acc = d.accounting
     else:
         run = ColumnarRun(settings, rows, lambda _f: "case", results)

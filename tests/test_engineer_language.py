@@ -127,6 +127,37 @@ def test_headings_number_addresses_and_blocks_as_the_field_names_do():
     assert "pd.addr[1].pnu = 2000" in after and "pd.addr[0]" not in after
 
 
+_ALL_SAMPLES = sorted(str(p) for p in SAMPLES.glob("*") if p.suffix in (".pcap", ".pcapng", ".gz"))
+
+
+@pytest.mark.parametrize("profile", ["generic", "sinamics", "sew"])
+def test_every_finding_shows_its_value_as_its_field_does(profile):
+    """The registry decides the notation of a number (hex for IDs, codes and formats, decimal for counts and
+    lengths): a finding's value about a field is written as the field is, in every sample under every
+    profile. b5_polling counts B5 answers on txn.b5_retries; the too-short records give their length on
+    iod.record_len (before, a count stood on a hex status field and a length on a hex Attribute)."""
+    from pd_analyze.model import fields as registry
+
+    findings = analyze(_ALL_SAMPLES, profile=profile).findings
+    checked = 0
+    for f in findings.itertuples():
+        base = re.sub(r"\[\d+\]", "", f.field or "")
+        known = registry.FIELDS.get(base) or registry.FIELDS.get(re.sub(r"\[\d+\]", "[i]", f.field or ""))
+        if known is None or known.type not in (registry.HEX, registry.UINT) or not f.value:
+            continue
+        number = f.value.split()[0]
+        if not re.fullmatch(r"-?\d+|0x[0-9a-f]+", number):
+            continue  # a text value (a status text, a range) is not a number in a notation
+        checked += 1
+        hexa = registry.value_text(f.field, int(number, 0)).startswith("0x")  # (the dump pads to the width)
+        assert number.startswith("0x") == hexa, (f.name, f.field, f.value)
+    assert checked > 50
+    names = set(findings.name)
+    assert {"b5_polling", "pd_too_short"} <= names or profile != "generic", sorted(names)
+    b5 = findings[findings.name == "b5_polling"]
+    assert set(b5.field) <= {"txn.b5_retries"} and all(v.isdigit() for v in b5.value)
+
+
 # --- 4. Exact values -----------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize(("raw", "text"), [
@@ -184,6 +215,112 @@ def test_pnu_name_columns():
     assert p[p.pnu == 964].pnu_name.unique().tolist() == ["drive unit identification"]
     assert p[p.pnu == 2000].pnu_name.unique().tolist() == [""]
     assert list(a.changes.columns[:9]) == ["capture", "device", "do", "txn", "frame", "t", "param", "pnu", "pnu_name"]
+
+
+PLANT_PROFILE = """\
+name = "plant"
+title = "Plant drives"
+description = "the plant's own parameter list"
+
+[error_texts]
+"0xC9" = "above the currently valid upper limit"
+
+[pnu_names]
+"p1082" = "maximum speed"
+"2000" = "reference speed"
+"0x4B0" = "ramp-down time"  # 1200
+"r947" = "fault number (plant)"
+"""
+
+
+@pytest.fixture
+def plant(tmp_path):
+    path = tmp_path / "plant.toml"
+    path.write_text(PLANT_PROFILE, encoding="utf-8")
+    return str(path)
+
+
+def test_a_profile_file_names_its_parameters(plant):
+    named = profiles.load(plant)
+    assert dict(named.pnu_names) == {1082: "maximum speed", 2000: "reference speed", 1200: "ramp-down time",
+                                     947: "fault number (plant)"}
+    assert named.names.pnu(1082) == "maximum speed" and named.names.pnu(947) == "fault number (plant)"
+    assert named.names.pnu(964) == "drive unit identification" and named.names.pnu(1083) == ""
+    assert named.names.error(0xC9) == "manufacturer-specific 0xc9: above the currently valid upper limit"
+    for bad, says in (('"p0" = "x"', "'p0' is not a parameter number 1 ... 65535"),
+                      ('"speed" = "x"', "'speed' is not a parameter number"),
+                      ('"70000" = "x"', "'70000' is not a parameter number"),
+                      ('"12" = ""', "the name of '12' must be a non-empty string"),
+                      ('"12" = 3', "the name of '12' must be a non-empty string")):
+        broken = Path(plant).with_name("broken.toml")
+        broken.write_text(f'name = "broken"\n[pnu_names]\n{bad}\n', encoding="utf-8")
+        with pytest.raises(profiles.ProfileError, match=re.escape(says)):
+            profiles.load(str(broken))
+    assert "parameter names: 4 (P947, P1082, P1200, P2000)" in run("profiles", plant).stdout.decode()
+
+
+def test_the_profile_names_reach_the_tables_the_summary_and_the_state_on_both_paths(tmp_path, plant):
+    from pd_analyze.analysis.capture_run import Settings
+    from pd_analyze.analysis.param_state import collect
+    from pd_analyze.output import report
+
+    a = analyze(NEGATIVE, profile=plant)
+    p = a.parameters
+    assert p[p.pnu == 1082].pnu_name.unique().tolist() == ["maximum speed"]
+    assert p[p.pnu == 2000].pnu_name.unique().tolist() == ["reference speed"]
+    assert p[p.pnu == 964].pnu_name.unique().tolist() == ["drive unit identification"]
+    assert p[p.error == "0xc9"].error_text.tolist() == ["manufacturer-specific 0xc9: above the currently valid "
+                                                       "upper limit"]
+    assert a.changes[a.changes.pnu == 1082].pnu_name.unique().tolist() == ["maximum speed"]
+    text = report.summary(a)
+    assert "         1  P1082[0] (maximum speed): refused: error 0xc9 (manufacturer-specific 0xc9: above the " \
+           "currently valid upper limit)" in _drive_lines(report.summary(a, top=30))
+    files = {}
+    for columns in (False, True):
+        out = tmp_path / str(columns)
+        streamed = report.stream([NEGATIVE], str(out), "csv", Settings(plant, columns=columns))
+        assert streamed.summary == text
+        files[columns] = (out / "parameters.csv").read_bytes(), (out / "changes.csv").read_bytes()
+        state, _ = collect([NEGATIVE], Settings(plant, columns=columns))
+        assert {row[6] for row in state.rows() if row[3] == 2000} == {"reference speed"}  # pnu_name
+    assert files[False] == files[True] and b",maximum speed," in files[True][0]
+    plain = analyze(NEGATIVE).parameters
+    assert plain[plain.pnu == 1082].pnu_name.unique().tolist() == [""]  # only the profile in use names them
+
+
+def test_the_dump_names_parameters_as_the_profile_does(plant):
+    out = run("dump", NEGATIVE, "--profile", plant).stdout.decode()
+    assert "Parameter address [1]: P1082[0] (maximum speed)" in out
+    assert "pd.addr[1].pnu = 1082 (maximum speed)" in out
+    assert "(manufacturer-specific 0xc9: above the currently valid upper limit)" in out
+    assert "maximum speed" not in run("dump", NEGATIVE).stdout.decode()
+
+
+def test_annotate_comments_give_the_profile_error_texts(plant):
+    from pd_analyze.analysis.capture_run import Settings
+    from pd_analyze.output.frame_notes import collect
+
+    def texts(settings: Settings) -> list[str]:
+        notes = collect(NEGATIVE, settings)
+        try:
+            return [n.comment() for n in notes if "0xc9" in n.comment()]
+        finally:
+            notes.close()
+
+    plant_text = "manufacturer-specific 0xc9: above the currently valid upper limit"
+    assert texts(Settings(plant)) == [f"pd-analyze: txn 15 nak; P1082[0] error 0xc9 {plant_text}; I Q10 {plant_text}"]
+    assert texts(Settings()) == ["pd-analyze: txn 15 nak; P1082[0] error 0xc9 manufacturer-specific 0xc9; I Q10 "
+                                 "manufacturer-specific 0xc9"]
+
+
+def test_b5_retries_is_a_display_filter_field_and_where_b5_polling_counts():
+    out = run("dump", ERRORS, "-Y", "txn.b5_retries >= 2", "-T", "fields", "-e", "frame.number", "-e", "txn.id",
+              "-e", "txn.b5_retries").stdout.decode()
+    rows = [line.split("\t") for line in out.splitlines()]
+    assert rows and all(int(r[2]) >= 2 for r in rows)
+    t = analyze(ERRORS).transactions
+    want = {int(x) for f in t[t.b5_retries >= 2].frames for x in f.split()}
+    assert {int(r[0]) for r in rows} == want
 
 
 # --- 7. dump habits -----------------------------------------------------------------------------------------

@@ -57,7 +57,7 @@ def test_worked_example_request_and_response_exactly():
     assert found == [] and r.complete and r.end == 22
     assert [(b.offset, b.format, b.n_values) for b in r.blocks] == [(4, 0x42, 1), (8, 0x43, 3)]
     assert [v for _, _, v, _ in pdv.values_of(r.blocks[1])] == [1, 2, 3]
-    sections = pdv.annotate(r, FRAME6_READ_RES[164:], 164, GENERIC.describe, p)
+    sections = pdv.annotate(r, FRAME6_READ_RES[164:], 164, GENERIC, p)
     titles = [t for t, _ in sections]
     assert titles == ["Parameter response header", "Parameter [0]: P964[0] (drive unit identification) Word x 1",
                       "Parameter [1]: P2000[0..2] Double word x 3"]
@@ -143,7 +143,7 @@ def test_error_blocks_and_negative_responses():
     nak = pd_response(9, 0x81, 1, [value_block(0x06, [1]), error_block(0x02, 1)])
     r, found = res(nak, request)
     assert found == [] and [(b.error, b.error_subindex) for b in r.blocks] == [(-1, -1), (2, 1)]
-    titles = [t for t, _ in pdv.annotate(r, nak, 0, GENERIC.describe, request)]
+    titles = [t for t, _ in pdv.annotate(r, nak, 0, GENERIC, request)]
     assert titles[2] == "Parameter [1]: P2000[0..2] error 0x02 (low or high limit exceeded)"
     r, found = res(pd_response(9, 0x81, 1, [error_block(0x00), error_block(0x02)]), request)
     assert names(found) == ["error_subindex_presence"]
@@ -197,7 +197,7 @@ def test_description_complete_element():
     data = pd_response(2, 1, 1, [value_block(0x0A, desc)])
     r, found = res(data, request)
     assert found == []
-    (_, header), (title, fields) = pdv.annotate(r, data, 0, GENERIC.describe, request)
+    (_, header), (title, fields) = pdv.annotate(r, data, 0, GENERIC, request)
     assert title == "Parameter [0]: P1082[0] OctetString x 46, description element 0 (complete description)"
     by = {f.name: f for f in fields}
     assert by["pd.val[0].desc.identifier"].show == "0x4208 (data type FloatingPoint32; read-only, array)"

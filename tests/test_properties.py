@@ -264,7 +264,7 @@ def test_profidrive_blocks_inside_the_record_or_a_finding(data: bytes, response:
     checked = checker.response(p, 1, None) if response else checker.request(p, 1)
     if not p.complete:
         assert findings or checked, "an incomplete decode must say why"
-    _inside(profidrive_view.annotate(p, data, 1000, checker.describe), data, 1000)
+    _inside(profidrive_view.annotate(p, data, 1000, checker), data, 1000)
     assert profidrive.footprint(p) > 0
     profidrive.plausible(data, response)
 

@@ -31,7 +31,6 @@ from pd_analyze.analysis.rows import Rows, _shifted, _shifted_table
 from pd_analyze.analysis.schema import TIME, Column, micros
 from pd_analyze.analysis.stations import merged
 from pd_analyze.model import pd_values as pt
-from pd_analyze.model.pd_values import pnu_name
 from pd_analyze.model.verdicts import ANSWERED
 
 if TYPE_CHECKING:
@@ -153,6 +152,7 @@ class StateTable:
     elements: dict[Key, ElementState] = field(default_factory=dict)
     stations: dict[str, str] = field(default_factory=dict)  # device IP -> station name (analysis.stations)
     pending: dict[int, list[ParamCells]] = field(default_factory=dict)  # rows whose transaction row is to come
+    names: pt.Names = pt.PROFIDRIVE_NAMES  # what the run's profile calls parameters (Checker.names)
 
     def add(self, txns: dict[int, TxnInfo], params: Iterable[ParamCells]) -> None:
         """Parameter rows and the rows of their transactions (a transaction's rows all in one call)."""
@@ -244,19 +244,19 @@ class StateTable:
 
     def rows(self) -> Iterator[tuple]:
         for key in self.ordered():
-            yield state_row(key, self.elements[key], self.stations.get(key[0], ""))
+            yield state_row(key, self.elements[key], self.stations.get(key[0], ""), self.names)
 
     def frame(self) -> pd.DataFrame:
         return state_frame(list(self.rows()))
 
 
-def state_row(key: Key, st: ElementState, station: str = "") -> tuple:
+def state_row(key: Key, st: ElementState, station: str = "", names: pt.Names = pt.PROFIDRIVE_NAMES) -> tuple:
     device, do, pnu, sub = key
     w, r, last, ref = st.written, st.read, st.last, st.refused
     err, _, err_text = (ref.note.partition(" ") if ref is not None else ("", "", ""))
     fmt = last.fmt if last is not None else (ref or st.unconfirmed or Seen((0, 0), None, "", "", None, None)).fmt
     return STATE_ROW(
-        device, station, do, pnu, sub, f"P{pnu}[{sub}]", pnu_name(pnu), fmt, last.value if last else None,
+        device, station, do, pnu, sub, f"P{pnu}[{sub}]", names.pnu(pnu), fmt, last.value if last else None,
         w.value if w else None, w.capture if w else None, w.frame if w else None, w.t if w else None,
         r.value if r else None, r.capture if r else None, r.frame if r else None, r.t if r else None,
         st.agrees, st.writes, st.n_refused, st.n_unconfirmed, err, err_text, ref.frame if ref else None)
@@ -312,6 +312,12 @@ class StateRows(Rows):
         if self.inner is not None and not self._adding:  # (a transaction's own findings reach inner.add)
             self.inner.add_finding(capture, f, txn)
 
+    def use_names(self, names: pt.Names) -> None:
+        super().use_names(names)
+        self.state.names = names
+        if self.inner is not None:
+            self.inner.use_names(names)
+
     def add_table(self, name: str, table: object) -> None:
         if name in ("transactions", "parameters"):
             super().add_table(name, table)
@@ -348,7 +354,7 @@ class StateRows(Rows):
 def state_of(rows: Rows, stations: Mapping[str, str] | None = None) -> StateTable:
     """The state of an analysis' rows (Analysis.rows: rows made one by one and the columns' tables), with the
     captures' station names (IP address -> name; analysis.stations.merged)."""
-    table = StateTable(stations=dict(stations or {}))
+    table = StateTable(stations=dict(stations or {}), names=rows.names)
     table.add_rows(rows.transactions, rows.parameters)
     table.add_tables(rows.tables.get("transactions", ()), rows.tables.get("parameters", ()))
     return table

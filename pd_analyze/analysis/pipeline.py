@@ -71,6 +71,7 @@ def run_frames(source: Iterable[capture.RawFrame], d: Dissector, engine: Transac
                capture_of: Callable[[int], str], results: list[CaptureResult], progress: Progress | None,
                offset: int = 0) -> None:
     """The frame loop: dissector -> transaction engine -> rows (transactions numbered after `offset`)."""
+    rows.use_names(d.checker.names)  # the rows name parameters and errors as the run's profile does
     last = [float("-inf")]
 
     def frames() -> Iterator:

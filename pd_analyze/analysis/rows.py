@@ -54,6 +54,8 @@ class Rows:
     changes: list[ChangeRow] = field(default_factory=list)
     # rows the columnar path made as pyarrow tables (table_batches.batch_schema), by table, in arrival order
     tables: dict[str, list] = field(default_factory=dict)
+    # what the run's profile calls parameters and errors (Checker.names; set by the capture loops)
+    names: pt.Names = pt.PROFIDRIVE_NAMES
     _channels: dict[tuple, tuple[str, str, str, str]] = field(default_factory=dict)
 
     def extend(self, other: Rows, offset: int) -> None:
@@ -65,6 +67,10 @@ class Rows:
         for name, tables in other.tables.items():
             for table in tables:
                 self.add_table(name, _shifted_table(table, offset))
+
+    def use_names(self, names: pt.Names) -> None:
+        """Name parameters and errors as the run's profile does (Checker.names)."""
+        self.names = names
 
     def add_table(self, name: str, table: object) -> None:
         """Rows of one table made as a pyarrow table (the columnar path)."""
@@ -97,7 +103,7 @@ class Rows:
         whole = whole_request_error(request, response)
         if whole is not None and not addresses:  # a request of no parameter: one row, no PNU
             append(ParameterRow._make((number, capture, device, txn.do, "", None, "", None, None, "", "", "", "",
-                                       _hex(whole.error), error_meaning(whole.error, response),
+                                       _hex(whole.error), error_meaning(whole.error, response, self.names),
                                        whole.error_subindex if whole.error_subindex >= 0 else None, True)))
         for i, addr in enumerate(addresses):
             res_block = whole if whole is not None else blocks[i] if i < len(blocks) else None
@@ -109,11 +115,11 @@ class Rows:
             fmt = written if written is not None else res_block
             read_values = values_of(res_block) if res_block is not None and not res_block.is_error else None
             append(ParameterRow._make((  # _make: a tuple is built in C, a named tuple's __new__ in Python
-                number, capture, device, txn.do, label, addr.pnu, pt.pnu_name(addr.pnu), addr.subindex, addr.n_elems,
+                number, capture, device, txn.do, label, addr.pnu, self.names.pnu(addr.pnu), addr.subindex, addr.n_elems,
                 service_name(request, addr.attr) or pt.ATTRIBUTE.get(addr.attr) or _hex(addr.attr),
                 (pt.FORMAT_NAME.get(fmt.format) or _hex(fmt.format)) if fmt is not None and not fmt.is_error else "",
                 block_values(written), block_values(res_block, read_values), _hex(err),
-                error_meaning(err, response) if err >= 0 else "",
+                error_meaning(err, response, self.names) if err >= 0 else "",
                 res_block.error_subindex if err >= 0 and res_block.error_subindex >= 0 else None, whole is not None)))
             if written is not None and writes_values(request):
                 self._change(capture, txn, number, i, addr, label, written, res_block, device)
@@ -144,12 +150,12 @@ class Rows:
         keys = elements(txn, addr)
         before = txn.values_before[i] if i < len(txn.values_before) else [None] * len(keys)
         if res_block is not None and res_block.is_error:
-            result = f"error {_hex(res_block.error)}: {error_meaning(res_block.error, txn.response)}"
+            result = f"error {_hex(res_block.error)}: {error_meaning(res_block.error, txn.response, self.names)}"
         else:
             result = "ok" if txn.verdict in ANSWERED else txn.verdict
         self.changes.append(ChangeRow._make((
             capture, device, txn.do, number, txn.write_req_frame, txn.t_start, label, addr.pnu,
-            pt.pnu_name(addr.pnu), addr.subindex,
+            self.names.pnu(addr.pnu), addr.subindex,
             block_values(written), result, " ".join(b for b in before if b is not None) if all(before) else "")))
 
 

@@ -11,11 +11,12 @@ last one counts (a name set during commissioning), across the captures in the or
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Iterable, Mapping
 from typing import TYPE_CHECKING
 
 from pd_analyze import capture
-from pd_analyze.capture import CaptureError
+from pd_analyze.capture import CaptureError, RawFrame
 from pd_analyze.model.values import LINKTYPE_ETHERNET
 from pd_analyze.protocol.dcp import FRAME_IDS, PN_RT, station
 
@@ -45,14 +46,17 @@ def names_in_file(path: str) -> dict[str, str]:
     names: dict[str, str] = {}
     if path == STDIN:
         return names
-    try:
-        for frame in capture.frames(path):
-            found = station(frame.data) if frame.linktype == LINKTYPE_ETHERNET else None
-            if found is not None:
-                names[found[0]] = found[1]
-    except (CaptureError, OSError):
-        pass
+    with contextlib.suppress(CaptureError, OSError):
+        names_in_frames(capture.frames(path), names)
     return names
+
+
+def names_in_frames(frames: Iterable[RawFrame], names: dict[str, str]) -> None:
+    """Add the announcements among `frames` to `names` (IP address -> station name)."""
+    for frame in frames:
+        found = station(frame.data) if frame.linktype == LINKTYPE_ETHERNET else None
+        if found is not None:
+            names[found[0]] = found[1]
 
 
 def merged(captures: Iterable[CaptureResult]) -> dict[str, str]:
@@ -77,10 +81,11 @@ def _pn_rt(batch: FrameBatch) -> np.ndarray:
     data = np.frombuffer(batch.buf, dtype=np.uint8)
     hit = np.zeros(len(batch), dtype=bool)
     for at in _ETYPE_AT:
-        ok = (batch.linktype == LINKTYPE_ETHERNET) & (batch.caplen >= at + 4)
-        first = np.where(ok, batch.start + at, 0)
+        long_enough = np.flatnonzero((batch.linktype == LINKTYPE_ETHERNET) & (batch.caplen >= at + 4))
+        first = batch.start[long_enough] + at  # (each frame holds these 4 bytes: no index leaves the buffer)
         frame_id = data[first + 2].astype(np.uint16) << 8 | data[first + 3]
-        hit |= ok & (data[first] == PN_RT[0]) & (data[first + 1] == PN_RT[1]) & np.isin(frame_id, _FRAME_IDS)
+        match = (data[first] == PN_RT[0]) & (data[first + 1] == PN_RT[1]) & np.isin(frame_id, _FRAME_IDS)
+        hit[long_enough[match]] = True
     return np.flatnonzero(hit)
 
 

@@ -124,7 +124,7 @@ def superseded_finding(ref: int, old_frame: int, old_ref: int, frame: int) -> Fi
 
 def b5_finding(retries: int, threshold: int, frame: int) -> Finding:
     """T5: the read answer that took a transaction's B5 answers above the threshold."""
-    return finding("b5_polling", frame, "ndr.status.code1", retries, f"<= {threshold}",
+    return finding("b5_polling", frame, "txn.b5_retries", retries, f"<= {threshold}",
                    f"more than {threshold} B5 (not ready) answers")
 
 

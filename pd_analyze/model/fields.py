@@ -202,11 +202,12 @@ _FIELDS = _defs(
     # and of the findings at it, as the report's tables hold them
     F("txn.id", UINT, "Transaction the frame belongs to (the tables' txn)"),
     F("txn.verdict", TEXT, f"Verdict of that transaction: {', '.join(VERDICTS)}"),
+    F("txn.b5_retries", UINT, "Reads of that transaction answered B5 (state conflict: not ready yet)"),
     F("finding.rule", TEXT, "Rule id of a finding at the frame (protocol.md 6), e.g. H5"),
     F("finding.severity", TEXT, "Severity of a finding at the frame: error, warning or info"),
 )
 FIELDS: Mapping[str, FieldDef] = MappingProxyType(_FIELDS)
-ANALYSIS_FIELDS = frozenset({"txn.id", "txn.verdict", "finding.rule", "finding.severity"})
+ANALYSIS_FIELDS = frozenset({"txn.id", "txn.verdict", "txn.b5_retries", "finding.rule", "finding.severity"})
 
 # tshark names one registry field splits by the value's width in bytes (0: a float value)
 TSHARK_VALUE_WIDTH: Mapping[str, int] = MappingProxyType({

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import NamedTuple
 
@@ -179,3 +180,22 @@ def pnu_name(pnu: int, names: Mapping[int, str] | None = None) -> str:
         if name:
             return name
     return PROFILE_PARAMETERS.get(pnu, "")
+
+
+@dataclass(frozen=True, slots=True)
+class Names:
+    """What the selected profile names beyond the PROFIdrive tables: its own parameter names ([pnu_names]) and
+    manufacturer-specific error texts ([error_texts]). Every output that names a parameter or an error asks
+    the run's Names, so the dump, the tables, the summary and the state agree."""
+
+    pnus: Mapping[int, str] = field(default_factory=dict)
+    errors: Mapping[int, str] = field(default_factory=dict)
+
+    def pnu(self, pnu: int) -> str:
+        return pnu_name(pnu, self.pnus)
+
+    def error(self, number: int) -> str:
+        return error_text(number, self.errors)
+
+
+PROFIDRIVE_NAMES = Names()  # the PROFIdrive profile's own names alone (no vendor profile)

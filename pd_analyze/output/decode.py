@@ -74,5 +74,5 @@ def decode(data: bytes, response: bool | None, checker: Checker, dpv1: bool = Fa
     else:
         parsed = profidrive.parse_request(data, 0, findings, checker.ids)
         findings += checker.request(parsed, 0)
-    sections += profidrive_view.annotate(parsed, data, base, checker.describe, req)
+    sections += profidrive_view.annotate(parsed, data, base, checker, req)
     return Decoded(response, sections, findings)

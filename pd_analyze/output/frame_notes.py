@@ -1,6 +1,6 @@
 """What the analysis says of each frame, in frame order: the transactions the frame belongs to (and whether
 it opens or closes them) and the findings at it, taken from the report's own rows, so `annotate`, `extract`
-and the display filters' analysis fields (txn.id, txn.verdict, finding.rule, finding.severity) say what
+and the display filters' analysis fields (txn.id, txn.verdict, txn.b5_retries, finding.rule, finding.severity) say what
 `report` says, whichever path (frame by frame or columnar) read the capture.
 
 The notes go through the report's bounded on-disk sort (`spool.Spool`), keyed by frame: memory stays flat
@@ -33,6 +33,7 @@ class TxnNote(NamedTuple):
     params: str  # P964[0] P2000[0..2]
     errors: str  # the transactions table's errors cell: P2000[0]:0x02 ...
     closed_by: str
+    b5_retries: int  # reads answered B5 (not ready)
 
 
 class FindingNote(NamedTuple):
@@ -47,6 +48,7 @@ class FrameNote:
     frame: int
     txns: list[TxnNote] = field(default_factory=list)
     findings: list[FindingNote] = field(default_factory=list)
+    names: pt.Names = pt.PROFIDRIVE_NAMES  # the run's profile's error texts (Checker.names)
 
     def comment(self) -> str:
         """The packet comment of `annotate`, '' when the frame neither has a finding nor opens or closes a
@@ -57,7 +59,7 @@ class FrameNote:
                 parts.append(f"txn {t.txn} request {t.params or '(unparsed)'}: {_outcome(t)}")
             elif t.role == CLOSE:
                 parts.append(f"txn {t.txn} {t.verdict}")
-                parts += _error_texts(t.errors)
+                parts += _error_texts(t.errors, self.names)
         parts += [f"{_SEV_LETTER.get(f.severity, '?')} {f.rule} {f.message}" for f in self.findings]
         return "pd-analyze: " + "; ".join(parts) if parts else ""
 
@@ -68,13 +70,13 @@ def _outcome(t: TxnNote) -> str:
     return t.verdict
 
 
-def _error_texts(errors: str) -> list[str]:
+def _error_texts(errors: str, names: pt.Names) -> list[str]:
     """'P2000[0]:0x02 *:0x11' as 'P2000[0] error 0x02 value out of range', ..."""
     out = []
     for item in errors.split():
         param, _, code = item.rpartition(":")
         try:
-            text = pt.error_text(int(code, 16))
+            text = names.error(int(code, 16))
         except ValueError:
             text = ""
         who = "request" if param == "*" else param
@@ -108,7 +110,8 @@ class _NoteRows(Rows):
         params, errors, closed_by = row.params or "", row.errors or "", row.closed_by or ""
         for frame in sorted(frames):
             role = OPEN if frame == opens else CLOSE if frame == closes else ""
-            self.spool.append((_TXN, frame, row.txn, row.verdict or "", role, params, errors, closed_by))
+            self.spool.append((_TXN, frame, row.txn, row.verdict or "", role, params, errors, closed_by,
+                               row.b5_retries or 0))
         if self.on_transaction is not None:
             self.on_transaction(row)
 
@@ -150,8 +153,9 @@ class Notes:
     """The notes of one capture, read once in frame order (`at`, for frames asked in increasing order, or
     iteration); `captures` says how the analysis went (its error, if the file is damaged)."""
 
-    def __init__(self, spool: Spool, captures: list[CaptureResult]) -> None:
+    def __init__(self, spool: Spool, captures: list[CaptureResult], names: pt.Names = pt.PROFIDRIVE_NAMES) -> None:
         self.captures = captures
+        self.names = names
         self._spool = spool
         self._entries = (entry for chunk in spool.chunks(_MEMORY_ROWS) for entry in chunk)
         self._next: tuple | None = next(self._entries, None)
@@ -163,7 +167,7 @@ class Notes:
             entry = next(self._entries, None)
         note = None
         while entry is not None and entry[1] == frame:
-            note = note or FrameNote(frame)
+            note = note or FrameNote(frame, names=self.names)
             if entry[0] == _TXN:
                 note.txns.append(TxnNote(*entry[2:]))
             else:
@@ -194,9 +198,10 @@ def collect(path: str, settings: Settings, on_transaction: Callable[[Any], None]
     from pd_analyze.analysis.jobs import run
 
     spool = Spool(_key, _MEMORY_ROWS)
+    rows = _NoteRows(spool, on_transaction, on_parameter)
     try:
-        captures = run([path], _NoteRows(spool, on_transaction, on_parameter), settings)
+        captures = run([path], rows, settings)
     except BaseException:
         spool.close()
         raise
-    return Notes(spool, captures)
+    return Notes(spool, captures, rows.names)

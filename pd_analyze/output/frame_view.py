@@ -166,6 +166,8 @@ class FrameView:
             return [t.txn for t in note.txns]
         if name == "txn.verdict":
             return [t.verdict for t in note.txns]
+        if name == "txn.b5_retries":
+            return [t.b5_retries for t in note.txns]
         if name == "finding.rule":
             return [f.rule for f in note.findings]
         return [f.severity for f in note.findings]

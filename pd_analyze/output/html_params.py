@@ -20,7 +20,6 @@ from pd_analyze.analysis.param_state import (
     state_row,
 )
 from pd_analyze.analysis.stations import device_label, merged
-from pd_analyze.model.pd_values import pnu_name
 
 if TYPE_CHECKING:
     from pd_analyze.analysis.api import Analysis
@@ -57,10 +56,10 @@ def render_state(state: StateTable, expected: ExpectedSet | None) -> tuple[dict[
     for key in keys:
         st = state.elements.get(key)
         if st is not None:
-            row = state_row(key, st)
+            row = state_row(key, st, names=state.names)
             cells = [_cell(row[_INDEX[n]]) for n, _, _ in STATE_COLS]
         else:  # intended, never seen
-            cells = [key[1], f"P{key[2]}[{key[3]}]", pnu_name(key[2])] + [None] * (len(STATE_COLS) - 3)
+            cells = [key[1], f"P{key[2]}[{key[3]}]", state.names.pnu(key[2])] + [None] * (len(STATE_COLS) - 3)
         if expected is not None:
             o: Outcome | None = checked.get(key)
             cells += [o.line.value, o.result, o.message] if o is not None else [None, "not in the set", None]

@@ -14,7 +14,6 @@ from typing import NamedTuple
 from pd_analyze.analysis.param_state import ElementState, Key, StateTable, device_order
 from pd_analyze.analysis.param_values import cells_agree
 from pd_analyze.analysis.schema import Column
-from pd_analyze.model.pd_values import pnu_name
 from pd_analyze.output.param_tables import aligned, csv_text, json_text
 
 BY = ("device", "do")
@@ -98,7 +97,7 @@ def diff_rows(a: StateTable, b: StateTable, by: str = "device") -> list[tuple]:
             device_a = device_b = full[0]
         else:
             device_a, device_b = (dev_a if key in ka else ""), (dev_b if key in kb else "")
-        rows.append((device_a, device_b, do, pnu, sub, f"P{pnu}[{sub}]", pnu_name(pnu), kind, *sa, *sb))
+        rows.append((device_a, device_b, do, pnu, sub, f"P{pnu}[{sub}]", a.names.pnu(pnu), kind, *sa, *sb))
     return sorted(rows, key=lambda r: (device_order(r[0] or r[1]), r[2], r[3], r[4]))
 
 

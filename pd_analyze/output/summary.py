@@ -100,32 +100,43 @@ def _reason(verdict: object, status: object, closed_by: object, b5: object, last
     return "reference mismatch: the response does not answer the request"
 
 
+_REFUSED, _REFUSED_WHOLE = "refused: error ", "refused as a whole request: error "
+
+
 def _refused(errors: object, params: object) -> list[tuple[str, str]]:
     """(parameter, reason) of each error a NAK carries (`transactions.errors`: 'P1082[0]:0x02 *:0x22'); an error
-    of the whole request (`*`) names the request's parameters."""
+    of the whole request (`*`) names the request's parameters. The error's text is added when the summary is
+    written (`_in_words`), from the parameters table: the words the run's profile gives it."""
     out = []
     for item in str(errors).split() if not _missing(errors) else ():
         label, _, code = item.rpartition(":")
-        try:
-            text = f"error {code} ({pt.error_text(int(code, 16))})"
-        except ValueError:
-            text = f"error {code}"
-        if label == "*":
-            out.append((_text(params), f"refused as a whole request: {text}"))
-        else:
-            out.append((label, f"refused: {text}"))
+        out.append((_text(params), _REFUSED_WHOLE + code) if label == "*" else (label, _REFUSED + code))
     return out
 
 
-def _few(params: str, most: int = 4) -> str:
+def _in_words(why: str, error_texts: dict[str, str]) -> str:
+    """A reason with its error number's text: 'refused: error 0x02 (low or high limit exceeded)'."""
+    if not why.startswith((_REFUSED, _REFUSED_WHOLE)):
+        return why
+    code = why.rpartition(" ")[2]
+    text = error_texts.get(code)
+    if text is None:
+        try:
+            text = pt.error_text(int(code, 16))
+        except ValueError:
+            return why
+    return f"{why} ({text})"
+
+
+def _few(params: str, names: dict[int, str], most: int = 4) -> str:
     """A transaction's parameter list, shortened when long: 'P2000[0] P2001[0] P2002[0] ... (39 parameters)'; one
-    parameter with its standard name where it has one: 'P964[0] (drive unit identification)'."""
+    parameter with its name where the parameters table gives one: 'P964[0] (drive unit identification)'."""
     labels = params.split()
     if not labels:
         return "(parameters not decoded)"
     if len(labels) == 1:
         pnu = labels[0][1:].partition("[")[0]
-        name = pt.pnu_name(int(pnu)) if labels[0].startswith("P") and pnu.isdigit() else ""
+        name = names.get(int(pnu), "") if labels[0].startswith("P") and pnu.isdigit() else ""
         return f"{params} ({name})" if name else params
     return params if len(labels) <= most else " ".join(labels[:most - 1]) + f" ... ({len(labels)} parameters)"
 
@@ -151,6 +162,9 @@ class Summary:
         self.b5_total = self.b5_transactions = 0
         self.b5_max: tuple[int, tuple, object] | None = None  # retries, place in the table, txn
         self.added = Counter()  # rows added per table: a row's place among equal keys
+        # the names the parameters table gave parameters and error numbers (the run's profile's words)
+        self.pnu_names: dict[int, str] = {}
+        self.error_texts: dict[str, str] = {}
         self.latency: dict[str, tuple[array, array]] = {}  # device: t_total, t_write_rtt (seconds)
         # per drive (device, slot, DO): parameters that failed, timed out or were refused, by reason
         self.refused: Counter[tuple] = Counter()
@@ -226,9 +240,12 @@ class Summary:
         first = self.first
         for r in rows:
             self.added["parameters"] += 1
+            if r.pnu_name and not _missing(r.pnu):
+                self.pnu_names[r.pnu] = r.pnu_name
             err = r.error
             if _missing(err) or err == "":
                 continue
+            self.error_texts[err] = r.error_text
             self.naks[(r.device, r.do, r.param, err, r.error_text)] += 1
             place = (_PARAM_ORDER(r), self.added["parameters"])
             self.by_error[err] += 1
@@ -316,7 +333,7 @@ class Summary:
                 entries = drives[(dev, slot, do)]
                 first = {entry: self.first[("refused", (dev, slot, do, *entry))] for entry in entries}
                 for (params, why), n in _ranked_by_first(entries, first)[:top]:  # type: ignore[misc]
-                    lines.append(f"    {n:>6}  {_few(params)}: {why}")
+                    lines.append(f"    {n:>6}  {_few(params, self.pnu_names)}: {_in_words(why, self.error_texts)}")
                 if len(entries) > top:
                     lines.append(f"    ... {len(entries) - top} more (the transactions and parameters tables list "
                                  "them all)")
@@ -326,8 +343,8 @@ class Summary:
             lines.append("")
             lines.append("Slowest parameters, ms (write to final response):")
             for neg, _place, dev, slot, do, params, txn in self.slowest:
-                lines.append(f"  {_ms(-neg):>8}  {label(dev)} slot {_text(slot)} DO {_text(do)} {_few(params)} "
-                             f"(transaction {_text(txn)})")
+                lines.append(f"  {_ms(-neg):>8}  {label(dev)} slot {_text(slot)} DO {_text(do)} "
+                             f"{_few(params, self.pnu_names)} (transaction {_text(txn)})")
         lines.append("")
         lines.append(f"B5 retries: {self.b5_total} in {self.b5_transactions} transactions"
                      + (f" (max {self.b5_max[0]} in transaction {self.b5_max[2]})"

@@ -105,6 +105,10 @@ def transactions(acc: Summary, t: pa.Table) -> None:
 def parameters(acc: Summary, t: pa.Table) -> None:
     n, base = t.num_rows, acc.added["parameters"]
     acc.added["parameters"] += n
+    named = t.filter(pa.array(_mask(pc.and_(pc.not_equal(t.column("pnu_name"), ""), t.column("pnu").is_valid()))))
+    if named.num_rows:
+        pairs = named.select(["pnu", "pnu_name"]).group_by(["pnu", "pnu_name"], use_threads=False).aggregate([])
+        acc.pnu_names.update(zip(pairs.column("pnu").to_pylist(), pairs.column("pnu_name").to_pylist(), strict=True))
     error = t.column("error")
     naks = _mask(error.is_valid()) & _mask(pc.not_equal(error, ""))
     if not naks.any():
@@ -114,6 +118,7 @@ def parameters(acc: Summary, t: pa.Table) -> None:
     places = base + rows + 1
     for key, count in _group_counts(sub, ["device", "do", "param", "error", "error_text"]):
         acc.naks[key] += count
+        acc.error_texts[key[3]] = key[4]
     _count_first(acc, "error", acc.by_error, sub.column("error"), sub.column("txn"), places)
     do = sub.column("do")
     known = _mask(do.is_valid())

@@ -312,7 +312,7 @@ class Dissector:
             self.calls.charge(key, pdu.request, _decoded_cost(stub), res.findings)  # info keeps the stub
         if self.annotate:
             res.summary = pnio_view.pdu_summary(hdr.ptype, hdr.seq, stub, len(frames), opnum)
-            res.layers += pnio_view.stub_layers(stub, body, stub_base, opnum, response, self.checker.describe)
+            res.layers += pnio_view.stub_layers(stub, body, stub_base, opnum, response, self.checker)
 
     def _first_frame(self, pdu: Pdu, dgram: link.Datagram, cl_frames: tuple[int, ...],
                      cl_first_ts: float | None) -> None:

@@ -21,7 +21,7 @@ from pd_analyze.model.values import (
 from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol import profidrive_view
 from pd_analyze.protocol.frames import Layer
-from pd_analyze.protocol.profidrive_view import Describe
+from pd_analyze.protocol.profidrive_view import Checks
 
 
 def pdu_summary(ptype: int, seq: int, stub: rec.Stub, fragments: int, opnum: int) -> str:
@@ -44,7 +44,7 @@ def pdu_summary(ptype: int, seq: int, stub: rec.Stub, fragments: int, opnum: int
     return ", ".join(parts)
 
 
-def stub_layers(stub: rec.Stub, body: bytes, base: int, opnum: int, response: bool, describe: Describe) -> list[Layer]:
+def stub_layers(stub: rec.Stub, body: bytes, base: int, opnum: int, response: bool, checks: Checks) -> list[Layer]:
     """The dump's layers of a decoded stub: NDR args, IOD blocks, records (PROFIdrive field by field)."""
     layers: list[Layer] = []
     if not stub.ndr:
@@ -67,7 +67,7 @@ def stub_layers(stub: rec.Stub, body: bytes, base: int, opnum: int, response: bo
                             explain_status(block.layout.annotate(body, block.offset, block.values, base),
                                            block.status)))
         if block.layout in (rec.WRITE_REQ, rec.READ_RES) and block.index != INDEX_WRITE_MULTIPLE:
-            layers += record_layers(block, base, depth + 1, describe)
+            layers += record_layers(block, base, depth + 1, checks)
         end = block.record_offset + len(block.record)
         if end in pads:
             pad = body[end:end + pads[end]]
@@ -111,14 +111,14 @@ def status_check(status: rec.Status) -> str:
     return f"failed: {status_text(status.text())}"
 
 
-def record_layers(block: rec.Block, base: int, depth: int, describe: Describe) -> list[Layer]:
+def record_layers(block: rec.Block, base: int, depth: int, checks: Checks) -> list[Layer]:
     """A record's layers: a PROFIdrive request or response field by field, any other record raw."""
     data = block.record
     if isinstance(block.pd, tuple):
         parsed, request = block.pd
         at = base + block.record_offset
         return [Layer(title, depth, fields) for title, fields in
-                profidrive_view.annotate(parsed, data, at, describe, request)]
+                profidrive_view.annotate(parsed, data, at, checks, request)]
     what = "PROFIdrive, not decoded" if block.index in PROFIDRIVE_INDICES else "not PROFIdrive"
     return [Layer(f"Record data, index {block.index:#06x} ({len(data)} bytes, {what})", depth,
                   [raw_record(block, base)])]

@@ -61,11 +61,12 @@ def writes_values(p: Parsed | None) -> bool:
     return p.ident == pt.REQ_CHANGE
 
 
-def error_meaning(value: int, response: Parsed | None = None) -> str:
-    """An error value as the response's profile names it: a vendor error word (5.5) or a PROFIdrive number."""
+def error_meaning(value: int, response: Parsed | None = None, names: pt.Names = pt.PROFIDRIVE_NAMES) -> str:
+    """An error value as the response's profile names it: a vendor error word (5.5), or a PROFIdrive number
+    with the profile's manufacturer-specific text where it has one (`names`: the run's, Checker.names)."""
     vendor = response.vendor if response is not None and isinstance(response.vendor, VendorResponse) else None
     text = vendor.error_text(value) if vendor is not None else None
-    return text if text is not None else pt.error_text(max(value, 0))
+    return text if text is not None else names.error(max(value, 0))
 
 
 @dataclass(slots=True)
@@ -126,14 +127,14 @@ def parse_request(data: bytes, frame: int, findings: list[Finding], ids: VendorI
     selected profile's own Request IDs, laid out as it declares (protocol.md 5.5); others stay reserved."""
     p = Parsed(False, len(data))
     if len(data) < 4:
-        findings.append(finding("pd_too_short", frame, "pd.n_params", len(data), ">= 4",
+        findings.append(finding("pd_too_short", frame, "iod.record_len", len(data), ">= 4",
                                 f"parameter request of {len(data)} bytes has no complete header"))
         return p
     p.ref, p.ident, p.do, p.n = HEADER.unpack(data)
     pos = 4
     for i in range(p.n):
         if pos + 6 > len(data):
-            findings.append(finding("pd_too_short", frame, f"pd.addr[{i}].attr", len(data), f">= {4 + 6 * p.n}",
+            findings.append(finding("pd_too_short", frame, "iod.record_len", len(data), f">= {4 + 6 * p.n}",
                                     f"request ends after {i} of {p.n} parameter addresses"))
             p.end = pos
             return p
@@ -160,7 +161,7 @@ def parse_response(data: bytes, frame: int, findings: list[Finding], ids: Vendor
     positive Response ID carries value blocks or nothing (a write service), a negative one error blocks."""
     p = Parsed(True, len(data))
     if len(data) < 4:
-        findings.append(finding("pd_response_too_short", frame, "pd.n_params", len(data), ">= 4",
+        findings.append(finding("pd_response_too_short", frame, "iod.record_len", len(data), ">= 4",
                                 f"parameter response of {len(data)} bytes has no complete header"))
         return p
     p.ref, p.ident, p.do, p.n = RESPONSE_HEADER.unpack(data)

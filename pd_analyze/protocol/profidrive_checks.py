@@ -24,6 +24,7 @@ class Checker:
             raise ValueError(f"profile {generic.name} has no [record] limit to check against")
         self.record = generic.record  # the record limit every check and message uses (protocol.md 3.6)
         self.vendor = vendor if vendor is not None and vendor.name != generic.name else None
+        self.names = (self.vendor or self.generic).names  # what the tables and the dump call parameters and errors
         by_key: dict[str, list[tuple[Profile, Limit]]] = {}
         for profile in (self.generic, self.vendor):
             for lim in profile.limits if profile is not None else ():
@@ -47,10 +48,6 @@ class Checker:
     def ids(self) -> VendorIds | None:
         """The vendor profile's own Request/Response IDs (protocol.md 5.5), None when it has none."""
         return self.vendor.ids if self.vendor else None
-
-    @property
-    def error_texts(self) -> dict[int, str]:
-        return dict(self.vendor.error_texts) if self.vendor else {}
 
     def _limits(self, key: str) -> tuple[tuple[Profile, Limit], ...]:
         return self._by_key.get(key, ())
@@ -154,7 +151,8 @@ class Checker:
             out.append(finding("format_zero_akd", frame, f"pd.val[{i}].format", "0x00", "0x40",
                                "format 0x00 'no data' is an AKD convention; the profile uses 0x40 Zero"))
         if block.format == pt.FMT_DATE and block.size == 8:
-            out.append(finding("date_padded", frame, f"pd.val[{i}].format", "8 bytes per Date", "7",
+            out.append(finding("date_padded", frame, f"pd.val[{i}].format",
+                               f"0x{block.format:02x} Date, 8 bytes per value", "7 bytes per value",
                                "Date values padded to 8 bytes (decoded as such)"))
         if block.format == pt.FMT_VISIBLE_STRING and not block.data.decode("latin-1").isprintable():
             out.append(finding("string_nonprintable", frame, f"pd.val[{i}].value", block.data.hex(),
@@ -253,7 +251,7 @@ class Checker:
                                "table 4.5 or 0x65 ... 0xFF", "error number reserved in the profile"))
         elif klass == "manufacturer":
             out.append(finding("error_manufacturer", frame, f"{name}.error", f"{block.error:#04x}", "",
-                               pt.error_text(block.error, self.error_texts)))
+                               self.names.error(block.error)))
         return out
 
     # --- the IOD header of a PROFIdrive record -------------------------------------------------

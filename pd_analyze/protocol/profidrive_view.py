@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Callable
 from datetime import date, timedelta
+from typing import Protocol
 
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.layout import Field, show
@@ -125,12 +125,21 @@ def description_fields(block: Block, i: int, base: int) -> list[Field]:
 
 # --- annotation for the dump ----------------------------------------------------------------
 Section = tuple[str, list[Field]]  # (title, fields), one tree node of the dump
-Describe = Callable[[str, object], str]  # (limit key, value) -> check text, e.g. Checker.describe
 
 
-def annotate(p: Parsed, data: bytes, base: int, describe: Describe,
+class Checks(Protocol):
+    """What the view asks of the run's checker (profidrive_checks.Checker): a field's check text, and the
+    names the selected profile gives parameters and errors."""
+
+    names: pt.Names
+
+    def describe(self, key: str, value: object) -> str: ...
+
+
+
+def annotate(p: Parsed, data: bytes, base: int, checks: Checks,
              request: Parsed | None = None) -> list[Section]:
-    """The dump's tree of a parsed request/response; `describe(key, value)` gives a check text. A vendor's
+    """The dump's tree of a parsed request/response; `checks.describe(key, value)` gives a check text. A vendor's
     own Request/Response ID (protocol.md 5.5) is shown with its name, service and error words."""
     layout = RESPONSE_HEADER if p.response else HEADER
     side = "response" if p.response else "request"
@@ -139,7 +148,7 @@ def annotate(p: Parsed, data: bytes, base: int, describe: Describe,
                  _fields_present(data, 0, base, tuple(zip(layout.names, layout.sizes, strict=True))))]
     head = layout.annotate(data, 0, (p.ref, p.ident, p.do, p.n), base)
     for fld, key in zip(head, ("ref", "resp_id" if p.response else "req_id", "do", "n_params"), strict=True):
-        fld.check = describe(f"{side}.{key}", fld.value)
+        fld.check = checks.describe(f"{side}.{key}", fld.value)
     if p.vendor is not None:  # the vendor's own ID: the generic profile does not define it (protocol.md 5.5)
         head[1].show = f"0x{p.ident:02x} ({p.vendor.name})"
         head[1].check = _vendor_check(head[1].check)
@@ -149,14 +158,14 @@ def annotate(p: Parsed, data: bytes, base: int, describe: Describe,
     for i, a in enumerate(p.addresses):
         at = a.offset
         fields = [Field(f"pd.addr[{i}].{n}", base + at + off, size, bytes(data[at + off:at + off + size]),
-                        v, _show_addr(n, v, service)) for n, off, size, v in
+                        v, _show_addr(n, v, service, checks.names)) for n, off, size, v in
                   (("attr", 0, 1, a.attr), ("n_elems", 1, 1, a.n_elems), ("pnu", 2, 2, a.pnu),
                    ("subindex", 4, 2, a.subindex))]
         for fld, key in zip(fields, ("attribute", "n_elems", "pnu", "subindex"), strict=True):
-            fld.check = describe(f"request.{key}", fld.value)
+            fld.check = checks.describe(f"request.{key}", fld.value)
             if service is not None and key in ("attribute", "pnu"):  # the service's, not the profile's
                 fld.check = _vendor_check(fld.check)
-        sections.append((f"Parameter address [{i}]: {_named(a.label(), a.pnu)}", fields))
+        sections.append((f"Parameter address [{i}]: {_named(a.label(), a.pnu, checks.names)}", fields))
     if p.echo:
         sections.append(("Address echo (AKD manual layout)", [Field("pd.echo", base + 4, 6, bytes(data[4:10]),
                                                                     data[4:10].hex(), data[4:10].hex(" "))]))
@@ -170,9 +179,9 @@ def annotate(p: Parsed, data: bytes, base: int, describe: Describe,
         addresses = [as_value(a) for a in addresses]
     for i, block in enumerate(p.blocks):
         addr = addresses[i] if i < len(addresses) else None
-        sections.append((_block_title(i, block, addr, p), _block_fields(i, block, data, base, side, describe,
-                                                                         addr, p)))
-    cut = _cut_block(p, data, base, side, describe, addresses)
+        sections.append((_block_title(i, block, addr, p, checks.names),
+                         _block_fields(i, block, data, base, side, checks, addr, p)))
+    cut = _cut_block(p, data, base, side, checks, addresses)
     if cut is not None:
         sections.append(cut)
     elif p.end < len(data) and not cut_address:
@@ -203,7 +212,7 @@ def _fields_present(data: bytes, at: int, base: int, parts: tuple[tuple[str, int
     return out
 
 
-def _cut_block(p: Parsed, data: bytes, base: int, side: str, describe: Describe, addresses: list[Address]
+def _cut_block(p: Parsed, data: bytes, base: int, side: str, checks: Checks, addresses: list[Address]
                ) -> Section | None:
     """A value or error block whose values overrun the record (P6/Q12), decoded as far as the bytes go:
     Format, No. of values, every whole value, the cut one raw (`pd.cut`). None when the parse did not stop
@@ -217,7 +226,7 @@ def _cut_block(p: Parsed, data: bytes, base: int, side: str, describe: Describe,
     if spec is None or not spec.size or (m >= 0 and at + 2 + m * spec.size <= len(data)):
         return None  # not a sized block that overruns: the parse stopped for another reason
     addr = addresses[i] if i < len(addresses) else None
-    label = addr.label() if addr is not None else f"block [{i}]"
+    label = _named(addr.label(), addr.pnu, checks.names) if addr is not None else f"block [{i}]"
     if m < 0:  # only its Format is left
         return (f"Parameter [{i}]: {label} {spec.name} (cut: no values before the record ends)",
                 _fields_present(data, at, base, ((f"pd.val[{i}].format", 1), (f"pd.val[{i}].n_values", 1))))
@@ -226,7 +235,7 @@ def _cut_block(p: Parsed, data: bytes, base: int, side: str, describe: Describe,
     block = Block(at, fmt, whole, spec.size, present)
     if fmt == pt.FMT_ERROR and whole:
         block.error = int.from_bytes(present[:2], "big")
-    fields = _block_fields(i, block, data, base, side, describe, addr, p)
+    fields = _block_fields(i, block, data, base, side, checks, addr, p)
     counted = fields[1]  # No. of values as the record declares it, not the whole values present
     counted.value, counted.show = m, str(m)
     rest = bytes(data[at + 2 + len(present):])
@@ -242,7 +251,7 @@ def _vendor_check(check: str) -> str:
     return "; ".join(part for part in check.split("; ") if not part.startswith(f"{DEFAULT} "))
 
 
-def _show_addr(name: str, value: int, vendor: VendorRequest | None = None) -> str:
+def _show_addr(name: str, value: int, vendor: VendorRequest | None, names: pt.Names) -> str:
     if name == "attr" and vendor is not None and vendor.services:
         svc = vendor.service(value)
         return f"0x{value:02x} ({svc.name if svc is not None else 'reserved service'})"
@@ -250,25 +259,25 @@ def _show_addr(name: str, value: int, vendor: VendorRequest | None = None) -> st
         return f"0x{value:02x} ({pt.ATTRIBUTE.get(value, 'reserved')})"
     if name == "n_elems" and value == 0:
         return "0 (single value / non-array)"
-    if name == "pnu" and pt.pnu_name(value):
-        return f"{value} ({pt.pnu_name(value)})"
+    if name == "pnu" and names.pnu(value):
+        return f"{value} ({names.pnu(value)})"
     return str(value)
 
 
-def _named(label: str, pnu: int | None) -> str:
-    """A parameter label with its standard name when it has one: 'P964[0] (drive unit identification)'."""
-    name = pt.pnu_name(pnu) if pnu is not None else ""
+def _named(label: str, pnu: int | None, names: pt.Names) -> str:
+    """A parameter label with its name when it has one: 'P964[0] (drive unit identification)'."""
+    name = names.pnu(pnu) if pnu is not None else ""
     return f"{label} ({name})" if name else label
 
 
-def _block_title(i: int, block: Block, addr: Address | None, owner: Parsed) -> str:
+def _block_title(i: int, block: Block, addr: Address | None, owner: Parsed, names: pt.Names) -> str:
     response = owner.response
     label = addr.label(block.n_values if addr is not None and addr.attr == pt.ATTR_VALUE
                        and not block.is_error else None) if addr is not None else f"block [{i}]"
-    label = _named(label, addr.pnu if addr is not None else None)
+    label = _named(label, addr.pnu if addr is not None else None, names)
     if block.is_error:
         number = f"{block.error:#06x}" if block.error > 0xFF else f"{block.error:#04x}"
-        return f"Parameter [{i}]: {label} error {number} ({error_meaning(block.error, owner)})"
+        return f"Parameter [{i}]: {label} error {number} ({error_meaning(block.error, owner, names)})"
     if block.format in (pt.FMT_ZERO, pt.FMT_AKD_ZERO):
         return f"Parameter [{i}]: {label} written" if response else f"Parameter [{i}]: {label} Zero"
     name = pt.FORMAT_NAME.get(block.format, f"format {block.format:#04x}")
@@ -280,21 +289,22 @@ def _block_title(i: int, block: Block, addr: Address | None, owner: Parsed) -> s
     return f"Parameter [{i}]: {label} {name} x {block.n_values}{element}"
 
 
-def _block_fields(i: int, block: Block, data: bytes, base: int, side: str, describe: Describe,
+def _block_fields(i: int, block: Block, data: bytes, base: int, side: str, checks: Checks,
                   addr: Address | None, owner: Parsed) -> list[Field]:
     pos = block.offset
     fmt_show = f"0x{block.format:02x} ({pt.FORMAT_NAME.get(block.format, 'unknown format')})"
     fields = [Field(f"pd.val[{i}].format", base + pos, 1, bytes(data[pos:pos + 1]), block.format, fmt_show,
-                    describe(f"{side}.format", block.format)),
+                    checks.describe(f"{side}.format", block.format)),
               Field(f"pd.val[{i}].n_values", base + pos + 1, 1, bytes(data[pos + 1:pos + 2]), block.n_values,
-                    str(block.n_values), describe(f"{side}.n_values", block.n_values) if not block.is_error else "")]
+                    str(block.n_values),
+                    checks.describe(f"{side}.n_values", block.n_values) if not block.is_error else "")]
     if block.is_error:
         words = [block.data[k:k + 2] for k in range(0, len(block.data), 2)]
         for k, word in enumerate(words):
             value = int.from_bytes(word, "big")
             if k == 0:
                 fields.append(Field(f"pd.val[{i}].error", base + pos + 2, 2, bytes(word), value,
-                                    f"0x{value:02x} ({error_meaning(value, owner)})"))
+                                    f"0x{value:02x} ({error_meaning(value, owner, checks.names)})"))
             elif k == 1:
                 fields.append(Field(f"pd.val[{i}].error_subindex", base + pos + 4, 2, bytes(word), value, str(value)))
             else:

@@ -18,6 +18,7 @@ from types import MappingProxyType
 from typing import Any
 
 from pd_analyze.model.fields import value_text
+from pd_analyze.model.pd_values import Names
 from pd_analyze.model.rules import AKD, RULES, YASKAWA_EP3
 
 # Limit keys: the field each one constrains and where it applies.
@@ -212,6 +213,12 @@ class Profile:
     path: str = ""
     record: RecordLimit | None = None  # the generic profile always has one
     ids: VendorIds | None = None  # the profile's own request/response IDs, if it has any
+    pnu_names: Mapping[int, str] = field(default_factory=dict)  # the drive's own parameter names ([pnu_names])
+
+    @property
+    def names(self) -> Names:
+        """The parameter names and error texts this profile adds to the PROFIdrive ones."""
+        return Names(dict(self.pnu_names), dict(self.error_texts))  # (plain dicts: Rows carry them across processes)
 
     def limits_for(self, key: str) -> tuple[Limit, ...]:
         return tuple(lim for lim in self.limits if lim.key == key)
@@ -237,7 +244,7 @@ def _profile(data: dict, where: str, default_rule: str) -> Profile:
     if not isinstance(name, str) or not name:
         raise fail("missing 'name' (a short profile name)")
     unknown = set(data) - {"name", "title", "description", "limit", "error_texts", "tolerate", "vendor_ids", "record",
-                           "request_id", "response_id", "error_words"}
+                           "request_id", "response_id", "error_words", "pnu_names"}
     if unknown:
         raise fail(f"unknown top-level keys {sorted(unknown)}")
 
@@ -274,6 +281,14 @@ def _profile(data: dict, where: str, default_rule: str) -> Profile:
             texts[int(k, 0)] = str(v)
         except ValueError:
             raise fail(f"error_texts: key {k!r} is not a number like \"0x65\"") from None
+    names = {}
+    for k, v in typed(data, "pnu_names", dict, 'a table ([pnu_names], "1082" = "maximum speed")', {}).items():
+        pnu = _pnu(k)
+        if pnu is None:
+            raise fail(f"pnu_names: key {k!r} is not a parameter number 1 ... 65535 like \"1082\" or \"p1082\"")
+        if not isinstance(v, str) or not v.strip():
+            raise fail(f"pnu_names: the name of {k!r} must be a non-empty string")
+        names[pnu] = v.strip()
     tolerate_list = typed(data, "tolerate", list, "a list of names", [])
     if not all(isinstance(t, str) for t in tolerate_list):
         raise fail(f"tolerate entries must be names (known: {', '.join(TOLERATIONS)})")
@@ -295,7 +310,21 @@ def _profile(data: dict, where: str, default_rule: str) -> Profile:
     elif name == DEFAULT:
         raise fail("the generic profile needs its [record] max_length and source (protocol.md 3.6)")
     return Profile(name, str(data.get("title", name)), str(data.get("description", "")), tuple(limits),
-                   MappingProxyType(texts), tolerate, vendor_ids, where, record, _ids(data, typed, fail))
+                   MappingProxyType(texts), tolerate, vendor_ids, where, record, _ids(data, typed, fail),
+                   MappingProxyType(names))
+
+
+def _pnu(key: str) -> int | None:
+    """A parameter number as a name table writes it: "1082", "0x43A", or with the r/p prefix drive manuals
+    print ("p1082", "r0947"); None when it is none of these or outside 1 ... 65535."""
+    text = key.strip()
+    if text[:1] in ("p", "P", "r", "R"):
+        text = text[1:]
+    try:
+        number = int(text, 16) if text.lower().startswith("0x") else int(text, 10)
+    except ValueError:
+        return None
+    return number if 1 <= number <= 0xFFFF else None
 
 
 def _ids(data: dict, typed, fail) -> VendorIds | None:  # noqa: ANN001

@@ -63,13 +63,14 @@ class ColumnarRun:
         self.engine = settings.engine()
         self.engine.number_of = self._number_of
         self.rows = rows
+        rows.use_names(self.checker.names)  # the rows name parameters and errors as the run's profile does
         self.capture_of = capture_of
         self.results = results
         self.progress = progress
         self.offset = offset
         self.state = ColumnarState()
         self.convert = Converter()
-        self.tables = TableBuilder(self.convert)
+        self.tables = TableBuilder(self.convert, self.checker.names)
         self.accounting = Accounting()  # the frames the columns took; the dissector counts its own
         self.next_number = 1
         self.last_ts = float("-inf")  # the latest capture time seen

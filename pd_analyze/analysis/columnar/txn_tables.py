@@ -44,11 +44,12 @@ def _hex(value: int) -> str:
 class TableBuilder:
     """Rows of closed columnar transactions, a batch at a time."""
 
-    def __init__(self, convert: Converter) -> None:
+    def __init__(self, convert: Converter, names: pt.Names = pt.PROFIDRIVE_NAMES) -> None:
         self.convert = convert
+        self.names = names  # the run's profile's parameter names and error texts (Checker.names)
         self._texts: dict[tuple, tuple[str, str, str, str]] = {}
         self._error_texts: dict[int, str] = {}
-        self._fallback = Rows()
+        self._fallback = Rows(names=names)
 
     def tables(self, view: BatchView, txns: list[Txn], capture_of: Callable[[int], str],
                offset: int) -> dict[str, list[pa.Table]]:
@@ -82,7 +83,7 @@ class TableBuilder:
     def _error_text(self, err: int) -> str:
         text = self._error_texts.get(err)
         if text is None:
-            text = self._error_texts[err] = pt.error_text(err)
+            text = self._error_texts[err] = self.names.error(err)
         return text
 
     def _columns(self, view: BatchView, txns: list[Txn], capture_of: Callable[[int], str], offset: int,
@@ -136,7 +137,8 @@ class TableBuilder:
             pa.array([numbers[o] for o in owners], pa.int64()),
             pa.array([captures[o] for o in owners], pa.large_string()),
             pa.array(devices, pa.large_string()), pa.array(dos, pa.int64()), pa.array(labels, pa.large_string()),
-            pa.array(pnu, pa.int64()), _pnu_names(pnu), pa.array(sub, pa.int64()), pa.array(elems, pa.int64()),
+            pa.array(pnu, pa.int64()), _pnu_names(pnu, self.names), pa.array(sub, pa.int64()),
+            pa.array(elems, pa.int64()),
             pa.array([_ATTRIBUTE[a] for a in attr.tolist()], pa.large_string()),
             pa.array(["" if f < 0 else _FORMAT[f] for f in fmt_cell.tolist()], pa.large_string()),
             written, read, pa.array([_hex(e) for e in errs], pa.large_string()),
@@ -185,7 +187,7 @@ class TableBuilder:
                                         " ".join(b for b in before if b is not None) if all(before) else ""),
                                  strict=True):
                 col.append(cell)
-        cols[7], cols[8], cols[9] = pnu[idx], _pnu_names(pnu[idx]), sub[idx]
+        cols[7], cols[8], cols[9] = pnu[idx], _pnu_names(pnu[idx], self.names), sub[idx]
         return _table("changes", cols)
 
     @staticmethod
@@ -266,6 +268,6 @@ def _table(name: str, cols: list) -> pa.Table:
     return pa.Table.from_arrays(arrays, schema=schema)
 
 
-def _pnu_names(pnu: np.ndarray) -> pa.Array:
-    """pd_values.pnu_name of each parameter number ("" for most: only profile parameters have one)."""
-    return pa.array([pt.pnu_name(p) for p in pnu.tolist()], pa.large_string())
+def _pnu_names(pnu: np.ndarray, names: pt.Names) -> pa.Array:
+    """The name of each parameter number ("" for most: profile parameters and the profile's own table)."""
+    return pa.array([names.pnu(p) for p in pnu.tolist()], pa.large_string())
