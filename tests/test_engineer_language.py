@@ -509,6 +509,51 @@ def test_summary_names_a_drive_by_its_station_name_when_the_capture_has_it(tmp_p
 
 # --- 10. The HTML report -------------------------------------------------------------------------------------
 
+@pytest.mark.parametrize("width", [None, 6.0])  # plots.timeline's own figure (the HTML report's), an axes of 6 in
+def test_timeline_labels_neither_overprint_nor_leave_the_chart(width):
+    """Every failure label lies inside the axes and overlaps no other label nor a failure marker; every text
+    of the chart (title, tick labels, axis label, legend, labels) lies inside the saved (tight) area; the
+    title counts the failures left without a label."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.text import Annotation
+
+    from pd_analyze.output import plots
+
+    a = analyze([str(SAMPLES / n) for n in ("fault_trace.pcap", "pd_b5_and_pnio_errors.pcap", "pd_timeouts.pcap")])
+    if width is None:
+        fig = plots.timeline(a)
+    else:
+        fig = Figure(figsize=(width, 4.0), layout="constrained")
+        plots.timeline(a, fig.add_subplot())
+    FigureCanvasAgg(fig)
+    renderer = fig.canvas.get_renderer()
+    fig.draw(renderer)
+    ax = fig.axes[0]
+    labels = [c for c in ax.get_children() if isinstance(c, Annotation)]
+    boxes = [label.get_window_extent(renderer) for label in labels]
+    inside = ax.get_window_extent(renderer)
+    assert len(labels) >= 10
+    for i, box in enumerate(boxes):
+        assert inside.x0 <= box.x0 and box.x1 <= inside.x1 and inside.y0 <= box.y0 and box.y1 <= inside.y1
+        assert not any(box.overlaps(other) for other in boxes[i + 1:]), labels[i].get_text()
+    failures = int((a.transactions.verdict != "ok").sum())
+    title = ax.get_title(loc="left")
+    if len(labels) < failures:
+        assert title.endswith(f"; {failures - len(labels)} failures without a label: too close to others)")
+    else:
+        assert title.endswith(f"({len(a.transactions)} transactions)")
+    saved = fig.get_tightbbox(renderer).transformed(fig.dpi_scale_trans)  # what bbox_inches="tight" keeps
+    low, high = sorted(ax.get_xlim())
+    ticks = [t for x, t in zip(ax.get_xticks(), ax.get_xticklabels(), strict=True) if low <= x <= high]  # drawn
+    texts = [ax.title, ax.xaxis.label, *ax.get_yticklabels(), *ticks, *ax.get_legend().get_texts(), *labels]
+    for text in texts:
+        if text.get_text():
+            box = text.get_window_extent(renderer)
+            assert saved.x0 <= box.x0 and box.x1 <= saved.x1 and saved.y0 <= box.y0 and box.y1 <= saved.y1, \
+                text.get_text()
+
+
 def test_html_shows_ids_as_words_status_texts_and_parameter_names():
     from pd_analyze.output import html_report
 

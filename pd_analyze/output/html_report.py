@@ -330,7 +330,8 @@ def _summary_text(text: str) -> str:
 _CAPTIONS = {
     "verdicts": "How every transaction ended (protocol.md 7.4: the first matching rule wins).",
     "timeline": "Each transaction at its write request time, one lane per device; ok ones as ticks, failures as "
-                "large markers labelled with their txn number and what failed.",
+                "large markers labelled with their txn number and what failed (where a label has room: the title "
+                "counts the failures left without one).",
     "naks": "Refused parameters (negative responses 0x81/0x82) by PNU and PROFIdrive error number.",
     "latency": "Write request to final response per device (completed transactions): box = quartiles, "
                "whiskers 1.5 IQR, dots = transactions.",
@@ -338,7 +339,7 @@ _CAPTIONS = {
 }
 
 
-_PLOT_WIDTH = {"timeline": 14.0}  # inches; the others 7.0, two side by side
+_PLOT_WIDTH = {"timeline": plots.TIMELINE_WIDTH}  # inches; the others 7.0, two side by side
 
 
 def _plots(analysis: Analysis) -> str:
@@ -351,7 +352,8 @@ def _plots(analysis: Analysis) -> str:
         caption = _CAPTIONS[name]
         failed = int((analysis.transactions.verdict != "ok").sum()) if name == "timeline" else 0
         if failed > plots.MAX_LABELS:  # the labels would overprint: say so rather than promise them
-            caption = caption.replace("large markers labelled with their txn number and what failed",
+            caption = caption.replace("large markers labelled with their txn number and what failed (where a label "
+                                      "has room: the title counts the failures left without one)",
                                       f"large markers ({failed:,} failures: too many to label; the Transactions "
                                       "table lists them)")
         figures.append(f"<figure id=\"plot-{name}\"><img class=\"plot\" src=\"{src}\" alt=\"{_e(title)}\">"

@@ -17,8 +17,10 @@ from typing import Protocol
 import pandas as pd
 from matplotlib import rc_context
 from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
+from matplotlib.transforms import Bbox
 
 from pd_analyze.model.verdicts import VERDICTS
 
@@ -32,6 +34,7 @@ RASTERISE_ABOVE = 2_000  # points in one scatter layer
 MAX_DEVICES = 20  # lanes / boxes per chart; the rest is named in the title
 MAX_LABELS = 30  # failures annotated on the timeline when there are at most this many
 WIDTH = 9.0
+TIMELINE_WIDTH = 14.0  # the timeline's own width (its failure labels are placed for it: resize it, and they may meet)
 
 
 class Tables(Protocol):
@@ -42,10 +45,10 @@ class Tables(Protocol):
     def parameters(self) -> pd.DataFrame: ...
 
 
-def _axes(ax: Axes | None, height: float) -> Axes:
+def _axes(ax: Axes | None, height: float, width: float = WIDTH) -> Axes:
     if ax is not None:
         return ax
-    fig = Figure(figsize=(WIDTH, height), layout="constrained")
+    fig = Figure(figsize=(width, height), layout="constrained")
     return fig.add_subplot()
 
 
@@ -123,7 +126,9 @@ def timeline(a: Tables, ax: Axes | None = None) -> Figure:
     """
     t = a.transactions
     n_dev = min(t.device.nunique(), MAX_DEVICES) if not t.empty else 1
-    ax = _axes(ax, 1.4 + 0.55 * n_dev)
+    labelled = int((t.verdict != "ok").sum()) <= MAX_LABELS
+    # labels take turns above and below their lane; they are placed for the figure's size (TIMELINE_WIDTH wide)
+    ax = _axes(ax, 1.4 + (0.9 if labelled else 0.55) * n_dev, TIMELINE_WIDTH)
     title = "Timeline of transactions per device"
     if t.empty:
         return _empty(ax, title, "no PROFIdrive transactions")
@@ -145,32 +150,70 @@ def timeline(a: Tables, ax: Axes | None = None) -> Figure:
                    c=VERDICT_COLOURS[verdict], linewidths=1.2 if ok else 0.6,
                    edgecolors=None if ok or dense else "white", zorder=2 if ok else 3, label=f"{verdict} ({n:,})",
                    rasterized=n > RASTERISE_ABOVE)
-    if len(failures) <= MAX_LABELS:
-        _label_failures(ax, failures, secs, y, float(secs.max()) or 1.0)
     ax.set_yticks(range(len(devices)), devices)
     ax.set_ylim(len(devices) - 0.4, -0.6)
     ax.set_xlabel(_since(start))
     more = f"; {hidden} more devices not drawn" if hidden else ""
-    ax.set_title(f"{title} ({len(t):,} transactions{more})", loc="left")
+    heading = f"{title} ({len(t):,} transactions{more}"
+    ax.set_title(heading + ")", loc="left")
     ax.grid(axis="x", color="#e0e0e0", linewidth=0.6)
     ax.set_axisbelow(True)
     ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8, frameon=False)
+    if labelled and len(failures):
+        unlabelled = _label_failures(ax, failures, secs, y)
+        if unlabelled:  # (the same one-line title: the layout made for it still holds)
+            ax.set_title(f"{heading}; {unlabelled} failure{'s' if unlabelled != 1 else ''} without a label: "
+                         "too close to others)", loc="left")
     return ax.get_figure(root=True)
 
 
-def _label_failures(ax: Axes, failures: pd.DataFrame, secs: pd.Series, y: pd.Series, span: float) -> None:
-    """Transaction number and what failed next to each failure; close neighbours in a lane take turns
-    above and below, further out each time, so labels do not overprint."""
-    offsets = (9, -15, 19, -25)
-    last: dict[float, tuple[float, int]] = {}  # lane -> (x of the previous label, its level)
-    for row in failures.sort_values("t_start").itertuples():
-        x, lane = float(secs[row.Index]), float(y[row.Index])
-        prev = last.get(lane)
-        level = (prev[1] + 1) % len(offsets) if prev is not None and x - prev[0] < 0.12 * span else 0
-        last[lane] = (x, level)
+def _label_levels(ax: Axes, renderer: object) -> list[float]:
+    """Offsets in points above (+) and below (-) a lane where a label may sit, nearest first, taking turns:
+    clear of the markers (about 5 points either side), inside the lane's half of the gap to the next."""
+    (_, y0), (_, y1) = ax.transData.transform([(0, 0), (0, 1)])
+    room = abs(y1 - y0) / 2 - 2  # points from a lane to the middle of the gap (a point is a pixel at 72 dpi)
+    room *= 72 / ax.get_figure(root=True).dpi
+    above = [7.0 + 10 * k for k in range(8) if 7 + 10 * k + 8 <= room]  # a 7-point text is about 8 points high
+    below = [-15.0 - 10 * k for k in range(8) if 15 + 10 * k <= room]
+    levels = [level for pair in zip(above, below, strict=False) for level in pair]
+    longer = above if len(above) > len(below) else below
+    return levels + longer[len(levels) // 2:]
+
+
+def _label_failures(ax: Axes, failures: pd.DataFrame, secs: pd.Series, y: pd.Series) -> int:
+    """Transaction number and what failed beside each failure, placed where it overprints no other label
+    and no failure marker and stays inside the axes: right of the marker, else left, at the first level
+    with room. Placed for the figure at its present size (draw the chart at the size it is shown at). Returns
+    how many failures found no room (the title says so)."""
+    fig = ax.get_figure(root=True)
+    if not hasattr(fig.canvas, "get_renderer"):
+        FigureCanvasAgg(fig)  # a canvas that measures text (saving as SVG uses its own)
+    fig.draw_without_rendering()  # the layout: the axes' final place at this size
+    renderer = fig.canvas.get_renderer()
+    inside = ax.get_window_extent(renderer)
+    order = failures.sort_values("t_start")
+    points = ax.transData.transform(list(zip(secs[order.index].astype(float), y[order.index].astype(float),
+                                             strict=True)))
+    taken = [Bbox.from_bounds(px - 5, py - 5, 10, 10) for px, py in points]  # the markers (about 10 points)
+    levels = _label_levels(ax, renderer)
+    unlabelled = 0
+    for row, _point in zip(order.itertuples(), points, strict=True):
         what = row.errors or " ".join(str(v) for v in (row.verdict, row.pnio_error_text) if v)
-        ax.annotate(f"{row.txn}: {_short(str(what), 28)}", (x, lane), xytext=(4, offsets[level]),
-                    textcoords="offset points", fontsize=7, color=VERDICT_COLOURS[str(row.verdict)])
+        text = f"{row.txn}: {_short(str(what), 28)}"
+        for dy, dx in ((dy, dx) for dy in levels for dx in (4, -4)):
+            label = ax.annotate(text, (float(secs[row.Index]), float(y[row.Index])), xytext=(dx, dy),
+                                textcoords="offset points", fontsize=7, ha="left" if dx > 0 else "right",
+                                color=VERDICT_COLOURS[str(row.verdict)], annotation_clip=False)
+            label.set_in_layout(False)  # (placed inside the axes: the layout need not make room for it)
+            box = label.get_window_extent(renderer)
+            if inside.x0 <= box.x0 and box.x1 <= inside.x1 and inside.y0 <= box.y0 and box.y1 <= inside.y1 \
+                    and not any(box.overlaps(other) for other in taken):
+                taken.append(box.padded(3))  # (a gap, so neighbouring labels do not read as one)
+                break
+            label.remove()
+        else:
+            unlabelled += 1
+    return unlabelled
 
 
 def _since(start: pd.Timestamp) -> str:
