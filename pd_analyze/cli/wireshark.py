@@ -1,7 +1,7 @@
 """The commands that hand results back to Wireshark: `annotate` (packet comments), `extract` (the frames of
 chosen transactions), and the display filter (-Y) and `-T fields` output of `dump`.
 
-Registered on the main group by cli.py; errors are click exceptions, which it turns into one line on
+Registered on the main group by the cli package; errors are click exceptions, which it turns into one line on
 stderr and exit code 2.
 """
 
@@ -14,12 +14,12 @@ import click
 
 from pd_analyze.analysis.capture_run import Settings
 from pd_analyze.capture import CaptureError
+from pd_analyze.cli.base import EXIT_OK, EXIT_USAGE, checker_for, profile_option, timeout_options
 from pd_analyze.model.verdicts import VERDICTS
 from pd_analyze.output import dump
 from pd_analyze.output.capture_copy import Copied, UsageError
 from pd_analyze.output.display_filter import DisplayFilter, FilterError, parse
-from pd_analyze.protocol import profiles
-from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT, Dissector
+from pd_analyze.protocol.dissector import Dissector
 from pd_analyze.protocol.frames import FrameResult
 from pd_analyze.protocol.profidrive_checks import Checker
 
@@ -53,7 +53,7 @@ def filter_option(func: Callable) -> Callable:
     return click.option("-Y", "--display-filter", "flt", metavar="FILTER",
                         help="Only frames matching this tshark-like filter, e.g. 'pd.addr.pnu == 964 and "
                              "txn.verdict == \"nak\"' (fields: `pd-analyze fields`, tshark names too, and "
-                             "txn.id, txn.verdict, finding.rule, finding.severity).")(func)
+                             "txn.id, txn.verdict, txn.b5_retries, finding.rule, finding.severity).")(func)
 
 
 def dump_options(func: Callable) -> Callable:
@@ -67,21 +67,12 @@ def dump_options(func: Callable) -> Callable:
 
 
 def _settings(profile: str, timeout: float, rpc_timeout: float) -> Settings:
-    settings = Settings(profile, timeout, rpc_timeout)
-    try:
-        settings.checker()
-    except profiles.ProfileError as exc:
-        raise click.BadParameter(str(exc), param_hint="--profile") from None
-    return settings
+    checker_for(profile)  # a bad profile is a usage error before any file is read
+    return Settings(profile, timeout, rpc_timeout)
 
 
 def _common(func: Callable) -> Callable:
-    func = click.option("--rpc-timeout", type=click.FloatRange(min=0.001), default=DEFAULT_RPC_TIMEOUT,
-                        show_default=True, help="Seconds of capture time before an RPC call is unanswered.")(func)
-    func = click.option("--timeout", type=click.FloatRange(min=0.001), default=10.0, show_default=True,
-                        help="Seconds of capture time a transaction may take before it is a timeout.")(func)
-    func = click.option("--profile", default=profiles.DEFAULT, show_default=True, metavar="NAME|FILE.toml",
-                        help="Vendor limits to check against (see `pd-analyze profiles`).")(func)
+    func = profile_option(timeout_options(func))
     func = filter_option(func)
     func = click.option("-w", "out", required=True, metavar="OUT",
                         help="File to write (- for standard output; a name ending .gz is gzip-compressed).")(func)
@@ -92,7 +83,7 @@ def _finish(result: Copied, what: str) -> None:
     click.echo(dump.safe(f"{result.path}: {what}"), err=True)
     for error in result.errors:
         click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
-    sys.exit(2 if result.errors else 0)
+    sys.exit(EXIT_USAGE if result.errors else EXIT_OK)
 
 
 def _usage(run: Callable[[], Copied]) -> Copied:

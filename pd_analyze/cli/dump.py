@@ -1,0 +1,124 @@
+"""`pd-analyze dump`: every PNIO RPC frame as a tree of layers and fields, or the frames a display filter
+selects, or `-T fields` columns (cli.wireshark)."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+
+import click
+
+from pd_analyze.analysis.capture_run import Settings
+from pd_analyze.analysis.transactions import TransactionEngine
+from pd_analyze.capture import CaptureError
+from pd_analyze.cli import wireshark
+from pd_analyze.cli.base import (
+    EXIT_OK,
+    EXIT_USAGE,
+    SECONDS,
+    capture_files,
+    checker_for,
+    main,
+    profile_option,
+    text_style,
+)
+from pd_analyze.output import dump
+from pd_analyze.output.dump_findings import with_transaction_findings
+from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT, Dissector, dissect
+
+DUMP_EXAMPLES = """\b
+Examples:
+  pd-analyze dump sample_pcaps/worked_example.pcap
+  pd-analyze dump -r capture.pcapng --frames 1,5-9
+  pd-analyze dump capture.pcap.gz --findings-only
+  pd-analyze dump capture.pcapng --format json | jq .summary
+  pd-analyze dump captures/ --findings-only -t ad
+  pd-analyze dump capture.pcap --color always | less -R
+  tcpdump -w - udp | pd-analyze dump -
+  pd-analyze dump trace.pcap -Y 'pd.addr.pnu == 964 and txn.verdict == "nak"' -T fields -e frame.number -e pd.ref
+"""
+
+
+def lines_out(coloured: bool) -> Callable[[str], None]:
+    """Where the dump's lines go: plain text straight to stdout (click.echo flushes and looks for colour
+    codes to strip on every line, some 7 us of a dump's frame), coloured text through click.echo."""
+    if coloured:  # asked for (always) or on a terminal: click.echo would strip the codes into a pipe
+        return lambda text: click.echo(text, color=True)
+    write = sys.stdout.write
+
+    def line(text: str) -> None:
+        write(text + "\n")
+    return line
+
+
+@main.command("dump", epilog=DUMP_EXAMPLES)
+@click.argument("captures", nargs=-1, metavar="CAPTURE...")
+@click.option("-r", "--read", "read", metavar="FILE", help="Capture to read (as tshark -r); - for stdin.")
+@click.option("--frames", "frames", metavar="LIST", help="Only these frames, e.g. 1,5-9,20-.")
+@click.option("--findings-only", is_flag=True, help="Only frames with findings, and only the findings.")
+@click.option("--format", "-T", "fmt", type=click.Choice(["text", "json", "fields"]), default="text", show_default=True,
+              help="text: indented tree; json: JSON Lines, one object per PNIO RPC frame; fields: see -e.")
+@wireshark.dump_options
+@click.option("--color", "color", type=click.Choice(["always", "never", "auto"]), default="auto",
+              show_default=True, is_flag=False, flag_value="always",
+              help="Colour the text output: always, never, or auto (on a terminal). --color alone: always.")
+@click.option("--no-color", "no_color", is_flag=True, hidden=True, help="The same as --color never.")
+@click.option("-t", "--time-format", "time_format", type=click.Choice(dump.TIME_FORMATS), default="e",
+              show_default=True, help="Frame times as tshark -t: e epoch seconds, ad/a local date and time/time, "
+              "ud/u the same in UTC, r since the first PNIO RPC frame, dd since the previous frame shown.")
+@click.option("--rpc-timeout", type=SECONDS, default=DEFAULT_RPC_TIMEOUT,
+              show_default=True, help="Seconds of capture time before a request counts as unanswered.")
+@profile_option
+def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None, findings_only: bool,
+                 fmt: str, flt: str | None, field_names: tuple[str, ...], field_options: tuple[str, ...],
+                 color: str, no_color: bool, time_format: str, rpc_timeout: float, profile: str) -> None:
+    """Every PNIO RPC frame as a tree of layers and fields: offset, bytes, value, meaning, check.
+
+    CAPTURE may be a file, a directory (its captures, sorted) or a glob pattern, as for report and audit.
+    With --findings-only the transaction engine runs too, so every finding audit reports (also the
+    pairing and channel rules Q2-Q5, T1-T7) is shown at its frame."""
+    paths = capture_files(captures, read, profile) if not (read == "-" or captures == ("-",)) else ["-"]
+    checker = checker_for(profile)
+    try:
+        ranges = dump.frame_ranges(frames) if frames else []
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--frames") from None
+    wanted: Callable[[int], bool] = (lambda n: any(lo <= n <= hi for lo, hi in ranges)) if ranges else \
+        (lambda n: True)
+    colour = sys.stdout.isatty() if color == "auto" and not no_color else color == "always" and not no_color
+    style = text_style(colour and fmt == "text")
+    if flt is not None or fmt == "fields" or field_names:  # the frames a filter selects, or -T fields
+        out = lines_out(colour and fmt == "text")
+        sys.exit(wireshark.fields_dump(paths, Settings(profile, rpc_timeout=rpc_timeout), checker, flt, fmt,
+                 field_names, field_options, wanted, lambda found: dump.render(found, fmt, out, style, findings_only)))
+    status = EXIT_OK
+    for path in paths:
+        if len(paths) > 1 and fmt == "text":
+            click.echo(dump.safe(f"==> {path} <=="))
+        d = Dissector(annotate=True, rpc_timeout=rpc_timeout, checker=checker)
+        clock = dump.Clock(time_format)
+        results = clock.watch(dissect(path, dissector=d))
+        if findings_only:  # the transaction engine's findings too, at their frames (as audit shows them)
+            results = with_transaction_findings(results, TransactionEngine())
+        results = (r for r in results if wanted(r.frame))
+        try:
+            dump.render(results, fmt, lines_out(colour and fmt == "text"), style, findings_only, clock)
+        except CaptureError as exc:
+            click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
+            status = EXIT_USAGE
+        outside = dump.beyond(ranges, d.accounting.read)
+        if outside and status == EXIT_OK:
+            click.echo(dump.safe(f"pd-analyze: {path}: --frames {','.join(outside)} lies beyond the capture's "
+                                 f"{d.accounting.read} frames"), err=True)
+        loose = [f for f in d.loose_findings if wanted(f.frame)]
+        if loose and fmt == "text":
+            click.echo("Findings on frames that are not PNIO RPC:")
+            for f in loose:
+                click.echo(f"  frame {f.frame} " + dump.finding_line(f, "", style))
+            if d.loose_dropped:
+                click.echo(f"  ... and {d.loose_dropped} more (only the first {len(d.loose_findings)} are kept)")
+        elif loose:
+            click.echo(f"pd-analyze: {len(loose)} findings on frames that are not PNIO RPC "
+                       "(see --format text)", err=True)
+        click.echo(dump.safe(f"{path}: {d.accounting.line()}"), err=True)
+    sys.exit(status)

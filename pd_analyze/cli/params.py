@@ -1,0 +1,115 @@
+"""`pd-analyze params` (the parameter state per drive) and `pd-analyze diff` (two states compared); the
+logic is in analysis.param_state and output.param_tables / param_diff."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from pd_analyze.analysis.capture_run import Settings
+from pd_analyze.cli.base import (
+    EXIT_FINDINGS,
+    EXIT_OK,
+    EXIT_USAGE,
+    capture_files,
+    main,
+    profile_option,
+    progress_bar,
+    run_options,
+    some_readable,
+    writable_dir,
+)
+from pd_analyze.output import dump
+
+PARAMS_EXAMPLES = """\b
+Examples:
+  pd-analyze params sample_pcaps/audit_commissioning.pcap
+  pd-analyze params commissioning.pcapng --format csv > state.csv
+  pd-analyze params captures/ --out state/ --format parquet
+"""
+DIFF_EXAMPLES = """\b
+Examples:
+  pd-analyze diff sample_pcaps/audit_commissioning.pcap sample_pcaps/audit_recommissioning.pcap
+  pd-analyze diff drive_a.pcapng drive_b.pcapng --by do --format csv
+"""
+
+
+@main.command("params", epilog=PARAMS_EXAMPLES)
+@click.argument("captures", nargs=-1, metavar="CAPTURE...")
+@click.option("-r", "--read", "read", metavar="FILE", help="Capture to read (as tshark -r).")
+@click.option("--out", "out_dir", default=None, metavar="DIR", help="Write DIR/parameter_state.<format> instead "
+                                                                      "of printing to stdout.")
+@click.option("--format", "fmt", type=click.Choice(["text", "csv", "json", "parquet"]), default=None,
+              help="text: a table (stdout's default); csv, json (JSON Lines); parquet needs --out (whose default "
+                   "is csv).")
+@profile_option
+@run_options
+def params_command(captures: tuple[str, ...], read: str | None, out_dir: str | None, fmt: str | None, profile: str,
+                   timeout: float, rpc_timeout: float, jobs: int, chain: bool) -> None:
+    """Parameter state per drive: per device, DO, PNU and subindex the last value confirmed written and the last
+    read back (frame and time), whether they agree, writes, refused writes and the last error.
+
+    Memory holds one entry per parameter element, whatever the capture's size."""
+    from pd_analyze.analysis.param_state import collect
+    from pd_analyze.output import param_tables
+
+    if out_dir is None and fmt == "parquet":
+        raise click.UsageError("--format parquet needs --out DIR")
+    if out_dir is not None and fmt == "text":
+        raise click.UsageError("--out writes csv, json or parquet")
+    paths = capture_files(captures, read, profile)
+    some_readable(paths)
+    if out_dir is not None:
+        writable_dir(out_dir)
+    state, results = collect(paths, Settings(profile, timeout, rpc_timeout), progress_bar() if jobs == 1 else None,
+                             jobs, chain)
+    if out_dir is not None:
+        click.echo("Wrote " + param_tables.write_state(state, out_dir, fmt or "csv"), err=True)
+    elif fmt in ("csv", "json"):
+        sys.stdout.write(param_tables.state_formatted(state, fmt))
+    else:
+        click.echo("\n".join(dump.safe(line) for line in param_tables.state_text(state)))
+    errors = [f"{c.path}: {c.error}" for c in results if c.error]
+    for error in errors:
+        click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
+    sys.exit(EXIT_USAGE if errors else EXIT_OK)
+
+
+@main.command("diff", epilog=DIFF_EXAMPLES)
+@click.argument("a", metavar="A")
+@click.argument("b", metavar="B")
+@click.option("--by", type=click.Choice(["device", "do"]), default="device", show_default=True,
+              help="device: each drive against the same drive (before and after); do: the one drive of A against "
+                   "the one drive of B (drives that should be alike).")
+@click.option("--format", "fmt", type=click.Choice(["text", "csv", "json"]), default="text", show_default=True)
+@profile_option
+@run_options
+def diff_command(a: str, b: str, by: str, fmt: str, profile: str, timeout: float, rpc_timeout: float, jobs: int,
+                 chain: bool) -> None:
+    """Parameter state of capture A against B: one row per parameter element that differs, is missing on one side,
+    or was refused (or left unconfirmed) on one side. Exit 0 when the states agree, 1 when they differ, 2 on
+    trouble, as diff(1)."""
+    from pd_analyze.analysis.param_state import collect
+    from pd_analyze.output import param_diff
+
+    files = [capture_files((side,), None, profile) for side in (a, b)]
+    settings = Settings(profile, timeout, rpc_timeout)
+    (state_a, res_a), (state_b, res_b) = (collect(f, settings, None, jobs, chain) for f in files)
+    errors = [f"{c.path}: {c.error}" for c in res_a + res_b if c.error]
+    for error in errors:
+        click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
+    if errors:
+        sys.exit(EXIT_USAGE)
+    try:
+        rows = param_diff.diff_rows(state_a, state_b, by)
+    except param_diff.DiffError as exc:
+        raise click.UsageError(dump.safe(str(exc))) from None
+    if fmt == "text":
+        if rows:
+            click.echo("\n".join(dump.safe(line) for line in param_diff.diff_text(rows, by)))
+    else:
+        sys.stdout.write(param_diff.diff_formatted(rows, fmt))
+    click.echo(f"{len(rows)} parameter element{'s' if len(rows) != 1 else ''} differ"
+               f"{'s' if len(rows) == 1 else ''} (A: {len(state_a.elements)}, B: {len(state_b.elements)})", err=True)
+    sys.exit(EXIT_FINDINGS if rows else EXIT_OK)
