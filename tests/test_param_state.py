@@ -107,6 +107,30 @@ def test_station_names_from_pn_dcp() -> None:
     assert station(cut) == ("10.0.0.7", "abc")
 
 
+def test_station_names_behind_vlan_tags_are_found_on_both_paths(tmp_path: Path) -> None:
+    """Untagged, one 802.1Q tag, QinQ (two tags), and a cyclic PN-RT frame and an IPv4 frame that look alike:
+    the columns' pre-filter and the per-frame walk agree."""
+    from devtools.synth.audit_samples import dcp_identify_response
+    from devtools.synth.capture_files import Frame, pcap_bytes
+    from pd_analyze.analysis.jobs import run
+    from pd_analyze.analysis.rows import Rows
+
+    head = bytes.fromhex("010203040506") + bytes.fromhex("0a0b0c0d0e0f")
+    tag = lambda tpid: bytes.fromhex(tpid) + b"\x00\x05"  # noqa: E731
+    frames = [head + b"\x88\x92" + dcp_identify_response("10.0.0.1", "plain", 1),
+              head + tag("8100") + b"\x88\x92" + dcp_identify_response("10.0.0.2", "one-tag", 2),
+              head + tag("88a8") + tag("8100") + b"\x88\x92" + dcp_identify_response("10.0.0.3", "qinq", 3),
+              head + tag("9100") + tag("88a8") + tag("8100") + b"\x88\x92" + dcp_identify_response("10.0.0.4", "three",
+                                                                                                   4),
+              head + b"\x88\x92" + b"\x80\x00" + bytes(40),  # cyclic RT data
+              head + b"\x08\x00" + bytes(2) + b"\x88\x92\xfe\xff" + bytes(40)]  # IPv4 with the pattern inside
+    path = tmp_path / "dcp.pcap"
+    path.write_bytes(pcap_bytes([Frame(1_000_000_000 * (k + 1), f) for k, f in enumerate(frames)]))
+    want = {"10.0.0.1": "plain", "10.0.0.2": "one-tag", "10.0.0.3": "qinq", "10.0.0.4": "three"}
+    for columns in (False, True):
+        assert run([str(path)], Rows(), Settings(columns=columns))[0].stations == want, columns
+
+
 @pytest.mark.parametrize("path", sorted(p for p in SAMPLES.glob("*") if p.suffix in (".pcap", ".pcapng", ".gz")),
                          ids=lambda p: p.name)
 def test_columnar_and_per_frame_paths_give_the_same_state(path: Path) -> None:

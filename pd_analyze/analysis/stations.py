@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 from pd_analyze import capture
 from pd_analyze.capture import CaptureError, RawFrame
-from pd_analyze.model.values import LINKTYPE_ETHERNET
+from pd_analyze.model.values import LINKTYPE_ETHERNET, VLAN_TPIDS
 from pd_analyze.protocol.dcp import FRAME_IDS, PN_RT, station
 
 if TYPE_CHECKING:
@@ -74,19 +74,27 @@ def device_label(device: str, names: Mapping[str, str]) -> str:
 
 
 def _pn_rt(batch: FrameBatch) -> np.ndarray:
-    """Indexes of a batch's Ethernet frames with EtherType 0x8892 (PN-RT) and a DCP response FrameID, found
-    without a Python loop: most frames of a PROFINET capture are cyclic PN-RT or IP, a handful DCP."""
+    """Indexes of the batch's frames that may be a DCP response, found without a Python loop (most frames of a
+    PROFINET capture are cyclic PN-RT or IP, a handful DCP): Ethernet frames with EtherType 0x8892 (PN-RT) and
+    a DCP response FrameID, untagged or behind one VLAN tag, and every frame behind two or more tags (rare:
+    protocol.dcp.station walks any number, as the per-frame path does, and decides)."""
     import numpy as np
 
     data = np.frombuffer(batch.buf, dtype=np.uint8)
     hit = np.zeros(len(batch), dtype=bool)
+    ethernet = batch.linktype == LINKTYPE_ETHERNET
     for at in _ETYPE_AT:
-        long_enough = np.flatnonzero((batch.linktype == LINKTYPE_ETHERNET) & (batch.caplen >= at + 4))
+        long_enough = np.flatnonzero(ethernet & (batch.caplen >= at + 4))
         first = batch.start[long_enough] + at  # (each frame holds these 4 bytes: no index leaves the buffer)
         frame_id = data[first + 2].astype(np.uint16) << 8 | data[first + 3]
         match = (data[first] == PN_RT[0]) & (data[first + 1] == PN_RT[1]) & np.isin(frame_id, _FRAME_IDS)
         hit[long_enough[match]] = True
+    tagged = np.flatnonzero(ethernet & (batch.caplen >= 18))
+    first = batch.start[tagged]
+    outer, inner = (data[first + at].astype(np.uint16) << 8 | data[first + at + 1] for at in _ETYPE_AT)
+    hit[tagged[np.isin(outer, _TPIDS) & np.isin(inner, _TPIDS)]] = True
     return np.flatnonzero(hit)
 
 
 _FRAME_IDS = sorted(FRAME_IDS)
+_TPIDS = sorted(VLAN_TPIDS)
