@@ -13,9 +13,9 @@ error statuses, RPC faults, unanswered calls, retries):
 then times:
 
   commands    on dense: `pd-analyze report`, `report --jobs N` (N from --jobs, 2 by default; 1 leaves it
-              out), `dump --format json`, tshark's PROFIdrive field extraction and `tshark -V`; on mix:
-              `report` and tshark's field extraction
-  scale       `report` once on a dense capture of 4x the frames (--skip-scale: not run)
+              out), `dump --format json`, `params`, `audit`, tshark's PROFIdrive field extraction and
+              `tshark -V`; on mix: `report` and tshark's field extraction
+  scale       `report`, `params` and `audit` once on a dense capture of 4x the frames (--skip-scale: not run)
   floods      `report` and `report --jobs 2` on 300,000-frame floods of never-answered calls, IP
               fragments and CL fragments (devtools.hostile; --flood-frames; --skip-floods)
   classes     the mix split into the frames the dissector decodes as PNIO RPC and all the others;
@@ -59,6 +59,8 @@ REPORT, DUMP = "dense: pd-analyze report", "dense: pd-analyze dump --format json
 FIELDS, VERBOSE = "dense: tshark PROFIdrive fields", "dense: tshark -V"
 MIX_REPORT, MIX_FIELDS = "mix: pd-analyze report", "mix: tshark PROFIdrive fields"
 SCALE = "dense: pd-analyze report, 4x frames"
+PARAMS, AUDIT = "dense: pd-analyze params", "dense: pd-analyze audit"
+PARAMS_SCALE, AUDIT_SCALE = "dense: pd-analyze params, 4x frames", "dense: pd-analyze audit, 4x frames"
 FLOOD = "flood of {}: report{}"
 FLOOD_KINDS = ("calls", "ip", "cl")
 ONLY_PNIO, ONLY_OTHER, STARTUP = "report, PNIO RPC frames only", "report, other frames only", "report, start-up"
@@ -136,6 +138,8 @@ def commands(b: Bench, dense: Path, n_dense: int, mix: Path, n_mix: int, out: Pa
     if jobs > 1:
         b.time(f"{REPORT} --jobs {jobs}", [*report, "--jobs", str(jobs)], n_dense)
     b.time(DUMP, [*PD, "dump", str(dense), "--format", "json"], n_dense)
+    b.time(PARAMS, [*PD, "params", str(dense), "--out", str(out)], n_dense)
+    b.time(AUDIT, [*PD, "audit", str(dense), "--fail-on", "never"], n_dense)
     b.time(MIX_REPORT, [*PD, "report", str(mix), "--out", str(out)], n_mix)
     if tshark:
         b.time(FIELDS, _fields(dense), n_dense)
@@ -148,6 +152,8 @@ def scale(b: Bench, tmp: Path, frames: int, faults: float, out: Path) -> None:
     big = tmp / "scale-4x.pcap"
     count = _generate(big, 4 * frames, 1.0, "  4x dense capture", faults)
     b.time(SCALE, [*PD, "report", str(big), "--out", str(out)], count, rounds=1)
+    b.time(PARAMS_SCALE, [*PD, "params", str(big), "--out", str(out)], count, rounds=1)
+    b.time(AUDIT_SCALE, [*PD, "audit", str(big), "--fail-on", "never"], count, rounds=1)
     big.unlink()  # the largest file of the run: free the disk before the next steps
 
 
@@ -243,6 +249,8 @@ def targets(b: Bench, jobs: int, costs: Costs | None, skip_v: bool) -> list[list
     rows.append(["dense: `dump --format json` no slower than `tshark -V`",
                  _x(r, "--skip-tshark-v" if skip_v else no_tshark), _met(None if r is None else r >= 1)])
     rows.append(_rss_row(report, fields, b.get(SCALE)))
+    for name, big in ((PARAMS, PARAMS_SCALE), (AUDIT, AUDIT_SCALE)):
+        rows.append(_flat_row(name.split(": ")[1], b.results[name], b.get(big)))
     floods = [(name, t) for name, t in b.results.items() if name.startswith("flood of")]
     if floods:
         worst_one = max((t.rss for name, t in floods if "--jobs" not in name), default=0)
@@ -268,6 +276,15 @@ def _rss_row(report: Timing, fields: Timing | None, big: Timing | None) -> list[
               else "4x capture n/a (--skip-scale)")
     return ["dense: peak RSS of `report` below tshark's, and flat: 4x the frames <= 1.2x the RSS",
             f"{report.rss / 1024:.0f} MB = {vs}; {growth}", _met(below, flat)]
+
+
+def _flat_row(what: str, one: Timing, big: Timing | None) -> list[str]:
+    """`params` keeps one entry per parameter element, `audit` sorts its findings on disk: flat memory."""
+    flat = big.rss <= 1.2 * one.rss if big else None
+    growth = (f"{one.rss / 1024:.0f} MB; {big.rss / 1024:.0f} MB with 4x the frames ({big.rss / one.rss:.2f}x)"
+              if big else f"{one.rss / 1024:.0f} MB; 4x capture n/a (--skip-scale)")
+    return [f"dense: peak RSS of `{what.removeprefix('pd-analyze ')}` flat: 4x the frames <= 1.2x the RSS", growth,
+            _met(flat)]
 
 
 def _cost_row(c: Costs) -> list[str]:
