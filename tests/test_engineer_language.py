@@ -509,6 +509,17 @@ def test_summary_names_a_drive_by_its_station_name_when_the_capture_has_it(tmp_p
 
 # --- 10. The HTML report -------------------------------------------------------------------------------------
 
+def test_the_plots_name_a_drive_by_its_station_name():
+    from pd_analyze.output import plots
+
+    a = analyze([str(SAMPLES / "audit_commissioning.pcap"), ERRORS])
+    for chart in (plots.timeline, plots.latency):
+        ticks = [t.get_text() for t in chart(a).axes[0].get_yticklabels()]
+        assert ticks == ["192.168.1.21 (pump-1)", "192.168.1.22"], chart.__name__
+    legend = [t.get_text() for t in plots.b5_retries(analyze(ERRORS)).axes[0].get_legend().get_texts()]
+    assert legend and all(t.startswith("192.168.1.") and "(pump-1)" not in t for t in legend)  # no DCP there
+
+
 @pytest.mark.parametrize("width", [None, 6.0])  # plots.timeline's own figure (the HTML report's), an axes of 6 in
 def test_timeline_labels_neither_overprint_nor_leave_the_chart(width):
     """Every failure label lies inside the axes and overlaps no other label nor a failure marker; every text

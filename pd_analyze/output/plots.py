@@ -12,6 +12,7 @@ Scatter layers with many points are rasterised, so an SVG of a 250,000-transacti
 from __future__ import annotations
 
 import io
+from collections.abc import Callable
 from typing import Protocol
 
 import pandas as pd
@@ -22,6 +23,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
 from matplotlib.transforms import Bbox
 
+from pd_analyze.analysis.stations import device_label, merged
 from pd_analyze.model.verdicts import VERDICTS
 
 VERDICT_COLOURS = {"ok": "#7cb36a", "nak": "#e68a00", "reference_mismatch": "#8d6e63", "timeout": "#d32f2f",
@@ -63,6 +65,13 @@ def _empty(ax: Axes, title: str, text: str) -> Figure:
 def _seconds(t: pd.DataFrame) -> tuple[pd.Series, pd.Timestamp]:
     start = t.t_start.min()
     return (t.t_start - start).dt.total_seconds(), start
+
+
+def _named(a: Tables) -> Callable[[str], str]:
+    """How a chart names a device: its address, with its PN-DCP station name where the captures have one
+    (an Analysis knows its captures; other tables name addresses alone)."""
+    names = merged(getattr(a, "captures", ()))
+    return lambda device: device_label(device, names)
 
 
 def _devices(t: pd.DataFrame, key: pd.Series | None = None) -> tuple[list[str], int]:
@@ -150,7 +159,7 @@ def timeline(a: Tables, ax: Axes | None = None) -> Figure:
                    c=VERDICT_COLOURS[verdict], linewidths=1.2 if ok else 0.6,
                    edgecolors=None if ok or dense else "white", zorder=2 if ok else 3, label=f"{verdict} ({n:,})",
                    rasterized=n > RASTERISE_ABOVE)
-    ax.set_yticks(range(len(devices)), devices)
+    ax.set_yticks(range(len(devices)), [_named(a)(d) for d in devices])
     ax.set_ylim(len(devices) - 0.4, -0.6)
     ax.set_xlabel(_since(start))
     more = f"; {hidden} more devices not drawn" if hidden else ""
@@ -241,7 +250,7 @@ def latency(a: Tables, ax: Axes | None = None) -> Figure:
         jitter = ((pd.Series(range(len(values))) * 0.618034) % 1.0 - 0.5) * 0.35
         ax.scatter(values, i + 1 + jitter.to_numpy(), s=9, alpha=0.6, color=DEVICE_COLOURS[i % len(DEVICE_COLOURS)],
                    linewidths=0, rasterized=n_points > RASTERISE_ABOVE, zorder=3)
-    ax.set_yticks(range(1, len(devices) + 1), devices)
+    ax.set_yticks(range(1, len(devices) + 1), [_named(a)(d) for d in devices])
     ax.set_ylim(len(devices) + 0.6, 0.4)
     ax.set_xscale("log")
     ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
@@ -271,7 +280,8 @@ def b5_retries(a: Tables, ax: Axes | None = None) -> Figure:
         if len(xs) <= RASTERISE_ABOVE:  # stems help a sparse chart; for a dense one they cost seconds
             ax.vlines(xs, 0, ys, color=DEVICE_COLOURS[i % len(DEVICE_COLOURS)], linewidth=0.8, alpha=0.5)
         ax.scatter(xs, ys, s=16, color=DEVICE_COLOURS[i % len(DEVICE_COLOURS)], zorder=3,
-                   label=f"{dev} ({int(ys.sum()):,} in {len(ys):,} txns)", rasterized=len(xs) > RASTERISE_ABOVE)
+                   label=f"{_named(a)(dev)} ({int(ys.sum()):,} in {len(ys):,} txns)",
+                   rasterized=len(xs) > RASTERISE_ABOVE)
     ax.set_ylim(bottom=0)
     ax.yaxis.get_major_locator().set_params(integer=True)
     ax.set_xlabel(_since(start))
