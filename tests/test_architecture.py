@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ast
 import re
+import shutil
 import subprocess
 import sys
 import tokenize
@@ -135,7 +136,13 @@ def test_each_fact_has_one_home(pattern: str, home: str, what: str) -> None:
 
 
 def test_built_wheel_holds_only_the_product(tmp_path: Path) -> None:
-    r = subprocess.run([sys.executable, "-m", "pip", "wheel", str(REPO), "--no-deps", "-q", "-w", str(tmp_path)],
+    # built from a copy of the sources: setuptools reuses a build/ directory left in the repository, whose
+    # stale modules (one since renamed) would go into the wheel
+    src = tmp_path / "src"
+    shutil.copytree(PACKAGE, src / "pd_analyze", ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(REPO / name, src / name)
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", str(src), "--no-deps", "-q", "-w", str(tmp_path)],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     (wheel,) = tmp_path.glob("pd_analyze-*.whl")
