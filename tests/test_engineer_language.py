@@ -273,6 +273,8 @@ def test_the_profile_names_reach_the_tables_the_summary_and_the_state_on_both_pa
                                                        "upper limit"]
     assert a.changes[a.changes.pnu == 1082].pnu_name.unique().tolist() == ["maximum speed"]
     text = report.summary(a)
+    assert "       1  192.168.1.21 DO 1 P1082[0] (maximum speed) error 0xc9 (manufacturer-specific 0xc9: above the " \
+           "currently valid upper limit)" in text.splitlines()  # the NAKs, named likewise
     assert "         1  P1082[0] (maximum speed): refused: error 0xc9 (manufacturer-specific 0xc9: above the " \
            "currently valid upper limit)" in _drive_lines(report.summary(a, top=30))
     files = {}

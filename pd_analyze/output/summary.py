@@ -135,10 +135,15 @@ def _few(params: str, names: dict[int, str], most: int = 4) -> str:
     if not labels:
         return "(parameters not decoded)"
     if len(labels) == 1:
-        pnu = labels[0][1:].partition("[")[0]
-        name = names.get(int(pnu), "") if labels[0].startswith("P") and pnu.isdigit() else ""
-        return f"{params} ({name})" if name else params
+        return _named(labels[0], names)
     return params if len(labels) <= most else " ".join(labels[:most - 1]) + f" ... ({len(labels)} parameters)"
+
+
+def _named(label: str, names: dict[int, str]) -> str:
+    """'P964[0]' as 'P964[0] (drive unit identification)' where the parameters table names its PNU."""
+    pnu = label[1:].partition("[")[0]
+    name = names.get(int(pnu), "") if label.startswith("P") and pnu.isdigit() else ""
+    return f"{label} ({name})" if name else label
 
 
 class Summary:
@@ -314,7 +319,8 @@ class Summary:
             lines.append("")
             lines.append("NAKs by PNU and error number (worst first):")
             for (dev, do, param, err, text), n in _ranked(self.naks, top):  # type: ignore[misc]
-                lines.append(f"  {n:>6}  {label(dev)} DO {_text(do)} {_text(param)} error {_text(err)} "
+                lines.append(f"  {n:>6}  {label(dev)} DO {_text(do)} {_named(_text(param), self.pnu_names)} "
+                             f"error {_text(err)} "
                              f"({_text(text)})")
             first = {k[1]: v for k, v in self.first.items() if k[0] == "error"}
             lines.append("  by error number: " + ", ".join(
