@@ -250,7 +250,7 @@ class Summary:
             err = r.error
             if _missing(err) or err == "":
                 continue
-            self.error_texts[err] = r.error_text
+            self.error_text(err, r.error_text)
             self.naks[(r.device, r.do, r.param, err, r.error_text)] += 1
             place = (_PARAM_ORDER(r), self.added["parameters"])
             self.by_error[err] += 1
@@ -261,6 +261,14 @@ class Summary:
                 self.by_do[do] += 1
                 if place < first.get(("do", do), (_LAST,)):
                     first[("do", do)] = place
+
+    def error_text(self, error: str, text: object) -> None:
+        """Remember an error number's words. Should a capture give one number two texts (a vendor's error
+        word and the profile's number under one profile), the first in sort order: the same whatever order
+        the rows come in."""
+        if isinstance(text, str) and text:
+            known = self.error_texts.get(error)
+            self.error_texts[error] = text if known is None else min(known, text)
 
     def add_batch(self, table: str, batch: Any) -> None:
         """A pyarrow Table of batch_schema(table): the same as `add` of the same rows in the same order,

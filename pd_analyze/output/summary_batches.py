@@ -118,7 +118,7 @@ def parameters(acc: Summary, t: pa.Table) -> None:
     places = base + rows + 1
     for key, count in _group_counts(sub, ["device", "do", "param", "error", "error_text"]):
         acc.naks[key] += count
-        acc.error_texts[key[3]] = key[4]
+        acc.error_text(key[3], key[4])
     _count_first(acc, "error", acc.by_error, sub.column("error"), sub.column("txn"), places)
     do = sub.column("do")
     known = _mask(do.is_valid())
