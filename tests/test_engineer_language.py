@@ -483,6 +483,14 @@ def test_summary_names_each_refused_parameter_of_a_nak_in_the_order_of_the_captu
     assert len(_drive_lines(report.summary(analyze(NEGATIVE), top=30))) == 1 + 17 + 2
 
 
+def test_summary_lists_a_nak_that_names_no_error_too():
+    from pd_analyze.output import report
+
+    drives = _drive_lines(report.summary(analyze(str(SAMPLES / "pd_out_of_range.pcap")), top=40))
+    assert "         2  P964[0] (drive unit identification): refused: negative response without an error block" \
+        in drives  # Q8: a 0x81 answer with no error block, transactions 190 and 192
+
+
 def test_summary_names_a_drive_by_its_station_name_when_the_capture_has_it(tmp_path):
     """A drive that answered a PN-DCP Identify (frame 25) is named '192.168.1.21 (pump-1)' wherever the summary
     lists drives; the other keeps its address. The same text from analyze() and the streamed report, the

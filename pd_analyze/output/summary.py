@@ -225,8 +225,11 @@ class Summary:
         place = (_LAST if _missing(txn) else txn, number)
         if verdict in _FAILED:
             entries = [(_text(params), _reason(verdict, status, closed_by, b5, last_read))]
+        elif verdict == "nak":  # each parameter refused; a negative answer that names no error, as such (Q8)
+            entries = _refused(errors, params) or [(_text(params), "refused: negative response without an error "
+                                                                   "block")]
         else:
-            entries = _refused(errors, params) if verdict == "nak" else []
+            entries = []
         for label, why in entries:
             key = (_text(device), slot, do, label, why)
             self.refused[key] += 1
