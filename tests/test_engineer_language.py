@@ -491,6 +491,36 @@ def test_summary_lists_a_nak_that_names_no_error_too():
         in drives  # Q8: a 0x81 answer with no error block, transactions 190 and 192
 
 
+def test_summary_itemises_a_bounded_number_of_failures_and_counts_the_rest(monkeypatch):
+    """A flood of distinct failures (each request another parameter set) must not grow the summary without
+    bound: past ITEMISED distinct entries a failure or NAK is counted, not listed; the totals stay exact, and
+    the rows and the batches feed the same summary."""
+    from pd_analyze.analysis.schema import sort_key
+    from pd_analyze.analysis.table_batches import rows_to_batch
+    from pd_analyze.output import report, summary
+
+    a = analyze(NEGATIVE)
+    whole = _drive_lines(report.summary(a, top=40))
+    monkeypatch.setattr(summary, "ITEMISED", 3)
+    rows_acc, batch_acc = summary.Summary(), summary.Summary()
+    for name in ("transactions", "parameters"):
+        rows = sorted(getattr(a.rows, name), key=sort_key(name))
+        rows_acc.add(name, rows)
+        for k in range(0, len(rows), 4):
+            batch_acc.add_batch(name, rows_to_batch(name, rows[k:k + 4]))
+    text = rows_acc.text(a.captures, top=40)
+    assert batch_acc.text(a.captures, top=40) == text
+    assert len(rows_acc.refused) == 3 and len(rows_acc.naks) == 3
+    drives = _drive_lines(text)
+    assert drives[0] == whole[0] == "  192.168.1.21 slot 1 DO 1: 17"  # the total stays exact
+    assert drives[1:4] == whole[1:4]  # the first three in capture order are itemised
+    assert drives[4] == "    ... and 14 more failures not itemised (the summary itemises 3 distinct ones)"
+    assert drives[5:] == ["  192.168.1.21 slot 1 DO 9: 1",
+                          "    ... and 1 more failures not itemised (the summary itemises 3 distinct ones)"]
+    assert f"  ... and {sum(a.parameters.error != '') - 3} more NAKs not itemised (the summary itemises 3 distinct " \
+           "ones; the parameters table lists them all)" in text.splitlines()
+
+
 def test_summary_names_a_drive_by_its_station_name_when_the_capture_has_it(tmp_path):
     """A drive that answered a PN-DCP Identify (frame 25) is named '192.168.1.21 (pump-1)' wherever the summary
     lists drives; the other keeps its address. The same text from analyze() and the streamed report, the

@@ -346,7 +346,7 @@ def test_summary_from_batches_equals_summary_from_rows(samples):
         assert batch_acc.text(analysis.captures) == rows_acc.text(analysis.captures)
         state = ("transactions", "verdicts", "any_failed", "failed", "naks", "by_error", "by_do", "first",
                  "b5_total", "b5_transactions", "b5_max", "added", "findings", "severities", "rules", "refused",
-                 "slowest", "pnu_names", "error_texts")
+                 "slowest", "pnu_names", "error_texts", "unitemised", "naks_unitemised")
         assert {k: getattr(batch_acc, k) for k in state} == {k: getattr(rows_acc, k) for k in state}
         assert {d: tuple(map(list, a)) for d, a in batch_acc.latency.items()} == \
             {d: tuple(map(list, a)) for d, a in rows_acc.latency.items()}

@@ -28,6 +28,10 @@ if TYPE_CHECKING:
     from pd_analyze.analysis.capture_run import CaptureResult
 
 TOP = 10
+# Distinct entries itemised per list (failures per drive; NAKs by device, DO, parameter and error): a flood
+# of distinct failures (every request another parameter set) is counted past it, not itemised, so the
+# summary's memory stays bounded whatever the capture
+ITEMISED = 10_000
 _LAST = float("inf")
 
 
@@ -171,8 +175,11 @@ class Summary:
         self.pnu_names: dict[int, str] = {}
         self.error_texts: dict[str, str] = {}
         self.latency: dict[str, tuple[array, array]] = {}  # device: t_total, t_write_rtt (seconds)
-        # per drive (device, slot, DO): parameters that failed, timed out or were refused, by reason
+        # per drive (device, slot, DO): parameters that failed, timed out or were refused, by reason; past
+        # ITEMISED distinct entries, their count per drive
         self.refused: Counter[tuple] = Counter()
+        self.unitemised: Counter[tuple] = Counter()
+        self.naks_unitemised = 0
         self.slowest: list[tuple] = []  # (-t_total, place, device, slot, do, params, txn), the TOP slowest
         self.findings = 0
         self.severities: Counter[str] = Counter()
@@ -232,6 +239,9 @@ class Summary:
             entries = []
         for label, why in entries:
             key = (_text(device), slot, do, label, why)
+            if key not in self.refused and len(self.refused) >= ITEMISED:
+                self.unitemised[key[:3]] += 1
+                continue
             self.refused[key] += 1
             if place < self.first.get(("refused", key), (_LAST,)):
                 self.first[("refused", key)] = place
@@ -254,7 +264,7 @@ class Summary:
             if _missing(err) or err == "":
                 continue
             self.error_text(err, r.error_text)
-            self.naks[(r.device, r.do, r.param, err, r.error_text)] += 1
+            self.count_nak((r.device, r.do, r.param, err, r.error_text), 1)
             place = (_PARAM_ORDER(r), self.added["parameters"])
             self.by_error[err] += 1
             if place < first.get(("error", err), (_LAST,)):
@@ -264,6 +274,13 @@ class Summary:
                 self.by_do[do] += 1
                 if place < first.get(("do", do), (_LAST,)):
                     first[("do", do)] = place
+
+    def count_nak(self, key: tuple, n: int) -> None:
+        """NAKs of one (device, DO, parameter, error, text); past ITEMISED distinct ones, counted only."""
+        if key in self.naks or len(self.naks) < ITEMISED:
+            self.naks[key] += n
+        else:
+            self.naks_unitemised += n
 
     def error_text(self, error: str, text: object) -> None:
         """Remember an error number's words. Should a capture give one number two texts (a vendor's error
@@ -326,25 +343,28 @@ class Summary:
                 counts = self.failed[dev]  # type: ignore[index]
                 detail = ", ".join(f"{v}={counts[v]}" for v in VERDICTS if counts[v])
                 lines.append(f"  {label(dev):<16} {total:>6}  ({detail})")
-        if self.naks:
+        if self.naks or self.naks_unitemised:
             lines.append("")
             lines.append("NAKs by PNU and error number (worst first):")
             for (dev, do, param, err, text), n in _ranked(self.naks, top):  # type: ignore[misc]
                 lines.append(f"  {n:>6}  {label(dev)} DO {_text(do)} {_named(_text(param), self.pnu_names)} "
                              f"error {_text(err)} "
                              f"({_text(text)})")
+            if self.naks_unitemised:
+                lines.append(f"  ... and {self.naks_unitemised} more NAKs not itemised (the summary itemises "
+                             f"{ITEMISED:,} distinct ones; the parameters table lists them all)")
             first = {k[1]: v for k, v in self.first.items() if k[0] == "error"}
             lines.append("  by error number: " + ", ".join(
                 f"{e}={n}" for e, n in _ranked_by_first(self.by_error, first)))
             first = {k[1]: v for k, v in self.first.items() if k[0] == "do"}
             lines.append("  by DO: " + ", ".join(f"{d}={n}" for d, n in _ranked_by_first(self.by_do, first)))
-        if self.refused:
+        if self.refused or self.unitemised:
             lines.append("")
             lines.append("Failed, timed-out and refused parameters per drive (device, slot, DO; worst first):")
-            drives: dict[tuple, dict[tuple, int]] = {}
+            drives: dict[tuple, dict[tuple, int]] = {drive: {} for drive in self.unitemised}
             for (dev, slot, do, params, why), n in self.refused.items():
                 drives.setdefault((dev, slot, do), {})[(params, why)] = n
-            totals = {drive: sum(entries.values()) for drive, entries in drives.items()}
+            totals = {drive: sum(entries.values()) + self.unitemised[drive] for drive, entries in drives.items()}
             for (dev, slot, do), total in _ranked(totals, top):  # type: ignore[misc]
                 lines.append(f"  {label(dev)} slot {_text(slot)} DO {_text(do)}: {total}")
                 entries = drives[(dev, slot, do)]
@@ -354,6 +374,9 @@ class Summary:
                 if len(entries) > top:
                     lines.append(f"    ... {len(entries) - top} more (the transactions and parameters tables list "
                                  "them all)")
+                if self.unitemised[(dev, slot, do)]:
+                    lines.append(f"    ... and {self.unitemised[(dev, slot, do)]} more failures not itemised (the "
+                                 f"summary itemises {ITEMISED:,} distinct ones)")
             if len(totals) > top:
                 lines.append(f"  ... {len(totals) - top} more drives")
         if self.slowest:

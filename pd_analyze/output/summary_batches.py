@@ -117,7 +117,7 @@ def parameters(acc: Summary, t: pa.Table) -> None:
     sub = t.take(pa.array(rows))
     places = base + rows + 1
     for key, count in _group_counts(sub, ["device", "do", "param", "error", "error_text"]):
-        acc.naks[key] += count
+        acc.count_nak(key, count)
         acc.error_text(key[3], key[4])
     _count_first(acc, "error", acc.by_error, sub.column("error"), sub.column("txn"), places)
     do = sub.column("do")
