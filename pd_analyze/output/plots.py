@@ -159,7 +159,7 @@ def timeline(a: Tables, ax: Axes | None = None) -> Figure:
                    c=VERDICT_COLOURS[verdict], linewidths=1.2 if ok else 0.6,
                    edgecolors=None if ok or dense else "white", zorder=2 if ok else 3, label=f"{verdict} ({n:,})",
                    rasterized=n > RASTERISE_ABOVE)
-    ax.set_yticks(range(len(devices)), [_named(a)(d) for d in devices])
+    ax.set_yticks(range(len(devices)), list(map(_named(a), devices)))
     ax.set_ylim(len(devices) - 0.4, -0.6)
     ax.set_xlabel(_since(start))
     more = f"; {hidden} more devices not drawn" if hidden else ""
@@ -250,7 +250,7 @@ def latency(a: Tables, ax: Axes | None = None) -> Figure:
         jitter = ((pd.Series(range(len(values))) * 0.618034) % 1.0 - 0.5) * 0.35
         ax.scatter(values, i + 1 + jitter.to_numpy(), s=9, alpha=0.6, color=DEVICE_COLOURS[i % len(DEVICE_COLOURS)],
                    linewidths=0, rasterized=n_points > RASTERISE_ABOVE, zorder=3)
-    ax.set_yticks(range(1, len(devices) + 1), [_named(a)(d) for d in devices])
+    ax.set_yticks(range(1, len(devices) + 1), list(map(_named(a), devices)))
     ax.set_ylim(len(devices) + 0.6, 0.4)
     ax.set_xscale("log")
     ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
@@ -274,13 +274,14 @@ def b5_retries(a: Tables, ax: Axes | None = None) -> Figure:
         return _empty(ax, title, "no read was answered B5 (not ready)")
     secs, start = _seconds(t)
     devices, hidden = _devices(b5, b5.groupby(b5.device.astype(str)).b5_retries.sum())
+    named = _named(a)
     for i, dev in enumerate(devices):
         sel = b5.device.astype(str) == dev
         xs, ys = secs[sel.reindex(t.index, fill_value=False)], b5.b5_retries[sel].astype("float64")
         if len(xs) <= RASTERISE_ABOVE:  # stems help a sparse chart; for a dense one they cost seconds
             ax.vlines(xs, 0, ys, color=DEVICE_COLOURS[i % len(DEVICE_COLOURS)], linewidth=0.8, alpha=0.5)
         ax.scatter(xs, ys, s=16, color=DEVICE_COLOURS[i % len(DEVICE_COLOURS)], zorder=3,
-                   label=f"{_named(a)(dev)} ({int(ys.sum()):,} in {len(ys):,} txns)",
+                   label=f"{named(dev)} ({int(ys.sum()):,} in {len(ys):,} txns)",
                    rasterized=len(xs) > RASTERISE_ABOVE)
     ax.set_ylim(bottom=0)
     ax.yaxis.get_major_locator().set_params(integer=True)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import cache
 from importlib import resources
@@ -347,11 +347,15 @@ def _ids(data: dict, typed, fail) -> VendorIds | None:  # noqa: ANN001
             raise fail(f"{what}: layout {value!r} is not one of {', '.join(LAYOUTS)}")
         return value
 
+    def entries(key: str) -> Iterator[tuple[str, dict]]:
+        """The tables of an array of tables ([[key]]), each with how an error names it."""
+        for n, item in enumerate(typed(data, key, list, f"an array of tables ([[{key}]])", []), 1):
+            if not isinstance(item, dict):
+                raise fail(f"{key} #{n} is not a table")
+            yield f"{key} #{n}", item
+
     requests: dict[int, VendorRequest] = {}
-    for n, item in enumerate(typed(data, "request_id", list, "an array of tables ([[request_id]])", []), 1):
-        what = f"request_id #{n}"
-        if not isinstance(item, dict):
-            raise fail(f"{what} is not a table")
+    for what, item in entries("request_id"):
         ident = number(item, "id", what)
         if ident in (0x01, 0x02):
             raise fail(f"{what}: 0x01 and 0x02 are the profile's own Request IDs")
@@ -371,10 +375,7 @@ def _ids(data: dict, typed, fail) -> VendorIds | None:  # noqa: ANN001
     if words not in ERROR_WORDS:
         raise fail(f"error_words {words!r} is not one of {', '.join(repr(w) for w in ERROR_WORDS)}")
     responses: dict[int, VendorResponse] = {}
-    for n, item in enumerate(typed(data, "response_id", list, "an array of tables ([[response_id]])", []), 1):
-        what = f"response_id #{n}"
-        if not isinstance(item, dict):
-            raise fail(f"{what} is not a table")
+    for what, item in entries("response_id"):
         ident = number(item, "id", what)
         if ident in (0x01, 0x02, 0x80, 0x81, 0x82):
             raise fail(f"{what}: {ident:#04x} is one of the profile's own Response IDs")
