@@ -50,7 +50,7 @@ def read_batches(path: Path, size: int) -> list[FrameBatch]:
         hi = min(lo + size, len(start))
         out.append(FrameBatch(buf, np.arange(lo + 1, hi + 1, dtype=np.int64), ts[lo:hi],
                               np.full(hi - lo, linktype, np.int32), start[lo:hi], caplen[lo:hi],
-                              np.zeros(hi - lo, np.int32)))
+                              np.zeros(hi - lo, np.int32), np.round(ts[lo:hi] * 1e6).astype(np.int64) * 1000))
     return out
 
 

@@ -131,65 +131,48 @@ def peak_rss_mb() -> float:
 def run(kind: str, count: int, dump: bool = False, seed: int = 1, tables: bool = False) -> dict[str, object]:
     """Stream one kind through the report path (or the dump path); what happened and the peak RSS.
 
-    The report path hands closed transactions and findings on (counted here, as a streaming consumer
-    would); with `tables` they are kept as the rows of the four tables and made DataFrames at the end, as
-    `analyze()` does: that memory grows with the transactions and findings, which are the analysis's data.
+    The report path hands its tables and findings on (counted here, as a streaming consumer would); with
+    `tables` they are kept and made DataFrames at the end, as `analyze()` does: that memory grows with the
+    transactions and findings, which are the analysis's data.
     """
-    from pd_analyze.analysis.transactions import TransactionEngine
+    from pd_analyze.analysis.capture_run import Settings
+    from pd_analyze.analysis.engine.run import analyze_frames
     from pd_analyze.output import dump as dump_mod
     from pd_analyze.protocol.dissector import Dissector
 
     started = time.perf_counter()
-    d = Dissector(annotate=dump)
-    engine = TransactionEngine()
-    rows = None
-    if tables:
-        from pd_analyze.analysis.rows import Rows
-
-        rows = Rows()
     findings: Counter[str] = Counter()
     evicted: Counter[str] = Counter()  # items the caps dropped (a summary finding counts those not listed)
-    transactions = 0
 
-    def tally(found: list) -> None:
-        for f in found:
-            findings[f.name] += 1
-            if f.name.endswith("_evicted"):
-                evicted[f.name] += int(f.value) - 100 if " in all; " in f.message else 1
-    last = 0.0
+    def tally(name: str, value: object, message: str) -> None:
+        findings[name] += 1
+        if name.endswith("_evicted"):
+            evicted[name] += int(str(value)) - 100 if " in all; " in message else 1
 
-    def closed(txns: list) -> None:
-        nonlocal transactions
-        for txn in txns:
-            transactions += 1
-            tally(txn.findings)
-            if rows is not None:
-                rows.add(kind, txn)
-
-    def results(res_list: list) -> None:
-        for res in res_list:
-            if dump:
+    if dump:
+        d = Dissector(annotate=True)
+        for raw in frames(kind, count, seed):
+            for res in d.feed(raw):
                 dump_mod.frame_text(res)
-            closed(engine.feed(res))
-        if rows is not None:
-            for f in engine.loose + d.loose_findings:
-                rows.add_finding(kind, f)
-        tally(engine.loose)
-        engine.loose.clear()
-        tally(d.loose_findings)
-        d.loose_findings.clear()
+                for f in res.findings:
+                    tally(f.name, f.value, f.message)
+        for res in d.finish():
+            for f in res.findings:
+                tally(f.name, f.value, f.message)
+        for f in d.loose_findings:
+            tally(f.name, f.value, f.message)
+        acc, transactions = d.accounting, 0
+    else:
+        sink = _Tally(tally, keep=tables)
+        acc = analyze_frames(frames(kind, count, seed), Settings(), sink, kind).accounting
+        transactions = sink.count
+        if tables:
+            from pd_analyze.analysis.schema import COLUMNS, frame_of
+            from pd_analyze.analysis.table_batches import frame_from_batches
 
-    for raw in frames(kind, count, seed):
-        last = raw.ts
-        results(d.feed(raw))
-    results(d.finish())
-    closed(engine.finish(last))
-    if rows is not None:
-        from pd_analyze.analysis.schema import COLUMNS, frame_of
-
-        for name in COLUMNS:
-            frame_of(name, getattr(rows, name))
-    acc = d.accounting
+            for name in COLUMNS:
+                frame_of(name, getattr(sink, name))
+                frame_from_batches(name, sink.tables.get(name, []))
     return {
         "kind": kind, "path": "dump" if dump else "tables" if tables else "report", "frames": acc.read,
         "decoded": acc.decoded,
@@ -199,6 +182,38 @@ def run(kind: str, count: int, dump: bool = False, seed: int = 1, tables: bool =
         "findings": sum(findings.values()), "peak_rss_mb": round(peak_rss_mb(), 1),
         "seconds": round(time.perf_counter() - started, 1),
     }
+
+
+def _tally_sink():  # noqa: ANN202 (a Rows subclass, made when pd_analyze is imported)
+    from pd_analyze.analysis.rows import Rows
+
+    class Tally(Rows):
+        """The engine's rows counted (findings tallied by name) and, with `keep`, kept as analyze() keeps them."""
+
+        def __init__(self, tally, keep: bool) -> None:  # noqa: ANN001
+            super().__init__()
+            self.tally, self.keep, self.count = tally, keep, 0
+
+        def add_table(self, name: str, table: object) -> None:
+            if name == "transactions":
+                self.count += table.num_rows  # type: ignore[attr-defined]
+            elif name == "findings":
+                for n, v, m in zip(*(table.column(c).to_pylist() for c in ("name", "value", "message")),  # type: ignore[attr-defined]
+                                   strict=True):
+                    self.tally(n, v, m)
+            if self.keep:
+                super().add_table(name, table)
+
+        def add_finding(self, capture: str, f, txn: int | None = None) -> None:  # noqa: ANN001
+            self.tally(f.name, f.value, f.message)
+            if self.keep:
+                super().add_finding(capture, f, txn)
+
+    return Tally
+
+
+def _Tally(tally, keep: bool):  # noqa: ANN001, ANN202, N802
+    return _tally_sink()(tally, keep)
 
 
 def run_isolated(kind: str, count: int, dump: bool = False, seed: int = 1, tables: bool = False) -> dict[str, object]:

@@ -56,7 +56,8 @@ def make_batch(frames: Sequence[RawFrame]) -> FrameBatch:
     start[1:] = np.cumsum(lengths)[:-1]
     return FrameBatch(b"".join(f.data for f in frames), np.array([f.number for f in frames], np.int64),
                       np.array([f.ts for f in frames], np.float64), np.array([f.linktype for f in frames], np.int32),
-                      start, lengths, np.array([f.iface for f in frames], np.int32))
+                      start, lengths, np.array([f.iface for f in frames], np.int32),
+                      np.array([round(f.ts * 1e6) * 1000 for f in frames], np.int64))
 
 
 def capture_frames() -> list[RawFrame]:
@@ -469,7 +470,7 @@ def _in_pieces(batch: FrameBatch, cuts: Sequence[int]) -> list[tuple]:
     rows, lo = [], 0
     for hi in [*cuts, len(batch)]:
         part = FrameBatch(batch.buf, batch.number[lo:hi], batch.ts[lo:hi], batch.linktype[lo:hi],
-                          batch.start[lo:hi], batch.caplen[lo:hi], batch.iface[lo:hi])
+                          batch.start[lo:hi], batch.caplen[lo:hi], batch.iface[lo:hi], batch.ns[lo:hi])
         rows += _rows(pnio_batch.decode(part, checker("generic")), lo)
         lo = hi
     return rows

@@ -17,7 +17,9 @@ from hypothesis import strategies as st
 
 from devtools.fuzz.harness import check_result
 from pd_analyze import capture
-from pd_analyze.analysis.transactions import TransactionEngine
+from pd_analyze.analysis.capture_run import Settings
+from pd_analyze.analysis.engine.run import analyze_frames
+from pd_analyze.analysis.rows import Rows
 from pd_analyze.model.values import LINKTYPE_ETHERNET, LINKTYPE_RAW, LINKTYPE_SLL, LINKTYPE_SLL2
 from pd_analyze.protocol import link, profidrive, profidrive_view, profiles, rpc, rpc_calls, rpc_fragments
 from pd_analyze.protocol import pnio as rec
@@ -286,16 +288,17 @@ def pnio_frames(draw: st.DrawFn) -> bytes:
 @given(st.lists(st.tuples(pnio_frames(), st.floats(0, 30)), min_size=1, max_size=10), st.booleans())
 def test_dissector_and_engine_on_arbitrary_pnio_frames(frames: list[tuple[bytes, float]], annotate: bool) -> None:
     d = Dissector(annotate=annotate, rpc_timeout=2.0, checker=CHECKERS[1])
-    engine = TransactionEngine(txn_timeout=5.0)
     data = {}
     results = []
+    raw = []
     for number, (frame, ts) in enumerate(sorted(frames, key=lambda f: f[1]), 1):
         data[number] = frame
-        results += d.feed(capture.RawFrame(number, ts, LINKTYPE_ETHERNET, frame))
+        raw.append(capture.RawFrame(number, ts, LINKTYPE_ETHERNET, frame))
+        results += d.feed(raw[-1])
     results += d.finish()
     for res in results:
         if annotate:
             check_result(res, data[res.frame])
-        engine.feed(res)
-    engine.finish(30.0)
     assert d.accounting.read == len(frames) and d.accounting.balanced()
+    acc = analyze_frames(raw, Settings("sinamics", txn_timeout=5.0, rpc_timeout=2.0), Rows(), batch_frames=3).accounting
+    assert acc.read == len(frames) and acc.balanced()

@@ -22,15 +22,18 @@ from devtools.synth import fixtures
 from devtools.synth.pd_encode import ParamAddress, change_ok, change_request, value_block
 from devtools.synth.sim_capture import Capture
 from pd_analyze import capture
-from pd_analyze.analysis import transaction
+from pd_analyze.analysis.capture_run import CaptureResult, Settings
+from pd_analyze.analysis.engine.rules import LastDone
+from pd_analyze.analysis.engine.run import EngineRun, analyze_frames
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.schema import frame_of
-from pd_analyze.analysis.transactions import TransactionEngine
 from pd_analyze.capture import gzip_stream, reader
+from pd_analyze.capture.batches import frame_batches
 from pd_analyze.model import capped
 from pd_analyze.model.rules import finding
 from pd_analyze.protocol import link, profidrive, rpc, rpc_calls, rpc_fragments
 from pd_analyze.protocol.dissector import MAX_LOOSE_FINDINGS, Dissector
+from pd_analyze.protocol.frames import Accounting
 from pd_analyze.protocol.hold import MAX_HELD_FIELDS
 from tests.test_capture import FRAME_A, block, epb, idb, shb
 
@@ -279,22 +282,39 @@ def test_channel_table_is_capped_by_bytes() -> None:
     assert d._pd_requests.bytes == sum(profidrive.footprint(p) for p, _ in d._pd_requests.values())
 
 
-def test_transaction_engine_state_is_bounded() -> None:
+class _Counting(Rows):
+    """The engine's rows counted, not kept (a streaming consumer)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.evicted = 0
+
+    def add_table(self, name: str, table: object) -> None:
+        if name == "transactions":
+            self.evicted += sum(c == "evicted" for c in table.column("closed_by").to_pylist())  # type: ignore[attr-defined]
+
+    def add_finding(self, capture: str, f: object, txn: int | None = None) -> None:
+        pass
+
+
+def test_engine_state_is_bounded() -> None:
     """Before: pending transactions were unbounded, closed ones stayed alive through the call table, and a
     read on a new channel scanned every pending transaction."""
-    d, engine = Dissector(), TransactionEngine()
-    evicted = 0
+    rows = _Counting()
+    engine = EngineRun(Settings(), rows, lambda _f: "flood", [CaptureResult("flood", Accounting())])
+    machine = engine.machine
     started = time.perf_counter()
-    for raw in hostile.frames("calls", 40_000):
-        for res in d.feed(raw):
-            evicted += sum(t.closed_by == "evicted" for t in engine.feed(res))
-        assert engine._pending.bytes <= capped.PENDING_TRANSACTIONS.bytes + 100_000
-    assert time.perf_counter() - started < 60
-    assert evicted > 0 and len(engine._pending) <= capped.PENDING_TRANSACTIONS.count
-    pending = {t.txn for t in engine._pending.values()}
-    referenced = {t.txn for c in engine._calls.values() for t in c.txns if t is not None}
+    for batch in frame_batches(hostile.frames("calls", 40_000), 1000):
+        engine.feed(batch)
+        assert machine.pending.bytes <= capped.PENDING_TRANSACTIONS.bytes + 100_000
+        assert engine.last_request.bytes <= capped.CHANNEL_REQUESTS.bytes + 100_000
+        assert len(engine.pairing.open) <= capped.OPEN_CALLS.count
+    assert time.perf_counter() - started < 120
+    assert rows.evicted > 0 and len(machine.pending) <= capped.PENDING_TRANSACTIONS.count
+    pending = {id(t) for t in machine.pending.values()}
+    referenced = {id(t) for c in machine._calls.values() for t in c.txns if t is not None}
     assert referenced <= pending  # no closed transaction is kept alive by its calls
-    assert all(isinstance(v, transaction.LastDone) for v in engine._last_done.values())
+    assert all(isinstance(v, LastDone) for v in machine.last_done.values())
 
 
 def test_long_b5_polling_is_linear_and_bounded() -> None:
@@ -303,17 +323,15 @@ def test_long_b5_polling_is_linear_and_bounded() -> None:
     s = fixtures.session(cap, 1, rtt_us=1, gap_us=1)
     req = change_request(1, 1, [(ParamAddress(1120), value_block(0x08, [1.0]))])
     s.parameter_access(req, change_ok(1, 1, 1), b5_retries=6000)
-    d, engine = Dissector(), TransactionEngine()
+    rows = Rows()
     started = time.perf_counter()
-    closed: list[transaction.Transaction] = []
-    for number, f in enumerate(cap.frames, 1):
-        for res in d.feed(capture.RawFrame(number, f.ts_ns / 1e9, 1, f.data)):
-            closed += engine.feed(res)
-    closed += engine.finish(1e12)
+    frames = [capture.RawFrame(number, f.ts_ns / 1e9, 1, f.data) for number, f in enumerate(cap.frames, 1)]
+    analysis = pd_analyze.Analysis(rows, [analyze_frames(frames, Settings(), rows, "b5")], "generic", 10.0, 5.0)
     assert time.perf_counter() - started < 30
-    first = closed[0]
-    assert first.closed_by == "evicted" and len(first.frames) == capped.TXN_FRAMES + 1
-    assert any(f.name == "txn_evicted" for f in first.findings) and first.verdict == "timeout"
+    first = analysis.transactions.iloc[0]
+    assert first.closed_by == "evicted" and len(first.frames.split()) == capped.TXN_FRAMES + 1
+    found = analysis.findings
+    assert (found[found.txn == first.txn].name == "txn_evicted").any() and first.verdict == "timeout"
 
 
 def test_dump_hold_is_bounded_by_fields() -> None:

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from pd_analyze.analysis.transactions import TransactionEngine, iter_closed
+import pd_analyze
 from pd_analyze.model.rules import RULES
 from pd_analyze.model.verdicts import VERDICTS
 from pd_analyze.protocol import profiles
@@ -59,12 +59,28 @@ def _cases() -> list:
 
 
 @cache
+def analysis(name: str, profile: str) -> pd_analyze.Analysis:
+    return pd_analyze.analyze(str(SAMPLE_DIR / name), profile=profile)
+
+
+@cache
 def analyse(name: str, profile: str) -> tuple[tuple[int, str], ...]:
-    """(frame, rule name) of every finding the analyser reports for a sample under a profile."""
-    d = Dissector(annotate=False, checker=Checker(profiles.generic(), profiles.load(profile)))
-    found = [(f.frame, f.name) for r in dissect(str(SAMPLE_DIR / name), dissector=d) for f in r.findings]
-    found += [(f.frame, f.name) for f in d.loose_findings]
-    return tuple(sorted(found))
+    """(frame, rule name) of every finding the analyser reports for a sample under a profile, but the
+    transaction-level ones (test_transactions_exactly_as_intended has those)."""
+    f = analysis(name, profile).findings
+    return tuple(sorted((int(frame), str(rule)) for frame, rule in zip(f.frame, f.name, strict=True)
+                        if rule not in TXN_RULES))
+
+
+def test_the_dissector_finds_what_the_analysis_finds() -> None:
+    """The dump's per-frame dissector reports, frame by frame, the findings of the analysis but the
+    transaction-level ones (the engine's: pairing and channels)."""
+    for path in _expected_files():
+        name = path.name[: -len(".json")]
+        d = Dissector(annotate=False, checker=Checker(profiles.generic(), profiles.load("generic")))
+        found = [(f.frame, f.name) for r in dissect(str(SAMPLE_DIR / name), dissector=d) for f in r.findings]
+        found += [(f.frame, f.name) for f in d.loose_findings]
+        assert tuple(sorted(found)) == analyse(name, "generic"), name
 
 
 @pytest.mark.parametrize(("name", "profile", "expected"), _cases())
@@ -127,26 +143,34 @@ def test_vendor_profiles_add_only_their_findings() -> None:
     assert {"change_response_body", "format_zero_akd", "nak_blocks"} <= rules("pd_akd_like.pcap", "generic")
 
 
+def _none(value: object) -> object:
+    import pandas as pd
+
+    return None if pd.isna(value) else value  # (NaN, NA: missing)
+
+
 @cache
 def transactions(name: str) -> tuple[list[dict], list[list]]:
     """The analyser's transactions of a sample (generic profile) in the expected files' form, and the
     transaction-level findings that belong to no transaction."""
-    engine = TransactionEngine()
-    closed = list(iter_closed(engine, dissect(str(SAMPLE_DIR / name)), [float("-inf")]))
+    a = analysis(name, "generic")
+    found = a.findings[a.findings.name.isin(TXN_RULES)]
+    by_txn: dict[object, list[list]] = {}
+    for txn, frame, rule in zip(found.txn, found.frame, found.name, strict=True):
+        by_txn.setdefault(_none(txn), []).append([int(frame), str(rule)])
     out = []
-    for t in sorted(closed, key=lambda t: t.write_req_frame):
-        fig = t.figures()
-        item = {"ref": t.ref if t.ref >= 0 else None,  # (None: a request cut before its reference)
-                "frames": [t.write_req_frame, max(t.frames)], "verdict": t.verdict,
-                "reads": len(t.read_req_frames), "b5_retries": t.b5_retries,
-                "rpc_retransmissions": t.rpc_retransmissions, "pnio_status": t.pnio_status,
-                "capture_ended": t.capture_ended,
-                "t_write_rtt": fig["t_write_rtt"], "t_total": fig["t_total"]}
-        found = sorted([f.frame, f.name] for f in t.findings if f.name in TXN_RULES)
-        if found:
-            item["findings"] = found
+    for t in a.transactions.sort_values("write_req_frame").itertuples():
+        frames = [int(x) for x in t.frames.split()]
+        item = {"ref": None if _none(t.ref) is None else int(t.ref),  # (None: a request cut before its reference)
+                "frames": [int(t.write_req_frame), max(frames)], "verdict": str(t.verdict),
+                "reads": int(t.reads), "b5_retries": int(t.b5_retries),
+                "rpc_retransmissions": int(t.rpc_retransmissions), "pnio_status": t.pnio_status or "",
+                "capture_ended": bool(t.capture_ended),
+                "t_write_rtt": _none(t.t_write_rtt), "t_total": _none(t.t_total)}
+        if t.txn in by_txn:
+            item["findings"] = sorted(by_txn[t.txn])
         out.append(item)
-    return out, sorted([f.frame, f.name] for f in engine.loose if f.name in TXN_RULES)
+    return out, sorted(by_txn.get(None, []))
 
 
 FIGURES = ("t_write_rtt", "t_total")

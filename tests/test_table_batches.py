@@ -20,7 +20,7 @@ import pyarrow.parquet as pq
 import pytest
 
 import pd_analyze
-from pd_analyze.analysis.pipeline import Settings
+from pd_analyze.analysis.capture_run import Settings
 from pd_analyze.analysis.schema import COLUMNS, ROW_TYPES, SORT_COLUMN, frame_of, sort_key
 from pd_analyze.analysis.table_batches import batch_schema, conform, frame_from_batches, rows_to_batch
 from pd_analyze.output import report

@@ -90,19 +90,3 @@ def test_retransmissions_of_an_unanswered_call_count_in_a_timeout(tmp_path):
     assert t.closed_by.astype(str).tolist() == ["superseded", "capture_end"]
     assert t.rpc_retransmissions.tolist() == [2, 2]
     assert t.reads.tolist() == [2, 1] and t.b5_retries.tolist() == [1, 1]
-
-
-def test_open_frames_follow_the_worked_example():
-    """What a split part waits for before it stops reading: open calls, reassemblies, pending transactions."""
-    from pd_analyze import capture
-    from pd_analyze.analysis.transactions import TransactionEngine
-    from pd_analyze.protocol.dissector import Dissector
-
-    d, engine = Dissector(), TransactionEngine()
-    seen = []
-    for frame in capture.frames(f"{SAMPLES}/worked_example.pcap"):
-        for res in d.feed(frame):
-            engine.feed(res)
-        seen.append((frame.number, list(d.open_frames()), list(engine.open_frames())))
-    # write req 1, write res 2, read req 3 answered B5 in 4, read req 5, final read res 6
-    assert seen == [(1, [1], [1]), (2, [], [1]), (3, [3], [1]), (4, [], [1]), (5, [5], [1]), (6, [], [])]

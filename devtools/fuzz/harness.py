@@ -1,6 +1,7 @@
 """The fuzz harness: a Runner feeds a case's frames through the dump path (`Dissector(annotate=True)`,
-the check marks, the text and JSON renderers) and the report path (`Dissector(annotate=False)`,
-`TransactionEngine`, table rows), and a mutated seed file through `capture.frames` (one in 32 of them
+the check marks, the text and JSON renderers) and the report path (the analysis engine, in batches of
+a few frames so every part of it meets the case, and its table rows), and a mutated seed file through
+the engine (one in 32 of them
 through `analyze()`, the summary, the CSV files and the HTML report), and records what counts as a
 failure: a crash, a hang (SIGALRM after `frame_limit` seconds), or a broken invariant (accounting,
 field bounds, inert output; `check_result`).
@@ -22,8 +23,10 @@ from pathlib import Path
 
 from devtools.hostile import peak_rss_mb
 from pd_analyze import capture
+from pd_analyze.analysis.capture_run import Settings
+from pd_analyze.analysis.engine.files import analyze_file
+from pd_analyze.analysis.engine.run import analyze_frames
 from pd_analyze.analysis.rows import Rows
-from pd_analyze.analysis.transactions import TransactionEngine
 from pd_analyze.capture import CaptureError
 from pd_analyze.output import dump
 from pd_analyze.protocol.dissector import Dissector
@@ -102,6 +105,7 @@ class Runner:
         self.frame_limit = frame_limit
         self.workdir = workdir or tempfile.mkdtemp(prefix="pd-fuzz-", dir=_tmp_root())
         self.checker = Checker.for_profile("sinamics")
+        self.settings = Settings(profile="sinamics")
         self.rows = Rows()
         signal.signal(signal.SIGALRM, _on_alarm)
 
@@ -137,35 +141,24 @@ class Runner:
     def frame_case(self, case: Case, stats: Stats) -> None:
         data = {f.number: f.data for f in case.frames}
         annotated = Dissector(annotate=True, checker=self.checker)
-        plain = Dissector(annotate=False, checker=self.checker)
-        engine = TransactionEngine()
-        last = float("-inf")
         for raw in case.frames:
             t0 = time.perf_counter()
             with _limit(self.frame_limit):
                 for res in annotated.feed(raw):
                     check_result(res, data[res.frame])
-                for res in plain.feed(raw):
-                    last = max(last, res.ts)
-                    for txn in engine.feed(res):
-                        self.rows.add(case.seed, txn)
-                        stats.transactions += 1
             stats.slowest = max(stats.slowest, time.perf_counter() - t0)
-        with _limit(self.frame_limit * 4):
+        t0 = time.perf_counter()
+        with _limit(self.frame_limit * max(4, len(case.frames))):
             for res in annotated.finish():
                 check_result(res, data[res.frame])
-            for res in plain.finish():
-                last = max(last, res.ts)
-                for txn in engine.feed(res):
-                    self.rows.add(case.seed, txn)
-            for txn in engine.finish(last):
-                self.rows.add(case.seed, txn)
-                stats.transactions += 1
-        for d in (annotated, plain):
-            acc = d.accounting
+            before = self.rows.transaction_count()
+            result = analyze_frames(case.frames, self.settings, self.rows, case.seed, batch_frames=7)
+            stats.transactions += self.rows.transaction_count() - before
+        stats.slowest = max(stats.slowest, (time.perf_counter() - t0) / max(1, len(case.frames)))
+        for acc in (annotated.accounting, result.accounting):
             if acc.read != len(case.frames) or not acc.balanced():
                 raise InvariantError(f"accounting {acc.line()} for {len(case.frames)} frames fed")
-        if len(self.rows.transactions) > 5000:
+        if self.rows.transaction_count() > 5000:
             self.tables()
 
     # --- file cases --------------------------------------------------------------------------
@@ -176,8 +169,6 @@ class Runner:
         path = os.path.join(self.workdir, f"case{number}.pcap")
         with open(path, "wb") as out:
             out.write(mutated)
-        d = Dissector(annotate=False, checker=self.checker)
-        engine = TransactionEngine()
         read = 0
         t0 = time.perf_counter()
         try:
@@ -187,16 +178,12 @@ class Runner:
                         read += 1
                         if len(raw.data) > capture.MAX_CAPLEN:
                             raise InvariantError(f"frame {raw.number} of {len(raw.data)} bytes above MAX_CAPLEN")
-                        for res in d.feed(raw):
-                            engine.feed(res)
                 except CaptureError as exc:
                     size = len(mutated) if mutated[:2] != b"\x1f\x8b" else float("inf")  # gzip: decompressed
                     if exc.offset is not None and not 0 <= exc.offset <= size:
                         raise InvariantError(f"CaptureError offset {exc.offset} outside the file "
                                              f"({len(mutated)} bytes)") from None
-                for res in d.finish():
-                    engine.feed(res)
-                engine.finish(0.0)
+                _rows, result = analyze_file(path, self.settings)
                 stats.slowest = max(stats.slowest, (time.perf_counter() - t0) / max(1, read))
                 if number % (FILE_CASE_EVERY * REPORT_CASE_EVERY) == 0:
                     self.report_case(path)  # whole tables and pages: not a frame's time
@@ -204,8 +191,9 @@ class Runner:
             os.unlink(path)
         stats.files += 1
         stats.file_frames += read
-        if d.accounting.read != read or not d.accounting.balanced():
-            raise InvariantError(f"accounting {d.accounting.line()} for {read} frames read")
+        acc = result.accounting
+        if acc.read != read or not acc.balanced():
+            raise InvariantError(f"accounting {acc.line()} for {read} frames read")
 
     def report_case(self, path: str) -> None:
         """The whole report path on a damaged file: analyze(), the summary, the CSV files, the HTML page."""

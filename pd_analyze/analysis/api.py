@@ -16,12 +16,11 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING
 
-from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings
+from pd_analyze.analysis.capture_run import DEFAULT_TXN_TIMEOUT, CaptureResult, Progress, Settings
 from pd_analyze.analysis.drilldown import annotated_frames
 from pd_analyze.analysis.jobs import run
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.schema import frame_of
-from pd_analyze.analysis.transactions import DEFAULT_TXN_TIMEOUT
 from pd_analyze.protocol import profiles
 from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT
 

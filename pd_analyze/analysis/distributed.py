@@ -20,11 +20,10 @@ import dask.dataframe as dd
 import pandas as pd
 
 from pd_analyze.analysis.api import accounting_frame, expand
-from pd_analyze.analysis.capture_run import CaptureResult, Settings
+from pd_analyze.analysis.capture_run import DEFAULT_TXN_TIMEOUT, CaptureResult, Settings
 from pd_analyze.analysis.jobs import analyze_file
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.schema import COLUMNS, frame_of
-from pd_analyze.analysis.transactions import DEFAULT_TXN_TIMEOUT
 from pd_analyze.protocol import profiles
 from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Collection, Iterator, Sequence
 
-from pd_analyze.analysis.pipeline import chain_numbered
+from pd_analyze import capture
 from pd_analyze.capture import CaptureError, RawFrame
 from pd_analyze.protocol.dissector import Dissector, dissect, dissect_frames
 from pd_analyze.protocol.frames import FrameResult
@@ -43,3 +43,10 @@ def _chained(files: Sequence[str]) -> Iterator[RawFrame]:
         for frame in chain_numbered(path, offset):
             offset = frame.number
             yield frame
+
+
+def chain_numbered(path: str, offset: int) -> Iterator[RawFrame]:
+    """One file of a chain, its frames numbered on after `offset` (the files numbered as one capture)."""
+    for frame in capture.frames(path, ip_only=True):
+        offset += frame.run or 1  # a run of skipped frames ends at its number
+        yield frame._replace(number=offset)

@@ -1,6 +1,5 @@
-"""Which way a set of captures goes: frame by frame or in batches as columns (by size), one process or
-files in parallel processes, or a chain of files read as one capture. One file is analysed in one
-process: its state (calls, transactions, values read) runs through the capture in order.
+"""Which way a set of captures goes: one process or files in parallel processes, or a chain of files read
+as one capture. Every capture goes through the one engine (analysis.engine), batch by batch.
 
 `run` is the one way in for `analyze()` and the streamed report alike (lists or spools as `Rows`), so
 their tables cannot differ.
@@ -10,14 +9,11 @@ from __future__ import annotations
 
 import os
 
-from pd_analyze.analysis import pipeline
 from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings
+from pd_analyze.analysis.engine import files as engine
 from pd_analyze.analysis.rows import Rows
 
 PARALLEL_MIN_BYTES = 8 * 1024 * 1024  # captures smaller than this in all are analysed in one process
-# Captures smaller than this in all are read frame by frame: for them the columns' imports (numpy,
-# pyarrow: about 0.2 s) cost more than the columns save
-COLUMNS_MIN_BYTES = 4 * 1024 * 1024
 
 
 def run(files: list[str], rows: Rows, settings: Settings, progress: Progress | None = None, jobs: int = 1,
@@ -27,9 +23,8 @@ def run(files: list[str], rows: Rows, settings: Settings, progress: Progress | N
 
     One process streams frame by frame; the parallel paths (`jobs` > 1) get each file's or part's rows
     from the workers and hand them on in order."""
-    way = _way(files, settings)
     if chain:
-        return way.analyze_chain(files, settings, progress, rows)
+        return engine.analyze_chain(files, settings, progress, rows)
     if jobs > 1 and ("-" in files or _input_bytes(files) < PARALLEL_MIN_BYTES):
         jobs = 1  # standard input is one stream; for small files, process start-up and shipping the rows
         # back would cost more than the files take
@@ -52,23 +47,7 @@ def run(files: list[str], rows: Rows, settings: Settings, progress: Progress | N
 def analyze_file(path: str, settings: Settings, progress: Progress | None = None, rows: Rows | None = None,
                  offset: int = 0) -> tuple[Rows, CaptureResult]:
     """One capture, numbered from transaction `offset` + 1 (a process-pool task: arguments and result pickle)."""
-    return _way([path], settings).analyze_file(path, settings, progress, rows, offset)
-
-
-def uses_columns(files: list[str], settings: Settings) -> bool:
-    """Whether the captures are read in batches as columns (Settings.columns; by their size when None)."""
-    if settings.columns is None:
-        return "-" in files or _input_bytes(files) >= COLUMNS_MIN_BYTES
-    return settings.columns
-
-
-def _way(files: list[str], settings: Settings):  # noqa: ANN202 (the module: pipeline or columnar.files)
-    """Columns, or frame by frame. The columnar modules are imported only when used."""
-    if not uses_columns(files, settings):
-        return pipeline
-    from pd_analyze.analysis.columnar import files as columnar
-
-    return columnar
+    return engine.analyze_file(path, settings, progress, rows, offset)
 
 
 def _input_bytes(files: list[str]) -> int:

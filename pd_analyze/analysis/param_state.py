@@ -37,7 +37,6 @@ if TYPE_CHECKING:
     import pandas as pd
 
     from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings
-    from pd_analyze.analysis.transaction import Transaction
     from pd_analyze.model.rules import Finding
 
 Key = tuple[str, int, int, int]  # device, DO, PNU, subindex
@@ -293,23 +292,9 @@ class StateRows(Rows):
         super().__init__()
         self.state = StateTable()
         self.inner = inner
-        self._adding = False
-
-    def add(self, capture: str, txn: Transaction, offset: int = 0) -> None:
-        self._adding = True
-        try:
-            super().add(capture, txn, offset)
-        finally:
-            self._adding = False
-        self.findings.clear()
-        self.changes.clear()
-        if self.inner is not None:
-            self.inner.add(capture, txn, offset)
-        if len(self.parameters) >= self.FOLD_ROWS:
-            self.fold()
 
     def add_finding(self, capture: str, f: Finding, txn: int | None = None) -> None:
-        if self.inner is not None and not self._adding:  # (a transaction's own findings reach inner.add)
+        if self.inner is not None:
             self.inner.add_finding(capture, f, txn)
 
     def use_names(self, names: pt.Names) -> None:

@@ -1,8 +1,9 @@
 """Closed transactions to rows of the four tidy tables: transactions, parameters, findings, changes.
 
-`Rows` turns each transaction as it closes into its rows (the row types and columns are declared in
-`schema`); findings that belong to no transaction come one by one. The same builder feeds `analyze()`
-(lists) and the streamed report (spools), so their tables cannot differ.
+`Rows` collects a capture's rows: the tables the engine makes as pyarrow tables (`add_table`), the rows
+of the few transactions whose records were parsed frame by frame (`add`; the row types and columns are
+declared in `schema`), findings that belong to no transaction one by one. The same collector feeds
+`analyze()` (lists) and the streamed report (spools), so their tables cannot differ.
 """
 
 from __future__ import annotations
@@ -12,12 +13,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from pd_analyze.analysis.schema import ChangeRow, FindingRow, ParameterRow, TransactionRow
-from pd_analyze.analysis.transaction import Transaction, elements, param_label
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.values import status_text
 from pd_analyze.model.verdicts import ANSWERED
-from pd_analyze.protocol.link import ip_text
 from pd_analyze.protocol.profidrive import Address, Block, Parsed, error_meaning, service_name, writes_values
 from pd_analyze.protocol.profidrive_view import cell_text, values_of
 
@@ -72,6 +71,10 @@ class Rows:
         """Name parameters and errors as the run's profile does (Checker.names)."""
         self.names = names
 
+    def transaction_count(self) -> int:
+        """Transactions held: rows made one by one and the tables' rows."""
+        return len(self.transactions) + sum(t.num_rows for t in self.tables.get("transactions", ()))  # type: ignore[attr-defined]
+
     def add_table(self, name: str, table: object) -> None:
         """Rows of one table made as a pyarrow table (the columnar path)."""
         self.tables.setdefault(name, []).append(table)
@@ -79,22 +82,23 @@ class Rows:
     def batch_done(self) -> None:
         """The columnar path finished a batch (a streaming end may pass its rows on now)."""
 
-    def channel_texts(self, v: tuple) -> tuple[str, str, str, str]:
-        return self._channel(v)
-
-    def _channel(self, v: tuple) -> tuple[str, str, str, str]:
-        """device, controller, ARUUID and index of a channel as text (the same few channels recur)."""
-        text = self._channels.get(v)
+    def channel_texts(self, ch: tuple) -> tuple[str, str, str, str]:
+        """device, controller, ARUUID and index of an engine channel (integers) as text."""
+        text = self._channels.get(ch)
         if text is None:
             if len(self._channels) >= _CHANNEL_CACHE:
                 self._channels.clear()
-            text = self._channels[v] = (ip_text(v[0]), ip_text(v[1]), _uuid(v[2]), f"0x{v[6]:04x}")
+            device, controller, ar_hi, ar_lo, _api, _slot, _subslot, index = ch
+            ar = str(uuid.UUID(int=ar_hi << 64 | ar_lo))
+            text = self._channels[ch] = (_ip(device), _ip(controller), ar, f"0x{index:04x}")
         return text
 
-    def add(self, capture: str, txn: Transaction, offset: int = 0) -> None:
-        number = txn.txn + offset
-        device, controller, ar, index = self._channel(txn.channel)
-        request, response = txn.request, txn.response
+    def add(self, capture: str, txn: Any, records: Any, offset: int = 0) -> None:
+        """A closed transaction (analysis.engine.txn.Txn) whose records `records` resolves (the rows of one
+        whose records the batch's columns do not hold: analysis.engine.tables makes the others')."""
+        number = txn.number + offset
+        device, controller, ar, index = self.channel_texts(txn.channel)
+        request, response = records.parsed(txn.request), records.parsed(txn.response)
         errors = []
         blocks = response.blocks if response is not None else []
         addresses = request.addresses if request is not None else []
@@ -102,9 +106,10 @@ class Rows:
         append = self.parameters.append
         whole = whole_request_error(request, response)
         if whole is not None and not addresses:  # a request of no parameter: one row, no PNU
-            append(ParameterRow._make((number, capture, device, txn.do, "", None, "", None, None, "", "", "", "",
-                                       _hex(whole.error), error_meaning(whole.error, response, self.names),
+            append(ParameterRow._make((number, capture, device, txn.do, "", None, "", None, None, "", "", "",
+                                       "", _hex(whole.error), error_meaning(whole.error, response, self.names),
                                        whole.error_subindex if whole.error_subindex >= 0 else None, True)))
+        changes = writes_values(request)
         for i, addr in enumerate(addresses):
             res_block = whole if whole is not None else blocks[i] if i < len(blocks) else None
             written = written_blocks[i] if i < len(written_blocks) else None
@@ -114,50 +119,47 @@ class Rows:
                 errors.append(f"{label}:{_hex(err)}")
             fmt = written if written is not None else res_block
             read_values = values_of(res_block) if res_block is not None and not res_block.is_error else None
-            append(ParameterRow._make((  # _make: a tuple is built in C, a named tuple's __new__ in Python
-                number, capture, device, txn.do, label, addr.pnu, self.names.pnu(addr.pnu), addr.subindex, addr.n_elems,
-                service_name(request, addr.attr) or pt.ATTRIBUTE.get(addr.attr) or _hex(addr.attr),
+            append(ParameterRow._make((
+                number, capture, device, txn.do, label, addr.pnu, self.names.pnu(addr.pnu), addr.subindex,
+                addr.n_elems, service_name(request, addr.attr) or pt.ATTRIBUTE.get(addr.attr) or _hex(addr.attr),
                 (pt.FORMAT_NAME.get(fmt.format) or _hex(fmt.format)) if fmt is not None and not fmt.is_error else "",
                 block_values(written), block_values(res_block, read_values), _hex(err),
                 error_meaning(err, response, self.names) if err >= 0 else "",
                 res_block.error_subindex if err >= 0 and res_block.error_subindex >= 0 else None, whole is not None)))
-            if written is not None and writes_values(request):
-                self._change(capture, txn, number, i, addr, label, written, res_block, device)
+            if written is not None and changes:
+                self._change(capture, txn, number, i, addr, label, written, res_block, response, device)
         if whole is not None:
             errors = [f"*:{_hex(whole.error)}"]  # header-level error: the whole request refused
         fig = txn.figures()
         v = txn.channel
         self.transactions.append(TransactionRow._make((
-            number, capture, device, controller, ar, index, v[3], v[4], v[5],
-            _int(txn.ref), _hex(txn.req_id), _int(txn.do), _int(txn.n_params), param_label(txn),
+            number, capture, device, controller, ar, index, v[4], v[5], v[6],
+            _int(txn.ref), _hex(txn.req_id), _int(txn.do), _int(txn.n_params),
+            " ".join(a.label() for a in addresses),
             _hex(response.ident) if response is not None else "", txn.verdict, " ".join(errors), txn.pnio_status,
-            status_text(txn.pnio_status),
-            txn.b5_retries, len(txn.read_req_frames), txn.rpc_retransmissions, txn.write_req_frame,
-            txn.write_res_frame or None, " ".join(map(str, txn.read_req_frames)), txn.read_res_frame or None,
-            " ".join(map(str, sorted(txn.frames))),
-            txn.t_start, fig["t_write_rtt"], fig["t_total"], fig["t_final_read_rtt"], fig["t_first_read_gap"],
-            fig["t_last_read"],
-            txn.capture_ended, txn.closed_by)))
+            status_text(txn.pnio_status), txn.b5, len(txn.read_frames), txn.retransmissions, txn.write_frame,
+            txn.write_res_frame or None, " ".join(map(str, txn.read_frames)), txn.read_res_frame or None,
+            " ".join(map(str, sorted(txn.frames))), txn.t_start / 1e9, fig["t_write_rtt"], fig["t_total"],
+            fig["t_final_read_rtt"], fig["t_first_read_gap"], fig["t_last_read"], txn.capture_ended, txn.closed_by)))
         for f in txn.findings:
             self.add_finding(capture, f, number)
 
-    def add_finding(self, capture: str, f: Finding, txn: int | None = None) -> None:
-        self.findings.append(finding_row(capture, f, txn))
-
-    def _change(self, capture: str, txn: Transaction, number: int, i: int, addr: Address, label: str,
-                written: Block, res_block: Block | None, device: str) -> None:
-        """The change trail: what was written, how it ended, and the values it replaced (read before it)."""
-        keys = elements(txn, addr)
-        before = txn.values_before[i] if i < len(txn.values_before) else [None] * len(keys)
+    def _change(self, capture: str, txn: Any, number: int, i: int, addr: Address, label: str,
+                       written: Block, res_block: Block | None, response: Parsed | None, device: str) -> None:
+        """The change trail of an engine transaction: what was written, how it ended, the values it replaced."""
+        count = max(addr.n_elems, 1)
+        before = txn.values_before[i] if i < len(txn.values_before) else [None] * count
         if res_block is not None and res_block.is_error:
-            result = f"error {_hex(res_block.error)}: {error_meaning(res_block.error, txn.response, self.names)}"
+            result = f"error {_hex(res_block.error)}: {error_meaning(res_block.error, response, self.names)}"
         else:
             result = "ok" if txn.verdict in ANSWERED else txn.verdict
         self.changes.append(ChangeRow._make((
-            capture, device, txn.do, number, txn.write_req_frame, txn.t_start, label, addr.pnu,
+            capture, device, txn.do, number, txn.write_frame, txn.t_start / 1e9, label, addr.pnu,
             self.names.pnu(addr.pnu), addr.subindex,
             block_values(written), result, " ".join(b for b in before if b is not None) if all(before) else "")))
 
+    def add_finding(self, capture: str, f: Finding, txn: int | None = None) -> None:
+        self.findings.append(finding_row(capture, f, txn))
 
 def whole_request_error(request: Parsed | None, response: Parsed | None) -> Block | None:
     """The one error block a device answered for the whole request (protocol.md 3.3: a header-level error
@@ -191,8 +193,8 @@ def _shifted_table(table: object, offset: int) -> object:
     return table.set_column(i, "txn", pc.add(table.column(i), offset))  # type: ignore[attr-defined]
 
 
-def _uuid(raw: bytes) -> str:
-    return str(uuid.UUID(bytes=raw)) if len(raw) == 16 else ""
+def _ip(value: int) -> str:
+    return f"{value >> 24}.{value >> 16 & 255}.{value >> 8 & 255}.{value & 255}"
 
 
 def _int(value: int) -> int | None:

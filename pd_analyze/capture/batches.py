@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import struct
 from array import array
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import BinaryIO
 
@@ -43,6 +43,9 @@ class FrameBatch:
     start: np.ndarray  # int64: offset of each frame's first byte in buf
     caplen: np.ndarray  # int64: bytes captured of each frame
     iface: np.ndarray  # int32: pcapng interface id (0 for pcap)
+    # int64: the same times exactly, in nanoseconds since the epoch (as the file's integer units give them;
+    # a float of seconds resolves only about 0.24 us today): every duration and deadline is computed on these
+    ns: np.ndarray
 
     def __len__(self) -> int:
         return len(self.number)
@@ -52,13 +55,41 @@ class FrameBatch:
         if start == 0 and stop >= len(self):
             return self
         return FrameBatch(self.buf, self.number[start:stop], self.ts[start:stop], self.linktype[start:stop],
-                          self.start[start:stop], self.caplen[start:stop], self.iface[start:stop])
+                          self.start[start:stop], self.caplen[start:stop], self.iface[start:stop], self.ns[start:stop])
 
     def raw_frame(self, i: int) -> RawFrame:
         """Frame i as the per-frame dissector takes it."""
         start = int(self.start[i])
         return RawFrame(int(self.number[i]), float(self.ts[i]), int(self.linktype[i]),
                         bytes(self.buf[start:start + int(self.caplen[i])]), int(self.iface[i]))
+
+
+def frame_batches(frames: Iterable[RawFrame], size: int = BATCH_FRAMES) -> Iterator[FrameBatch]:
+    """Frames given one by one (a generator's, a fuzzer's) as batches of at most `size` frames. Their float
+    times are taken to the microsecond (what a float of seconds since the epoch holds exactly)."""
+    part: list[RawFrame] = []
+    for frame in frames:
+        if frame.run:  # a run of skipped frames: its frames as empty Ethernet frames would count the same
+            raise ValueError("frame_batches takes frames, not runs of skipped frames (capture.frames ip_only)")
+        part.append(frame)
+        if len(part) >= size:
+            yield _of_frames(part)
+            part = []
+    if part:
+        yield _of_frames(part)
+
+
+def _of_frames(frames: list[RawFrame]) -> FrameBatch:
+    lengths = np.array([len(f.data) for f in frames], np.int64)
+    start = np.zeros(len(frames), np.int64)
+    np.cumsum(lengths[:-1], out=start[1:])
+    ns = [max(-_NS_EDGE, min(_NS_EDGE, round(f.ts * 1e6) * 1000)) if f.ts == f.ts else 0 for f in frames]
+    return FrameBatch(b"".join(f.data for f in frames), np.array([f.number for f in frames], np.int64),
+                      np.array([f.ts for f in frames], np.float64), np.array([f.linktype for f in frames], np.int32),
+                      start, lengths, np.array([f.iface for f in frames], np.int32), np.array(ns, np.int64))
+
+
+_NS_EDGE = (1 << 62)  # a float time beyond this (hostile input) is kept at the edge
 
 
 def batches(path: str, size: int = BATCH_FRAMES, info: CaptureInfo | None = None) -> Iterator[FrameBatch]:
@@ -165,10 +196,11 @@ def _columns(buf: bytes, starts: np.ndarray, caplen: np.ndarray, word: np.dtype,
     stamps = np.take(np.frombuffer(buf, np.uint8), np.add.outer(starts, _STAMP_BYTES)).view(word)
     sec, frac = stamps[:, 0], stamps[:, 1]
     ts = sec.astype(np.float64) + frac.astype(np.float64) / divisor  # as pcap_frames: sec + frac / divisor
+    ns = sec.astype(np.int64) * 1_000_000_000 + frac.astype(np.int64) * (1_000_000_000 // int(divisor))
     # A pcap link type is 32 bits, FCS flags on top: above 2^31 (hostile files) it is kept as its bit pattern
     lt = np.full(count, linktype - (1 << 32) if linktype >= 1 << 31 else linktype, np.int32)
     return FrameBatch(buf, np.arange(number, number + count, dtype=np.int64), ts, lt, starts + 16,
-                      caplen, np.zeros(count, np.int32))
+                      caplen, np.zeros(count, np.int32), ns)
 
 
 _STAMP_BYTES = np.arange(8, dtype=np.int64)  # a record header's seconds and fraction of a second

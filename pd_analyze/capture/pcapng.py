@@ -25,29 +25,50 @@ class _Interface(NamedTuple):
     divisor: float
     offset: int
     snaplen: int
+    resol: int = 6  # if_tsresol: 10^-resol s per unit, or 2^-(resol & 0x7F) with the 0x80 bit
 
+    def ns(self, ticks: int) -> int:
+        """A timestamp in nanoseconds since the epoch, exact for decimal units down to the nanosecond."""
+        return clamp_ns(self.offset * 1_000_000_000 + ticks_ns(ticks, self.resol))
+
+
+NS_LIMIT = (1 << 63) - 1  # a time beyond what an int64 of nanoseconds holds (after 2262) is kept at its edge
+
+
+def clamp_ns(ns: int) -> int:
+    return max(-NS_LIMIT, min(NS_LIMIT, ns))
+
+
+def ticks_ns(ticks: int, resol: int) -> int:
+    """Timestamp units of resolution `resol` (if_tsresol) in whole nanoseconds (finer units rounded down)."""
+    if resol & 0x80:
+        return ticks * 1_000_000_000 >> (resol & 0x7F)
+    if resol <= 9:
+        return ticks * 10 ** (9 - resol)
+    return ticks // 10 ** (resol - 9)
 
 class Section:
     """What a pcapng reader knows at a block: the section's byte order and interfaces, the frames so far."""
 
-    __slots__ = ("ifaces", "last_ts", "little", "number")
+    __slots__ = ("ifaces", "last_ns", "last_ts", "little", "number")
 
     def __init__(self) -> None:
         self.little = True
         self.ifaces: list[_Interface] = []
         self.number = 0
         self.last_ts = 0.0
+        self.last_ns = 0
 
 
 def pcapng_frames(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[RawFrame]:
     for section, block, packet in _walk(path, stream, info):
         if packet is not None:
-            ts, linktype, start, caplen, iface_id = packet
+            ts, linktype, start, caplen, iface_id, _ns = packet
             yield RawFrame(section.number, ts, linktype, block[start:start + caplen], iface_id)
 
 
 def _walk(path: str, stream: BinaryIO, info: CaptureInfo
-          ) -> Iterator[tuple[Section, bytes, tuple[float, int, int, int, int] | None]]:
+          ) -> Iterator[tuple[Section, bytes, tuple[float, int, int, int, int, int] | None]]:
     """Every block of a pcapng file, read whole and checked, with its section and, for a packet,
     read_block's tuple (the section then counts it)."""
     pos = 0
@@ -74,10 +95,10 @@ def block_length(path: str, buf: bytes, at: int, little: bool, pos: int) -> int:
 
 
 def read_block(path: str, section: Section, info: CaptureInfo, buf: bytes, at: int,
-               pos: int) -> tuple[float, int, int, int, int] | None:
+               pos: int) -> tuple[float, int, int, int, int, int] | None:
     """The whole block at buf[at:] (its length checked), at file offset pos: a packet's (time, link type,
-    offset of its data in buf, caplen, interface id), counted in `section`; None for any other block (an
-    interface description is learnt)."""
+    offset of its data in buf, caplen, interface id, time in nanoseconds), counted in `section`; None for
+    any other block (an interface description is learnt)."""
     order = "<" if section.little else ">"
     btype, blen = struct.unpack_from(order + "II", buf, at)
     if struct.unpack_from(order + "I", buf, at + blen - 4)[0] != blen:
@@ -102,7 +123,8 @@ def read_block(path: str, section: Section, info: CaptureInfo, buf: bytes, at: i
         iface = section.ifaces[iface_id]
         section.number += 1
         section.last_ts = iface.offset + ((ts_high << 32) | ts_low) / iface.divisor
-        return section.last_ts, iface.linktype, at + 28, caplen, iface_id
+        section.last_ns = iface.ns((ts_high << 32) | ts_low)
+        return section.last_ts, iface.linktype, at + 28, caplen, iface_id, section.last_ns
     elif btype == dpkt.pcapng.PCAPNG_BT_SPB:
         if not section.ifaces:
             raise CaptureError(path, "simple packet block before any interface", pos)
@@ -117,7 +139,7 @@ def read_block(path: str, section: Section, info: CaptureInfo, buf: bytes, at: i
         section.number += 1
         # An SPB carries no timestamp: Wireshark shows none; we keep the previous one so
         # capture-time timeouts stay monotonic.
-        return section.last_ts, iface.linktype, at + 12, caplen, 0
+        return section.last_ts, iface.linktype, at + 12, caplen, 0, section.last_ns
     # every other block type (name resolution, statistics, custom, ...) is skipped
     return None
 
@@ -159,14 +181,14 @@ def _interface(path: str, block: bytes, little: bool, pos: int) -> _Interface:
                else dpkt.pcapng.InterfaceDescriptionBlock)(block)
     except (dpkt.NeedData, dpkt.UnpackError, struct.error) as exc:
         raise CaptureError(path, f"interface description block invalid ({exc})", pos) from None
-    divisor, offset = 1e6, 0
+    divisor, offset, resol = 1e6, 0, 6
     for opt in idb.opts:
         if opt.code == dpkt.pcapng.PCAPNG_OPT_IF_TSRESOL and opt.data:
             resol = opt.data[0]
             divisor = float(2 ** (resol & 0x7F) if resol & 0x80 else 10 ** (resol & 0x7F))
         elif opt.code == dpkt.pcapng.PCAPNG_OPT_IF_TSOFFSET and len(opt.data) == 8:
             offset = struct.unpack("<q" if little else ">q", opt.data)[0]
-    return _Interface(idb.linktype, divisor, offset, idb.snaplen)
+    return _Interface(idb.linktype, divisor, offset, idb.snaplen, resol)
 
 
 def _packet_header(order: str, btype: int, buf: bytes, at: int) -> tuple[int, int, int, int]:
@@ -203,7 +225,7 @@ def pcapng_blocks(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[Bl
         if packet is None:
             yield Block(block, btype, section.little)
         else:
-            ts, linktype, start, caplen, iface_id = packet
+            ts, linktype, start, caplen, iface_id, _ns = packet
             iface = section.ifaces[iface_id]
             yield Block(block, btype, section.little, section.number, ts, linktype, start, caplen, iface_id,
                         iface.divisor, iface.offset)

@@ -18,12 +18,21 @@ from typing import BinaryIO
 import numpy as np
 
 from pd_analyze.capture.chunks import ChunkReads
-from pd_analyze.capture.pcapng import _PCAPNG_MAX_BLOCK, PCAPNG_SHB, Section, block_length, read_block, shb_little
+from pd_analyze.capture.pcapng import (
+    _PCAPNG_MAX_BLOCK,
+    PCAPNG_SHB,
+    Section,
+    block_length,
+    clamp_ns,
+    read_block,
+    shb_little,
+    ticks_ns,
+)
 from pd_analyze.capture.raw import MAX_CAPLEN, CaptureError, CaptureInfo
 
 # buf, number, ts, linktype, start, caplen, iface: the columns of FrameBatch, over one chunk
-Columns = tuple[bytes, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-Packet = tuple[float, int, int, int, int]  # as read_block returns it
+Columns = tuple[bytes, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+Packet = tuple[float, int, int, int, int, int]  # as read_block returns it
 
 _EPB = 6
 _REWALKS = 16  # byte-order changes in a chunk walked again; beyond, the chunk is read block by block
@@ -135,10 +144,13 @@ class _Chunk:
             ticks = (high[:stop].astype(np.uint64) << np.uint64(32)) | low[:stop]
             # as read_block: offset + ticks / divisor, each int made a float (rounded alike) before the division
             ts = offset + ticks.astype(np.float64) / divisor
+            ns = _ns(ifaces, ids, ticks)
             self._flush()
-            self.segments.append((ts, linktype, st[:stop] + 28, caplen[:stop].astype(np.int64), ids.astype(np.int32)))
+            self.segments.append((ts, linktype, st[:stop] + 28, caplen[:stop].astype(np.int64), ids.astype(np.int32),
+                                  ns))
             self.section.number += stop
             self.section.last_ts = float(ts[-1])
+            self.section.last_ns = int(ns[-1])
         if unknown.size:
             self._block(int(st[stop]))
             raise AssertionError("read_block accepted an EPB naming an unknown interface")
@@ -164,16 +176,31 @@ class _Chunk:
 
     def _flush(self) -> None:
         if self.packets:
-            ts, linktype, start, caplen, iface = zip(*self.packets, strict=True)
+            ts, linktype, start, caplen, iface, ns = zip(*self.packets, strict=True)
             self.segments.append((np.array(ts, np.float64), np.array(linktype, np.int32), np.array(start, np.int64),
-                                  np.array(caplen, np.int64), np.array(iface, np.int32)))
+                                  np.array(caplen, np.int64), np.array(iface, np.int32), np.array(ns, np.int64)))
             self.packets = []
 
     def columns(self) -> Columns:
         self._flush()
-        ts, linktype, start, caplen, iface = (np.concatenate(c) for c in zip(*self.segments, strict=True))
+        ts, linktype, start, caplen, iface, ns = (np.concatenate(c) for c in zip(*self.segments, strict=True))
         number = np.arange(self.first, self.first + len(ts), dtype=np.int64)
-        return self.buf, number, ts, linktype, start, caplen, iface
+        return self.buf, number, ts, linktype, start, caplen, iface, ns
+
+
+def _ns(ifaces: list, ids: np.ndarray, ticks: np.ndarray) -> np.ndarray:
+    """Packet times in nanoseconds, exactly as _Interface.ns gives them (vectorised for decimal units of a
+    nanosecond or coarser when the products fit 62 bits; Python integers otherwise, which cannot overflow)."""
+    resol = np.array([i.resol for i in ifaces], np.int64)[ids]
+    offset = np.array([i.offset for i in ifaces], np.int64)[ids]
+    if not len(ticks):
+        return np.zeros(0, np.int64)
+    if bool(np.all(resol <= 9)):
+        scale = np.array([10 ** (9 - r) for r in range(10)], np.int64)[resol]
+        if int(ticks.max()) * int(scale.max()) < 1 << 62 and bool(np.all(np.abs(offset) < 1 << 30)):
+            return offset * 1_000_000_000 + ticks.astype(np.int64) * scale
+    return np.array([clamp_ns(o * 1_000_000_000 + ticks_ns(t, r)) for o, t, r in
+                     zip(offset.tolist(), ticks.tolist(), resol.tolist(), strict=True)], np.int64)
 
 
 def _block_starts(buf: bytes, pos: int, length_at: Callable[[bytes, int], tuple[int, ...]]) -> np.ndarray:

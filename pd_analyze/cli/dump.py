@@ -9,7 +9,6 @@ from collections.abc import Callable
 import click
 
 from pd_analyze.analysis.capture_run import Settings
-from pd_analyze.analysis.transactions import TransactionEngine
 from pd_analyze.capture import CaptureError
 from pd_analyze.cli import wireshark
 from pd_analyze.cli.base import (
@@ -22,7 +21,7 @@ from pd_analyze.cli.base import (
     profile_option,
     text_style,
 )
-from pd_analyze.output import dump
+from pd_analyze.output import dump, frame_notes
 from pd_analyze.output.dump_findings import with_transaction_findings
 from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT, Dissector, dissect
 
@@ -98,14 +97,19 @@ def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None
         d = Dissector(annotate=True, rpc_timeout=rpc_timeout, checker=checker)
         clock = dump.Clock(time_format)
         results = clock.watch(dissect(path, dissector=d))
-        if findings_only:  # the transaction engine's findings too, at their frames (as audit shows them)
-            results = with_transaction_findings(results, TransactionEngine())
+        notes = None
+        if findings_only and path != "-":  # the analysis' findings too, at their frames (as audit shows them)
+            notes = frame_notes.collect(path, Settings(profile, rpc_timeout=rpc_timeout))
+            results = with_transaction_findings(results, notes)
         results = (r for r in results if wanted(r.frame))
         try:
             dump.render(results, fmt, lines_out(colour and fmt == "text"), style, findings_only, clock)
         except CaptureError as exc:
             click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
             status = EXIT_USAGE
+        finally:
+            if notes is not None:
+                notes.close()
         outside = dump.beyond(ranges, d.accounting.read)
         if outside and status == EXIT_OK:
             click.echo(dump.safe(f"pd-analyze: {path}: --frames {','.join(outside)} lies beyond the capture's "

@@ -17,6 +17,7 @@ from pd_analyze.analysis.capture_run import CaptureResult, Settings
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.schema import RULE_RANK, FindingRow, ParameterRow, TransactionRow
 from pd_analyze.model import pd_values as pt
+from pd_analyze.model.rules import Finding
 from pd_analyze.output.spool import Spool
 
 OPEN, CLOSE = "open", "close"
@@ -41,6 +42,15 @@ class FindingNote(NamedTuple):
     rule: str
     name: str
     message: str
+    field: str = ""
+    value: str = ""
+    expected: str = ""
+    source: str = ""
+
+    def finding(self, frame: int) -> Finding:
+        """The finding as the analysis made it."""
+        return Finding(self.rule, self.name, self.severity, frame, self.field, self.value, self.expected, self.source,
+                       self.message)
 
 
 @dataclass(slots=True)
@@ -118,7 +128,8 @@ class _NoteRows(Rows):
     def _finding(self, row: Any) -> None:
         if row.frame is not None:
             self.spool.append((_FINDING, row.frame, row.severity or "", row.rule or "", row.name or "",
-                               row.message or ""))
+                               row.message or "", row.field or "", _text(row.value), _text(row.expected),
+                               row.source or ""))
 
     def add_table(self, name: str, table: object) -> None:
         """The columnar path's rows as pyarrow tables: read row by row as the per-frame path gives them."""
@@ -132,6 +143,10 @@ class _NoteRows(Rows):
 
     def extend(self, other: Rows, offset: int) -> None:  # pragma: no cover - one capture, one process
         raise NotImplementedError("frame notes are collected in one process")
+
+
+def _text(value: object) -> str:
+    return "" if value is None else str(value)
 
 
 class _Sink:

@@ -29,7 +29,6 @@ from pd_analyze.output.writers import neutralise, open_table
 if TYPE_CHECKING:
     from pd_analyze.analysis.api import Analysis
     from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings
-    from pd_analyze.analysis.transaction import Transaction
     from pd_analyze.model.rules import Finding
 
 __all__ = ["CHUNK_ROWS", "TABLES", "BatchReport", "Streamed", "neutralise", "stream", "stream_findings", "summary",
@@ -278,8 +277,8 @@ def _arrow_text(text: str) -> bool:
 
 
 class _ReportRows(Rows):
-    """Rows for the streaming report: the columns' tables go straight to the report's sinks, rows made one
-    by one (the per-frame path) follow as batches of ROWS_PER_BATCH rows, or when a batch of frames ends."""
+    """Rows for the streaming report: the engine's tables go straight to the report's sinks, findings made
+    one by one follow as batches of ROWS_PER_BATCH rows, or when a batch of frames ends."""
 
     ROWS_PER_BATCH = 4096
 
@@ -287,11 +286,6 @@ class _ReportRows(Rows):
         super().__init__()
         self.out = out
         self.size = min(rows_per_batch, self.ROWS_PER_BATCH)
-
-    def add(self, capture: str, txn: Transaction, offset: int = 0) -> None:
-        super().add(capture, txn, offset)
-        if len(self.parameters) >= self.size or len(self.findings) >= self.size or len(self.changes) >= self.size:
-            self.batch_done()
 
     def add_finding(self, capture: str, f: Finding, txn: int | None = None) -> None:
         super().add_finding(capture, f, txn)
@@ -315,10 +309,6 @@ class _ReportRows(Rows):
 
 class _FindingsOnly(Rows):
     """Rows that keep only findings (audit): the other tables are not even built."""
-
-    def add(self, capture: str, txn: Transaction, offset: int = 0) -> None:
-        for f in txn.findings:
-            self.add_finding(capture, f, txn.txn + offset)
 
     def extend(self, other: Rows, offset: int) -> None:
         self.findings.extend(r[:2] + ((r[2] + offset if r[2] is not None else None),) + r[3:]

@@ -14,6 +14,7 @@ field objects are built and nothing is held.
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Iterable, Iterator
 
 from pd_analyze import capture
@@ -64,8 +65,14 @@ class Dissector:
     """State for one capture: IP and CL reassembly, open calls, the ordered output."""
 
     def __init__(self, annotate: bool = False, rpc_timeout: float = DEFAULT_RPC_TIMEOUT,
-                 checker: Checker | None = None) -> None:
+                 checker: Checker | None = None, pairing: bool = True) -> None:
         self.annotate = annotate
+        # pairing=False: a decoder of PDUs for the analysis engine, which pairs calls itself (one
+        # implementation of protocol.md 2.4 and 7): no call table, responses decoded with their own opnum,
+        # no check that compares a response with its request or its channel's last parameter request
+        self.pairing = pairing
+        self.force_opnum: int | None = None  # without pairing: decode responses as answers to this operation
+        self.records = True  # False: the PROFIdrive records are not parsed (their checks are not wanted)
         self.rpc_timeout = rpc_timeout
         self.checker = checker or Checker.for_profile()
         self.records_not_profidrive = 0
@@ -183,9 +190,13 @@ class Dissector:
         if not self._is_pnio(hdr):
             self._skip_udp(number, dgram, rpc.SKIP_NOT_PNIO)
             return None
-        if hdr.activity not in self._activities:
+        if self.pairing and hdr.activity not in self._activities:
             self.remember_activity(hdr.activity)
         res = FrameResult(number, ts, dgram.src, dgram.dst, "", hdr.ptype)
+        if not self.pairing:
+            res.decide = not rpc.is_pnio_uuid(hdr.interface) and hdr.ptype != PTYPE_REQUEST
+            res.key = (hdr.activity, hdr.seq)
+            res.truncated = dgram.truncated
         base = dgram.payload_offset if dgram.payload_offset >= 0 else 0
         if self.annotate:
             res.layers += [Layer(title, 0, fields) for title, fields in link.annotate(linktype, data, dgram)]
@@ -204,6 +215,7 @@ class Dissector:
                                             "the whole IP datagram", "capture cut inside a PNIO RPC PDU "
                                                                      "(snaplen)"))
             self.accounting.malformed[MALFORMED_RPC] += 1
+            res.counted = MALFORMED_RPC
             if hdr.ptype in (PTYPE_REQUEST, PTYPE_RESPONSE) and not hdr.flags1 & FLAG1_FRAG:
                 # decode what is present, so the transaction it belongs to is known (and malformed)
                 self._data_pdu(res, hdr, dgram, body, base + rpc.HEADER_SIZE)
@@ -212,6 +224,7 @@ class Dissector:
                 res.summary = f"{_pdu_name(hdr)} [truncated]"
             if res.pdu is None:
                 res.pdu = self._bare_pdu(number, ts, dgram, hdr)
+                res.pdu.unpaired = True
             res.pdu.malformed = True
             return res
         self.accounting.decoded += 1
@@ -226,12 +239,13 @@ class Dissector:
     def _skip_udp(self, number: int, dgram: link.Datagram, reason: str) -> None:
         self.accounting.skipped[reason] += 1
         if dgram.truncated:
-            self.loose_findings.append(finding("truncated_capture", number, "frame.caplen", "", "",
-                                               "frame captured shorter than its IP total length"))
+            self.loose_findings.append(truncated_elsewhere(number))
 
     def _is_pnio(self, hdr: rpc.Header) -> bool:
         if rpc.is_pnio_uuid(hdr.interface):
             return True
+        if not self.pairing:  # PNIO if its call or activity is: the engine decides (FrameResult.decide)
+            return hdr.ptype != PTYPE_REQUEST
         if hdr.ptype in (PTYPE_RESPONSE, PTYPE_FAULT, PTYPE_REJECT, PTYPE_WORKING, PTYPE_NOCALL):
             key = (hdr.activity, hdr.seq)
             return key in self.calls.open or key in self.calls.closed
@@ -246,7 +260,7 @@ class Dissector:
     def _bare_pdu(self, number: int, ts: float, dgram: link.Datagram, hdr: rpc.Header,
                   malformed: bool = False) -> Pdu:
         return Pdu(number, ts, dgram.src, dgram.dst, dgram.sport, dgram.dport, hdr.ptype, hdr.opnum,
-                   hdr.activity, hdr.seq, malformed=malformed)
+                   hdr.activity, hdr.seq, malformed=malformed, interface=hdr.interface)
 
     # --- requests and responses -------------------------------------------------------------
     def _data_pdu(self, res: FrameResult, hdr: rpc.Header, dgram: link.Datagram, body: bytes,
@@ -263,6 +277,8 @@ class Dissector:
                 call = self.calls.open.get(key)
                 if call is not None and not response:
                     call.copies += 1
+                if not response:
+                    res.fragment_copy = key
                 res.findings.append(finding("rpc_retransmission", number, "rpc.frag_num", hdr.frag_num,
                                             "a new fragment", "fragment retransmitted (identical copy)"))
                 res.summary = f"{_pdu_name(hdr)}, fragment {hdr.frag_num} [retransmission]"
@@ -287,7 +303,13 @@ class Dissector:
         res.pdu = pdu
         if frames or dgram.fragments:
             self._first_frame(pdu, dgram, frames, whole_ts if frames else None)
-        if response:
+        if not self.pairing:
+            pdu.digest = (zlib.crc32(body), len(body))
+            if response:
+                self.frags.drop_call(key, res.frame, res.findings)
+            elif hdr.opnum in RECORD_SERVICES and hdr.interface[3] != 1:
+                res.findings.append(_other_interface(hdr, res.frame))
+        elif response:
             self._response(res, hdr, dgram, key, body, pdu)
         else:
             self._request(res, hdr, dgram, key, body, pdu)
@@ -296,6 +318,8 @@ class Dissector:
             return
         # a response is decoded as an answer to its request's operation (R4 reports a differing opnum)
         opnum = pdu.request.opnum if response and pdu.request is not None else hdr.opnum
+        if response and self.force_opnum is not None:
+            opnum = self.force_opnum
         pdu.opnum = opnum
         stub = rec.parse_stub(body, hdr.little, response, opnum, number, res.findings)
         pdu.stub = stub
@@ -307,7 +331,8 @@ class Dissector:
         res.findings += checks.ndr(stub, declared, opnum, number, request_stub)
         res.findings += checks.blocks(stub, opnum, number, request_stub, self.checker.record.max_length,
                                       self.checker.tolerate)
-        self._records(res, stub, hdr, dgram)
+        if self.records:
+            self._records(res, stub, hdr, dgram)
         if not response and not pdu.retransmission and pdu.request is not None:
             self.calls.charge(key, pdu.request, _decoded_cost(stub), res.findings)  # info keeps the stub
         if self.annotate:
@@ -332,9 +357,7 @@ class Dissector:
             pdu.retransmission = True
         pdu.request = known
         if hdr.opnum in RECORD_SERVICES and hdr.interface[3] != 1:
-            res.findings.append(finding("pnio_interface", res.frame, "rpc.interface", hdr.interface.hex(),
-                                        "PNIO Device interface", "Read/Write on a PNIO interface other "
-                                                                 "than Device"))
+            res.findings.append(_other_interface(hdr, res.frame))
         if self.hold is not None and known is call:
             self.hold.wait(res)
 
@@ -371,7 +394,7 @@ class Dissector:
         res.pdu = pdu
         status = layout.unpack(body)[0] if len(body) >= 4 else None
         pdu.fault_status = status
-        call = self.calls.close(key, res.ts)
+        call = self.calls.close(key, res.ts) if self.pairing else None
         pdu.request = call
         name = RPC_PTYPE[hdr.ptype]
         text = f"{status:#010x} {NCA_STATUS.get(status, '')}".strip() if status is not None else "no status"
@@ -390,7 +413,7 @@ class Dissector:
 
     def _control(self, res: FrameResult, hdr: rpc.Header, dgram: link.Datagram) -> None:
         key = (hdr.activity, hdr.seq)
-        call = self.calls.open.get(key)
+        call = self.calls.open.get(key) if self.pairing else None
         name = RPC_PTYPE[hdr.ptype]
         res.summary = f"{name.capitalize()}: seq {hdr.seq}"
         if hdr.ptype == PTYPE_WORKING and call is not None:
@@ -433,7 +456,7 @@ class Dissector:
                 continue
             key = _channel(dgram, v, block.target_ar, response)
             if response:
-                request, request_frame = self._pd_requests.get(key, (None, 0))
+                request, request_frame = self._pd_requests.get(key, (None, 0)) if self.pairing else (None, 0)
                 parsed = profidrive.parse_response(block.record, number, res.findings, self.checker.ids)
                 res.findings += self.checker.response(parsed, number, request)
                 block.pd = (parsed, request)
@@ -443,7 +466,8 @@ class Dissector:
                 parsed = profidrive.parse_request(block.record, number, res.findings, self.checker.ids)
                 res.findings += self.checker.request(parsed, number)
                 block.pd = (parsed, None)
-                self._remember_request(key, parsed, number)
+                if self.pairing:
+                    self._remember_request(key, parsed, number)
 
     def _remember_request(self, key: tuple, parsed: profidrive.Parsed, number: int) -> None:
         """The channel's last parameter request, within the CHANNEL_REQUESTS caps (the oldest go)."""
@@ -468,6 +492,17 @@ class Dissector:
         for res in results:
             mark_checks(res, CHECKED_FIELDS)
         return results
+
+
+def truncated_elsewhere(frame: int) -> Finding:
+    """L1 info: a frame cut by the snaplen outside a PNIO RPC PDU."""
+    return finding("truncated_capture", frame, "frame.caplen", "", "",
+                   "frame captured shorter than its IP total length")
+
+
+def _other_interface(hdr: rpc.Header, frame: int) -> Finding:
+    return finding("pnio_interface", frame, "rpc.interface", hdr.interface.hex(), "PNIO Device interface",
+                   "Read/Write on a PNIO interface other than Device")
 
 
 def _decoded_cost(stub: rec.Stub) -> int:

@@ -42,6 +42,9 @@ class Pdu:
     malformed: bool = False
     fragments: tuple[int, ...] = ()  # frames of the IP/CL fragments it was reassembled from
     first_ts: float | None = None  # a request is timed at its first frame (protocol.md 7.6)
+    interface: bytes = b""
+    unpaired: bool = False  # a PDU cut before its body could be read as a request or response: no call
+    digest: tuple[int, int] = (0, 0)  # a request's body: CRC-32 and size (a copy or a reused key, 2.4)
 
 
 @dataclass(slots=True)
@@ -55,6 +58,15 @@ class FrameResult:
     layers: list[Layer] = field(default_factory=list)
     findings: list[Finding] = field(default_factory=list)
     pdu: Pdu | None = None
+    # A dissector without pairing (`Dissector(pairing=False)`, the analysis engine's decoder) leaves these
+    # to its caller: whether the frame is PNIO at all is decided by its call or activity (`decide`: a PDU
+    # other than a request whose interface is not a PNIO one, counted as `counted` says), and the call
+    # key of a request fragment it dropped as an identical copy (`fragment_copy`: the call counts it)
+    decide: bool = False
+    counted: str = ""  # "" decoded, else the malformed reason it was counted under
+    fragment_copy: tuple[bytes, int] | None = None
+    key: tuple[bytes, int] | None = None  # the call (activity, sequence number) of the frame's RPC header
+    truncated: bool = False  # captured shorter than its IP total length
 
     @property
     def src(self) -> str:

@@ -50,14 +50,8 @@ def ndr(stub: Stub, stub_len: int, opnum: int, frame: int, request: Stub | None)
                                f">= {rec.IOD_SIZE + read.record_len}",
                                "ArgsMaximum cannot hold the read header plus the requested record"))
         return out
-    if request is not None and request.ndr:
-        args_max = request.args_max
-        if stub.max_count != args_max or args_len > args_max:
-            bad, value = (("ndr.max_count", stub.max_count) if stub.max_count != args_max
-                          else ("ndr.args_len", args_len))
-            out.append(finding("ndr_response_max", frame, bad, value, args_max if bad == "ndr.max_count"
-                               else f"<= {args_max}", "response NDR header inconsistent with the "
-                                                      "request's ArgsMaximum"))
+    if request is not None:
+        out += ndr_paired(stub, request, frame)
     status = stub.status
     if status is not None:
         out += pnio_status(status, opnum, frame, "ndr.status")
@@ -68,6 +62,18 @@ def ndr(stub: Stub, stub_len: int, opnum: int, frame: int, request: Stub | None)
             out.append(finding("pnio_status_differs", frame, "iod.status.code", stub.blocks[0].status.text(),
                                status.text(), "NDR PNIOStatus and write-response block status differ"))
     return out
+
+
+def ndr_paired(stub: Stub, request: Stub, frame: int) -> list[Finding]:
+    """N4: a response's NDR header against its request's ArgsMaximum."""
+    if not stub.ndr or not stub.response or not request.ndr:
+        return []
+    args_max, args_len = request.args_max, stub.args_len
+    if stub.max_count == args_max and args_len <= args_max:
+        return []
+    bad, value = (("ndr.max_count", stub.max_count) if stub.max_count != args_max else ("ndr.args_len", args_len))
+    return [finding("ndr_response_max", frame, bad, value, args_max if bad == "ndr.max_count" else f"<= {args_max}",
+                    "response NDR header inconsistent with the request's ArgsMaximum")]
 
 
 def pnio_status(status: rec.Status, opnum: int, frame: int, prefix: str) -> list[Finding]:
@@ -112,7 +118,7 @@ def blocks(stub: Stub, opnum: int, frame: int, request: Stub | None, max_record:
     if not stub.response and opnum == OP_WRITE and stub.blocks and stub.blocks[0].index == INDEX_WRITE_MULTIPLE:
         out += _multi_sum(stub, frame)
     if stub.response and request is not None:
-        out += _mirroring(stub, request, opnum, frame)
+        out += mirroring(stub, request, opnum, frame)
     return out
 
 
@@ -215,7 +221,7 @@ _MIRRORED = (("iod.seq", rec.B_SEQ), ("iod.api", rec.B_API), ("iod.slot", rec.B_
 _mirrored_values = itemgetter(*(i for _, i in _MIRRORED), rec.B_AR)
 
 
-def _mirroring(stub: Stub, request: Stub, opnum: int, frame: int) -> list[Finding]:
+def mirroring(stub: Stub, request: Stub, opnum: int, frame: int) -> list[Finding]:
     """H6-H8: each response block mirrors the request block in the same position."""
     out = []
     for pos, (res, req) in enumerate(zip(stub.blocks, request.blocks, strict=False)):

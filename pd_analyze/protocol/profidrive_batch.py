@@ -300,3 +300,35 @@ def parsed(d: DecodedRecords, buf: bytes, start: int, length: int, response: boo
             block.pad_offset, block.pad = offset + 2 + size, int(k.pad[row])
         p.blocks.append(block)
     return p
+
+
+def merge_records(a: DecodedRecords, b: DecodedRecords) -> DecodedRecords:
+    """The records of `a`, then those of `b` (decoded from another buffer: b's `data_start` keep pointing
+    into it, so only what needs no value bytes may be read of them), every index shifted to match."""
+    ra, rb = a.records, b.records
+    records = RecordColumns(*(np.concatenate([getattr(ra, f), getattr(rb, f) + (
+        len(a.addresses.record) if f == "first_addr" else len(a.blocks.record) if f == "first_block" else 0)])
+        for f in RecordColumns.__dataclass_fields__))
+    shift = len(ra.ref)
+    addresses = AddressColumns(*(np.concatenate([getattr(a.addresses, f), getattr(b.addresses, f) + (
+        shift if f == "record" else 0)]) for f in AddressColumns.__dataclass_fields__))
+    columns = {}
+    for f in BlockColumns.__dataclass_fields__:
+        x, y = getattr(a.blocks, f), getattr(b.blocks, f)
+        if f == "text":
+            columns[f] = _concat_text(x, y)
+        else:
+            columns[f] = np.concatenate([x, y + (shift if f == "record" else 0)])
+    return DecodedRecords(records, addresses, BlockColumns(**columns))
+
+
+def _concat_text(x: object, y: object) -> object:
+    """Two BlockColumns.text columns (pyarrow string arrays or numpy object arrays of str) as one."""
+    if hasattr(x, "to_pylist") or hasattr(y, "to_pylist"):
+        import pyarrow as pa
+
+        def arrow(t: object) -> object:
+            return (t if hasattr(t, "to_pylist") else pa.array(list(t), pa.large_string())).cast(pa.large_string())
+
+        return pa.concat_arrays([arrow(x), arrow(y)])
+    return np.concatenate([np.asarray(x, object), np.asarray(y, object)])

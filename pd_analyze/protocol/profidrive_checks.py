@@ -206,11 +206,7 @@ class Checker:
                     out.append(finding("read_response_blocks", frame, f"pd.val[{i}].format", f"{b.format:#04x}",
                                        "a value format", "positive read response with a Zero/Error block"))
             if request is not None:
-                for i, (b, a) in enumerate(zip(p.blocks, request.addresses, strict=False)):
-                    if a.attr == pt.ATTR_VALUE and not b.is_error and b.n_values != max(a.n_elems, 1):
-                        out.append(finding("n_values_read", frame, f"pd.val[{i}].n_values", b.n_values,
-                                           max(a.n_elems, 1), f"{a.label()}: No. of values differs from "
-                                                              "the requested elements"))
+                out += n_values_read(p, frame, request)
         elif p.ident == pt.RES_READ_NAK and pt.FMT_ERROR not in formats and p.complete:
             out.append(finding("nak_blocks", frame, "pd.resp_id", "0x81", "at least one error block",
                                "negative read response without any error block"))
@@ -274,3 +270,15 @@ def _address_fields(i: int) -> tuple[str, str, str, str]:
 def _value_fields(i: int) -> tuple[str, str]:
     return f"pd.val[{i}].format", f"pd.val[{i}].n_values"
 
+
+def n_values_read(p: Parsed, frame: int, request: Parsed) -> list[Finding]:
+    """Q7: a positive read response's No. of values against the requested elements (the channel's last
+    parameter request, protocol.md 6.4)."""
+    if p.ident != pt.RES_READ:
+        return []
+    out = []
+    for i, (b, a) in enumerate(zip(p.blocks, request.addresses, strict=False)):
+        if a.attr == pt.ATTR_VALUE and not b.is_error and b.n_values != max(a.n_elems, 1):
+            out.append(finding("n_values_read", frame, f"pd.val[{i}].n_values", b.n_values, max(a.n_elems, 1),
+                               f"{a.label()}: No. of values differs from the requested elements"))
+    return out

@@ -129,13 +129,20 @@ def check_header(hdr: Header, frame: int, body_present: int, record_service: boo
 
 def check_response(req: Call, hdr: Header, src: bytes, dst: bytes, frame: int) -> list[Finding]:
     """R4: the response names the request's interface and opnum, and swaps its addresses."""
+    return response_findings(req.frame, hdr.interface == req.interface and hdr.opnum == req.opnum, hdr.opnum,
+                             req.opnum, _ip(src), _ip(req.dst), (src, dst) == (req.dst, req.src), frame)
+
+
+def response_findings(request_frame: int, same_call: bool, opnum: int, request_opnum: int, src: str,
+                      request_dst: str, swapped: bool, frame: int) -> list[Finding]:
+    """R4 from what was compared: interface and opnum the request's (`same_call`), addresses swapped."""
     out = []
-    if hdr.interface != req.interface or hdr.opnum != req.opnum:
-        out.append(finding("rpc_response_mismatch", frame, "rpc.opnum", hdr.opnum, req.opnum,
-                           f"response interface/opnum differ from the request in frame {req.frame}"))
-    if (src, dst) != (req.dst, req.src):
-        out.append(finding("rpc_addresses_not_swapped", frame, "ip.src", _ip(src), _ip(req.dst),
-                           f"response addresses do not swap those of the request in frame {req.frame}"))
+    if not same_call:
+        out.append(finding("rpc_response_mismatch", frame, "rpc.opnum", opnum, request_opnum,
+                           f"response interface/opnum differ from the request in frame {request_frame}"))
+    if not swapped:
+        out.append(finding("rpc_addresses_not_swapped", frame, "ip.src", src, request_dst,
+                           f"response addresses do not swap those of the request in frame {request_frame}"))
     return out
 
 

@@ -157,6 +157,10 @@ class FragmentTable:
             if not keys:
                 self._by_call.pop(key[:2], None)
 
+    def pending_calls(self) -> bool:
+        """Whether any unfinished set belongs to a request (drop_call may find one)."""
+        return bool(self._by_call)
+
     def drop_call(self, call_key: tuple, number: int, findings: list[Finding]) -> None:
         """The call was answered: any unfinished fragment set of its request is missing pieces."""
         for key in list(self._by_call.get(call_key[:2], ())):

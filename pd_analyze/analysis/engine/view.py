@@ -1,11 +1,5 @@
-"""One batch as the columnar path sees it: its frames routed, its PDUs grouped by address pair, the
-PROFIdrive records among them decoded, and which groups must go to the per-frame path.
-
-A group goes there (for good) when any of its frames is one the columns do not take (route FRAMES), when a
-record of it is irregular or not PROFIdrive at index 0x002F, when a frame the interface does not mark
-as PNIO may belong to one of its calls (same activity), and when the pairing of calls or the state
-machine find something unusual (`calls`, `channels`).
-"""
+"""One batch as the column decode sees it: its frames routed, its PNIO PDUs decoded down to the IOD
+header, the PROFIdrive records among them decoded, what each request asks for (a write, a read)."""
 
 from __future__ import annotations
 
@@ -15,10 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pd_analyze.analysis.columnar.state import KIND_OTHER, KIND_READ, KIND_WRITE, ColumnarState
 from pd_analyze.capture.batches import FrameBatch
 from pd_analyze.model.values import (
-    INDEX_PD_DPV1,
     IP_ETHERTYPES,
     LINKTYPE_ETHERNET,
     OP_READ,
@@ -27,10 +19,11 @@ from pd_analyze.model.values import (
     PROFIDRIVE_INDICES,
 )
 from pd_analyze.protocol import pnio_batch, profidrive_batch
-from pd_analyze.protocol.pnio_batch import ROUTE_DECIDE, ROUTE_FRAMES, ROUTE_PNIO, ROUTE_SKIP, DecodedBatch
+from pd_analyze.protocol.pnio_batch import ROUTE_PNIO, DecodedBatch
 from pd_analyze.protocol.profidrive import Parsed
 from pd_analyze.protocol.profidrive_checks import Checker
 
+KIND_OTHER, KIND_WRITE, KIND_READ = 0, 1, 2  # a call on another record, a parameter request's write, a read
 _PD_INDICES = np.array(sorted(PROFIDRIVE_INDICES))
 # Parameters one batch's records may declare (No. of parameters summed) before the batch is decoded in
 # parts: the parameter and block columns take some 160 bytes a parameter, so this bounds them near 20 MB,
@@ -133,76 +126,6 @@ class BatchView:
         flag[sel] |= records.records.flag
         return BatchView(batch, decoded, records, rec_of, sel, group_key(p.src, p.dst), batch.number[p.pos],
                          batch.ts[p.pos], pnio, kind, flag)
-
-    # --- which groups the per-frame path takes ---------------------------------------------------
-    def reference_groups(self, state: ColumnarState) -> set[int]:
-        """The groups of this batch the per-frame path takes (those it had already, and the new ones)."""
-        f = self.decoded.frames
-        bad = set(state.reference_groups)
-        frames = (f.route == ROUTE_FRAMES) & (f.group != 0)
-        bad.update(np.unique(f.group[frames]).tolist())
-        r = self.records.records
-        sel = np.flatnonzero(self.rec_of >= 0)
-        odd = ~r.regular | ((self.p.index[sel] == INDEX_PD_DPV1) & ~r.plausible)
-        bad.update(np.unique(self.group[sel[odd]]).tolist())
-        self._shared_activities(state, bad)
-        return bad
-
-    def _shared_activities(self, state: ColumnarState, bad: set[int]) -> None:
-        """Adds to `bad` the groups with a call whose activity a frame of the per-frame path carries: a
-        call's frames may cross address pairs (a response from another address is R4's), and the
-        dissector decides whether a frame without a PNIO interface belongs to a PNIO call (DECIDE)."""
-        f = self.decoded.frames
-        p = self.p
-        while True:
-            frames = (f.route == ROUTE_FRAMES) | (f.route == ROUTE_DECIDE)
-            if bad:
-                frames[p.pos[self.pnio & ~self.good(bad)]] = True
-            frames &= (f.act_hi != 0) | (f.act_lo != 0)
-            if not frames.any():
-                return
-            acts = set(zip(f.act_hi[frames].tolist(), f.act_lo[frames].tolist(), strict=True))
-            found: set[int] = set()
-            mine = np.flatnonzero(self.pnio & self.good(bad))
-            for i, hi, lo in zip(mine.tolist(), p.act_hi[mine].tolist(), p.act_lo[mine].tolist(), strict=True):
-                if (hi, lo) in acts:
-                    found.add(int(self.group[i]))
-            found.update(call.request.group for key, call in state.open_calls.items() if key[:2] in acts)
-            for log in state.answered:
-                hit = np.zeros(len(log.group), bool)
-                for hi, lo in acts:
-                    hit |= (log.act_hi == hi) & (log.act_lo == lo)
-                found.update(np.unique(log.group[hit]).tolist())
-            if found <= bad:
-                return
-            bad |= found
-
-    def candidates(self, bad: set[int]) -> np.ndarray:
-        """The PDUs the columns analyse: PNIO frames of the groups not in `bad`, in frame order."""
-        return np.flatnonzero(self.pnio & self.good(bad))
-
-    def good(self, bad: set[int]) -> np.ndarray:
-        """Per PDU: its group is analysed by the columns."""
-        if not bad:
-            return np.ones(len(self.group), bool)
-        return ~np.isin(self.group, np.fromiter(bad, np.uint64, len(bad)))
-
-    def frames_for_reference(self, bad: set[int]) -> np.ndarray:
-        """Positions in the batch of the frames the per-frame dissector reads, in frame order: those the
-        columns do not take, the DECIDE ones, and the PNIO frames of the groups in `bad`."""
-        f = self.decoded.frames
-        take = (f.route == ROUTE_FRAMES) | (f.route == ROUTE_DECIDE)
-        if bad:
-            pnio_bad = self.p.pos[self.pnio & ~self.good(bad)]
-            take[pnio_bad] = True
-        return np.flatnonzero(take)
-
-    def skip_codes(self) -> np.ndarray:
-        f = self.decoded.frames
-        return f.skip_reason[f.route == ROUTE_SKIP].astype(np.int64)
-
-    def columnar_decoded(self, bad: set[int]) -> int:
-        return int(np.count_nonzero(self.pnio & self.good(bad)))
 
     # --- records as the per-frame parse gives them -------------------------------------------------
     @property

@@ -1,5 +1,5 @@
-"""Capture files through the columnar loop: one file, or a chain of files read as one capture (frame
-numbers running on across the files, as analysis.pipeline.analyze_chain numbers them)."""
+"""Capture files through the engine: one file, or a chain of files read as one capture (frame numbers
+running on across the files, as `mergecap -a` would join them)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from bisect import bisect_right
 from collections.abc import Iterator
 
 from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings, difference, error_text, snapshot
-from pd_analyze.analysis.columnar.run import ColumnarRun, run_batches
+from pd_analyze.analysis.engine.run import EngineRun, run_batches
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.capture import CaptureError
 from pd_analyze.capture.batches import FrameBatch, batches
@@ -21,7 +21,7 @@ def _batches(path: str, settings: Settings) -> Iterator[FrameBatch]:
 
 def analyze_file(path: str, settings: Settings, progress: Progress | None = None, rows: Rows | None = None,
                  offset: int = 0) -> tuple[Rows, CaptureResult]:
-    """One capture, numbered from transaction `offset` + 1."""
+    """One capture, numbered from transaction `offset` + 1 (a process-pool task: arguments and result pickle)."""
     rows = Rows() if rows is None else rows
     result = CaptureResult(path, Accounting())
     result.accounting = run_batches(_batches(path, settings), settings, rows, lambda _frame: path, [result], progress,
@@ -37,7 +37,7 @@ def analyze_chain(files: list[str], settings: Settings, progress: Progress | Non
     def capture_of(frame: int) -> str:
         return files[max(0, bisect_right(starts, frame) - 1)] if files else ""
 
-    run = ColumnarRun(settings, rows, capture_of, results, progress)
+    run = EngineRun(settings, rows, capture_of, results, progress)
     offset = 0
     for path in files:
         before = snapshot(run.totals())

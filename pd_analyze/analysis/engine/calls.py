@@ -1,0 +1,184 @@
+"""CL-RPC calls (protocol.md 2.4): every PNIO PDU of the capture, in frame order, paired with its call by
+activity UUID and sequence number, never by ports. The one implementation of the pairing for every
+command: retransmissions and reused keys told apart by the digest of the body, duplicate and orphan
+responses, R4, calls expiring after rpc_timeout of capture time, answered calls remembered as long (to
+recognise a late copy), a PDU whose interface is not PNIO's taken as PNIO when its call or activity is;
+both tables capped (model.capped), every eviction stated.
+"""
+
+from __future__ import annotations
+
+from pd_analyze.analysis.engine.facts import Key, Pdu
+from pd_analyze.model import rules
+from pd_analyze.model.capped import ANSWERED_CALLS, KNOWN_ACTIVITIES, MAX_LISTED, OPEN_CALLS, CappedTable
+from pd_analyze.model.rules import Finding
+from pd_analyze.model.values import (
+    PTYPE_FAULT,
+    PTYPE_NOCALL,
+    PTYPE_REJECT,
+    PTYPE_REQUEST,
+    PTYPE_RESPONSE,
+    PTYPE_WORKING,
+)
+from pd_analyze.protocol.rpc import response_findings
+from pd_analyze.protocol.rpc_calls import CALL_OVERHEAD, NO_RESPONSE, unanswered_finding
+
+_ANSWERS = (PTYPE_RESPONSE, PTYPE_FAULT, PTYPE_REJECT, PTYPE_WORKING, PTYPE_NOCALL)  # PNIO if their call is
+END_OF_CAPTURE = "end of capture"
+
+
+class Call:
+    """An RPC call: its request as first seen, and what the transactions learn of it (`fsm`)."""
+
+    __slots__ = ("answered", "copies", "digest", "dst", "frame", "fsm", "ifc", "opnum", "raw", "request",
+                 "response_frame", "src", "ts")
+
+    def __init__(self, row: Pdu) -> None:
+        self.frame, self.ts = row.frame, row.ts
+        self.src, self.dst, self.ifc, self.opnum = row.src, row.dst, row.ifc, row.opnum
+        self.digest = row.digest
+        self.request = row  # the request's row (its records, its frames for the checks of the answer)
+        self.copies = 0
+        self.response_frame = 0
+        self.answered = -1  # capture time of the answer (ns); -1: none yet
+        self.fsm: object = None  # what the transactions keep of the call (machine)
+        self.raw = None  # its request frame, kept when the call outlives its batch unanswered (the checks of
+        # its answer read it)
+
+
+def ip_text(value: int) -> str:
+    return f"{value >> 24}.{value >> 16 & 255}.{value >> 8 & 255}.{value & 255}"
+
+
+class Pairing:
+    """Open calls by key, answered calls remembered rpc_timeout after their answer, the activities of PNIO
+    calls (a ping or acknowledgement of one is PNIO too); capture times in nanoseconds."""
+
+    def __init__(self, rpc_timeout: float) -> None:
+        self.timeout = round(rpc_timeout * 1e9)
+        self.rpc_timeout = rpc_timeout
+        self.open: CappedTable[Key, Call] = CappedTable(OPEN_CALLS)
+        self.closed: CappedTable[Key, Call] = CappedTable(ANSWERED_CALLS)
+        self.activities: CappedTable[tuple[int, int], None] = CappedTable(KNOWN_ACTIVITIES)
+        self.loose: list[Finding] = []  # findings of no frame's own: calls that expired or were never answered
+        self.now = -(1 << 62)
+
+    def pnio(self, row: Pdu) -> bool:
+        """Whether a PDU whose interface is not PNIO's belongs to a PNIO call or activity (protocol.md 1.4)."""
+        key = row.key
+        if row.ptype in _ANSWERS:
+            return key in self.open or key in self.closed
+        return (key[0], key[1]) in self.activities
+
+    def tick(self, now: int) -> None:
+        """Capture time reached `now` (over every frame, PNIO or not): the calls due expire."""
+        if now > self.now:
+            self.now = now
+            self.expire()
+
+    def pair(self, row: Pdu) -> None:
+        """One PNIO PDU, in frame order (after `tick` to its frame's time)."""
+        act = (row.key[0], row.key[1])
+        if act not in self.activities:
+            self.activities.remember(act, None)
+        if not row.whole:
+            copy = row.raw.fragment_copy if row.raw is not None else None
+            if copy is not None:  # an identical request fragment again: the call counts it
+                call = self.open.get(row.key)
+                if call is not None:
+                    call.copies += 1
+            return
+        ptype = row.ptype
+        if ptype == PTYPE_REQUEST:
+            self._request(row)
+        elif ptype == PTYPE_RESPONSE:
+            self._response(row)
+        elif ptype in (PTYPE_FAULT, PTYPE_REJECT):
+            row.call = self._close(row.key, row.ts)
+
+    def _request(self, row: Pdu) -> None:
+        key = row.key
+        known = self.open.get(key) or self.closed.get(key)
+        if known is not None:
+            if known.digest == row.digest:
+                known.copies += 1
+                row.findings.append(rules.finding(
+                    "rpc_retransmission", row.frame, "rpc.seq", key[2], "a new sequence number",
+                    f"request retransmitted (copy {known.copies} of frame {known.frame})"))
+            else:
+                row.findings.append(rules.finding(
+                    "rpc_key_reused", row.frame, "rpc.seq", key[2], "a new sequence number",
+                    f"activity/sequence number of frame {known.frame} reused with a different body"))
+            row.call = known
+            row.copy = True
+            return
+        call = Call(row)
+        row.call = call
+        for old_key, old, listed in self.open.add(key, call, row.frame, CALL_OVERHEAD + row.digest[1]):
+            if listed:
+                row.findings.append(rules.finding(
+                    OPEN_CALLS.rule, row.frame, "rpc.seq", old_key[2], OPEN_CALLS.text(),
+                    f"open-call table full: call of frame {old.frame} dropped unanswered"))
+
+    def _response(self, row: Pdu) -> None:
+        key = row.key
+        call = self._close(key, row.ts)
+        if call is None:
+            dup = self.closed.get(key)
+            if dup is not None:
+                row.findings.append(rules.finding(
+                    "rpc_retransmission", row.frame, "rpc.seq", key[2], "one response per call",
+                    f"duplicate response (call of frame {dup.frame} already answered)"))
+                row.copy = True
+                row.call = dup
+            else:
+                row.findings.append(rules.finding("orphan_response", row.frame, "rpc.seq", key[2], "an open request",
+                                                  "response without an open request (decoded with its own opnum)"))
+            return
+        row.call = call
+        call.response_frame = row.frame
+        row.findings += response_findings(call.frame, row.ifc == call.ifc and row.opnum == call.opnum, row.opnum,
+                                          call.opnum, ip_text(row.src), ip_text(call.dst),
+                                          (row.src, row.dst) == (call.dst, call.src), row.frame)
+
+    def _close(self, key: Key, ts: int) -> Call | None:
+        """The open call of `key`, answered at `ts`: remembered until rpc_timeout after."""
+        call = self.open.pop(key, None)
+        if call is not None:
+            call.answered = ts
+            self.closed.remember(key, call)  # the oldest are forgotten when the table is full
+        return call
+
+    def expire(self) -> None:
+        """Calls opened more than rpc_timeout before now are unanswered; answered calls are forgotten as
+        long after their answer."""
+        now, timeout, closed = self.now, self.timeout, self.closed
+        while closed:  # in the order answered: stop at the first still remembered
+            key = next(iter(closed))
+            if closed[key].answered + timeout >= now:
+                break
+            closed.pop(key)
+        first = self.open.oldest()
+        if first is None or first.ts + timeout >= now:
+            return  # the common case: nothing is due
+        due = []
+        for key, call in self.open.items():
+            if call.ts + timeout >= now:
+                break
+            due.append((key, call))
+        for key, call in due:
+            self.open.pop(key)
+            self.loose.append(unanswered_finding(call.frame, key[2], self.rpc_timeout, NO_RESPONSE))
+
+    def finish(self) -> None:
+        """End of capture: every open call unanswered, and how many the caps dropped beyond those listed."""
+        for key, call in list(self.open.items()):
+            self.open.pop(key)
+            self.loose.append(unanswered_finding(call.frame, key[2], self.rpc_timeout, END_OF_CAPTURE))
+        more = self.open.unlisted()
+        if more:
+            evicted = self.open.evicted
+            self.loose.append(rules.finding(
+                OPEN_CALLS.rule, self.open.last_eviction, "rpc.seq", evicted, OPEN_CALLS.text(),
+                f"{more} more open calls dropped unanswered by the table caps "
+                f"({evicted} in all; only the first {MAX_LISTED} are listed one by one)"))

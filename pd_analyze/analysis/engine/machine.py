@@ -1,0 +1,369 @@
+"""PROFIdrive transactions (protocol.md 7): write a parameter request, poll with reads, get the response.
+
+`Machine.feed` takes the paired PDU rows in frame order and closes transactions as the model says:
+a write of a parameter request opens one on its channel (superseding a pending one: T3; reusing the
+last one's reference: T1/T4), its answer closes it when refused; reads answered B5 count; the final
+read's answer closes it (Q2-Q5 on the mirroring); a read with no pending write on its channel is
+paired by device, controller, AR and index (T6) or reported (T2); a deadline passed, the caps or the
+capture's end close it as a timeout, or as a busy drive given up (7.3 step 5). State is kept only for
+open channels and open calls, each table capped with its evictions stated (model.capped).
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable
+from typing import NamedTuple
+
+from pd_analyze.analysis.capture_run import DEFAULT_B5_THRESHOLD, DEFAULT_TXN_TIMEOUT
+from pd_analyze.analysis.engine.calls import Call
+from pd_analyze.analysis.engine.facts import Channel, Pdu, Write
+from pd_analyze.analysis.engine.records import Element, Records
+from pd_analyze.analysis.engine.rules import (
+    UNANSWERED_ENDS,
+    LastDone,
+    b5_finding,
+    mirroring,
+    reuse_finding,
+    superseded_finding,
+    verdict_of,
+)
+from pd_analyze.analysis.engine.txn import Txn
+from pd_analyze.model import pd_values as pt
+from pd_analyze.model.capped import (
+    CHANNEL_HISTORY,
+    PENDING_TRANSACTIONS,
+    READ_VALUES,
+    TXN_CALLS,
+    TXN_FRAMES,
+    CappedTable,
+)
+from pd_analyze.model.rules import Finding, finding
+from pd_analyze.model.values import (
+    OP_WRITE,
+    PNIORW_STATE_CONFLICT,
+    PTYPE_FAULT,
+    PTYPE_REJECT,
+    PTYPE_REQUEST,
+    PTYPE_RESPONSE,
+    RECORD_SERVICES,
+)
+from pd_analyze.model.verdicts import ANSWERED
+
+FRAME_COST = 1024  # bytes a transaction keeps per frame (frame lists, its RPC calls)
+_B5 = 0x80 << 16 | PNIORW_STATE_CONFLICT << 8  # ErrorDecode PNIORW, ErrorCode1 state conflict (packed status)
+B5_STATUS = f"DE80{PNIORW_STATE_CONFLICT:02X}00"
+
+
+class FsmCall(NamedTuple):
+    """What an open write/read call is about, by its request frame."""
+
+    kind: str  # "write", "read", or "cut": a write cut before its first IOD block (its answer may name it)
+    txns: list[Txn | None]  # per record written (a Write-Multiple's), or the one read target
+    channel: Channel | None = None
+    request: Pdu | None = None  # a cut write's request row
+
+
+def fallback_key(channel: Channel) -> tuple:
+    """Device, controller, AR and index: what a read must share with a write addressed differently
+    (protocol.md 7.2; slot and subslot may differ, the index may not)."""
+    return channel[0], channel[1], channel[2], channel[3], channel[7]
+
+
+class Machine:
+    """The channel state machines over paired PDU rows (protocol.md 7.3); times in nanoseconds."""
+
+    def __init__(self, txn_timeout: float = DEFAULT_TXN_TIMEOUT, b5_threshold: int = DEFAULT_B5_THRESHOLD) -> None:
+        self.timeout = round(txn_timeout * 1e9)
+        self.b5_threshold = b5_threshold
+        self.records = Records(None)  # the current batch's (set by the run)
+        self.names_of: Callable[[Pdu], Write | None] = lambda row: None  # the channel a column answer names
+        self.loose: list[Finding] = []  # findings of frames that belong to no transaction
+        self.opened: list[Txn] = []  # opened since the run last took them (it numbers them)
+        self.closed: list[Txn] = []  # closed since the run last took them
+        # open transactions by channel, in opening order; the oldest ends as a timeout when the table is full
+        self.pending: CappedTable[Channel, Txn] = CappedTable(PENDING_TRANSACTIONS)
+        self._by_ar: dict[tuple, OrderedDict[Channel, Txn]] = {}  # the fallback pairing's key (7.2)
+        self.last_done: CappedTable[Channel, LastDone] = CappedTable(CHANNEL_HISTORY)  # for T1, T4
+        self._calls: CappedTable[int, FsmCall] = CappedTable(TXN_CALLS)  # by request frame
+        self.read_values: CappedTable[Element, str] = CappedTable(READ_VALUES)  # the last read back, per element
+        self.now = -(1 << 62)
+
+    # --- the row loop -------------------------------------------------------------------------
+    def feed(self, row: Pdu) -> Txn | None:
+        """One PNIO RPC frame's row (in frame order); the transaction it belongs to, if any."""
+        if row.ts > self.now:
+            self.now = row.ts
+        self._expire()  # (also when time stood still or went back: a transaction opened past its deadline)
+        owner = self._row(row)
+        if owner is not None:
+            frames = owner.frames
+            if not frames or frames[-1] < row.frame or row.frame not in frames:
+                frames.append(row.frame)  # rows come in frame order: one comparison, as a rule
+                if not owner.closed_by:
+                    self.pending.charge(owner.channel, FRAME_COST)
+                    if len(frames) > TXN_FRAMES:
+                        self._evict(owner, row.frame, f"more than {TXN_FRAMES} frames")
+        return owner
+
+    def advance(self, now: int) -> None:
+        """Capture time reached `now`: the transactions due close."""
+        if now > self.now:
+            self.now = now
+            self._expire()
+
+    def finish(self, last: int) -> None:
+        """Capture end (`last`: its latest PNIO time): every open transaction is a timeout, marked
+        capture_ended if its deadline lies beyond."""
+        for txn in list(self.pending.values()):
+            txn.capture_ended = txn.t_start + self.timeout > last
+            self._close(txn, "capture_end")
+        self._calls.clear()
+
+    def _expire(self) -> None:
+        due = []
+        for txn in self.pending.values():  # in opening order: stop at the first not yet due
+            if txn.t_start + self.timeout >= self.now:
+                break
+            due.append(txn)
+        for txn in due:
+            self._close(txn, "deadline")
+
+    def _row(self, row: Pdu) -> Txn | None:
+        if not row.whole:
+            return None
+        call: Call | None = row.call
+        ptype = row.ptype
+        if ptype == PTYPE_REQUEST:
+            if row.opnum not in RECORD_SERVICES:
+                return None
+            if row.copy:
+                return self._retransmitted(call)
+            return self._write_request(row) if row.opnum == OP_WRITE else self._read_request(row)
+        if ptype in (PTYPE_RESPONSE, PTYPE_FAULT, PTYPE_REJECT) and call is not None and not row.copy:
+            if call.opnum not in RECORD_SERVICES:
+                return None
+            fsm = self._calls.pop(call.frame, None)
+            if fsm is None:
+                return None
+            if fsm.kind == "cut":
+                return self._cut_write_response(row, fsm)
+            if fsm.kind == "write":
+                return self._write_response(row, fsm)
+            return self._read_response(row, fsm)
+        return None
+
+    # --- writes -----------------------------------------------------------------------------
+    def _write_request(self, row: Pdu) -> Txn | None:
+        writes = row.writes
+        if writes is None:
+            return None
+        opened: list[Txn | None] = []
+        for w in writes:
+            opened.append(None if w is None else self._open(row, w, len(opened)))
+        if not any(opened):
+            if row.cut:
+                # cut before its IOD header was complete (snaplen, damage): the index is unknown until the
+                # answer, paired by activity and sequence number, names it (protocol.md 7.3 step 1)
+                self._remember(row.frame, FsmCall("cut", [], None, row))
+            return None
+        self._remember(row.frame, FsmCall("write", opened))
+        return next(t for t in opened if t is not None)
+
+    def _open(self, row: Pdu, w: Write, position: int) -> Txn:
+        txn = self._new(row, w.channel, row.frame, position)
+        txn.request = w.record
+        if w.head is not None:
+            txn.ref, txn.req_id, txn.do, txn.n_params = w.head
+        txn.malformed = w.malformed
+        txn.vendor = w.vendor
+        records = self.records
+        if records.writes_values(w.record, txn.req_id):  # what the change replaces, known before it
+            device, do, get = w.channel[0], txn.do, self.read_values.get
+            txn.values_before = [[get((device, do, pnu, sub + j)) for j in range(max(n, 1))]
+                                 for _attr, n, pnu, sub in records.addresses(w.record)]
+        self._admit(txn, row.frame)
+        return txn
+
+    def _new(self, row: Pdu, channel: Channel, opened_at: int, position: int) -> Txn:
+        """A transaction of the write request `row`, numbered by the frame that opens it (`opened_at`: the
+        request's, or a cut request's answer) and its position among the request's records."""
+        txn = Txn(channel, row.first, row.first_ts, opened_at, position)
+        txn.frames.extend(row.frames)
+        txn.calls.append(row.call)
+        self.opened.append(txn)
+        return txn
+
+    def _admit(self, txn: Txn, frame: int) -> None:
+        """A new transaction becomes its channel's pending one: T3 on a pending one, T1/T4, the caps."""
+        channel = txn.channel
+        old = self.pending.get(channel)
+        if old is not None:
+            txn.findings.append(superseded_finding(txn.ref, old.write_frame, old.ref, frame))
+            self._close(old, "superseded")
+        last = self.last_done.get(channel)
+        if last is not None:
+            reuse = reuse_finding(last, txn.ref, frame)
+            if reuse is not None:
+                txn.findings.append(reuse)
+        self.pending.put(channel, txn, 1024 + self.records.cost(txn.request))
+        self._by_ar.setdefault(fallback_key(channel), OrderedDict())[channel] = txn
+        while len(self.pending) > 1 and self.pending.full():
+            self._evict(self.pending.oldest(), frame, "transaction table full")  # type: ignore[arg-type]
+
+    def _cut_write_response(self, row: Pdu, fsm: FsmCall) -> Txn | None:
+        """The answer to a write cut before its IOD header was complete: when it names a PROFIdrive index
+        (a single write, not 0xE040), the transaction opens at the request's frame with what could be read
+        of it (nothing of its record): malformed, and its reads pair with it as usual (protocol.md 7.3
+        step 1). Numbered here, at the answer (the frame that opens it)."""
+        req = fsm.request
+        answer = row.answer
+        names = None
+        if answer is not None and answer.fault < 0:
+            names = answer.names if row.odd else self.names_of(row)
+        if req is None or row.ptype != PTYPE_RESPONSE or names is None:
+            return None
+        txn = self._new(req, names.channel, row.frame, 0)
+        txn.malformed = True  # the record is cut (H5/R1 on the request's frame)
+        if req.frame not in txn.frames:
+            txn.frames.append(req.frame)
+        self._admit(txn, req.frame)
+        return self._write_response(row, FsmCall("write", [txn]))
+
+    def _write_response(self, row: Pdu, fsm: FsmCall) -> Txn | None:
+        answer = row.answer
+        count = len(fsm.txns)
+        if answer is None:
+            statuses = [0] * count
+        elif answer.statuses:  # a Write-Multiple's inner statuses are authoritative (protocol.md 2.8)
+            inner = list(answer.statuses)
+            statuses = [answer.status] * count if answer.status and not any(inner) else inner
+        else:
+            statuses = [answer.status] * count
+        first = None
+        for txn, status in zip(fsm.txns, statuses, strict=False):
+            if txn is None or txn.closed_by:
+                continue
+            first = first or txn
+            txn.write_res_frame = row.frame
+            txn.t_write_res = row.ts
+            txn.malformed |= row.malformed
+            if answer is not None and answer.fault >= 0:
+                txn.pnio_status = f"{answer.fault:08X}"
+                self._close(txn, "pnio_error")
+            elif status:
+                txn.pnio_status = f"{status:08X}"
+                self._close(txn, "pnio_error")
+        return first
+
+    # --- reads ------------------------------------------------------------------------------
+    def _read_request(self, row: Pdu) -> Txn | None:
+        channel = row.read
+        if channel is None:
+            return None
+        txn = self.pending.get(channel)
+        if txn is None:
+            # the oldest pending on the same index: a read never fetches another index's response (7.2)
+            txn = next(iter(self._by_ar.get(fallback_key(channel), {}).values()), None)
+            if txn is not None and not txn.fallback:
+                txn.fallback = True
+                txn.findings.append(finding(
+                    "fallback_pairing", row.frame, "iod.index", f"{channel[5]}/{channel[6]}/{channel[7]:#06x}",
+                    f"{txn.channel[5]}/{txn.channel[6]}/{txn.channel[7]:#06x}",
+                    f"read addressed differently from the write of frame {txn.write_frame} (paired by device, "
+                    "controller, AR and index)"))
+        if txn is None:
+            self.loose.append(finding("read_without_request", row.frame, "iod.index", f"{channel[7]:#06x}",
+                                      "a pending parameter request", "read on a PROFIdrive index with no "
+                                                                     "pending write on the channel"))
+            self._remember(row.frame, FsmCall("read", [None], channel))
+            return None
+        txn.read_frames.append(row.first)
+        txn.t_reads.append(row.first_ts)
+        txn.frames.extend(row.frames)
+        txn.calls.append(row.call)
+        self._remember(row.frame, FsmCall("read", [txn], channel))
+        return txn
+
+    def _read_response(self, row: Pdu, fsm: FsmCall) -> Txn | None:
+        txn = fsm.txns[0]
+        if txn is None or txn.closed_by:
+            return None
+        txn.malformed |= row.malformed
+        answer = row.answer
+        if answer is not None and answer.fault >= 0:
+            txn.pnio_status = f"{answer.fault:08X}"
+            txn.read_res_frame, txn.t_read_res = row.frame, row.ts
+            self._close(txn, "pnio_error")
+            return txn
+        status = answer.status if answer is not None else 0
+        if status:
+            if status & 0xFFFF00 == _B5:
+                txn.b5 += 1
+                txn.last_b5 = row.ts
+                if txn.b5 == self.b5_threshold + 1:
+                    txn.findings.append(b5_finding(txn.b5, self.b5_threshold, row.frame))
+                return txn
+            txn.pnio_status = f"{status:08X}"
+            txn.read_res_frame, txn.t_read_res = row.frame, row.ts
+            self._close(txn, "pnio_error")
+            return txn
+        txn.read_res_frame, txn.t_read_res = row.frame, row.ts
+        head = answer.head if answer is not None else None
+        txn.response = answer.record if answer is not None else None
+        if head is None or not answer.complete:  # type: ignore[union-attr]
+            txn.malformed = True
+        else:
+            txn.response_head = head
+            found, mismatch = mirroring(txn, head, row.frame)
+            txn.findings += found
+            txn.mismatch |= mismatch
+        self._close(txn, "response")
+        return txn
+
+    def _retransmitted(self, call: Call | None) -> Txn | None:
+        fsm = self._calls.get(call.frame) if call is not None else None
+        if fsm is None:
+            return None
+        return next((t for t in fsm.txns if t is not None), None)
+
+    # --- closing ----------------------------------------------------------------------------
+    def _evict(self, txn: Txn, frame: int, why: str) -> None:
+        """Close a pending transaction the caps cannot hold any longer: a timeout, closed_by "evicted"."""
+        self.pending.evict(txn.channel, frame)  # counted; each evicted transaction is a row with its finding
+        txn.findings.append(finding(PENDING_TRANSACTIONS.rule, frame, "pd.ref", txn.ref,
+                                    f"{PENDING_TRANSACTIONS.text()}, {TXN_FRAMES} frames each",
+                                    f"{why}: the transaction of frame {txn.write_frame} ends as a timeout"))
+        self._close(txn, "evicted")
+
+    def _close(self, txn: Txn, why: str) -> None:
+        channel = txn.channel
+        if self.pending.get(channel) is txn:
+            self.pending.pop(channel)
+        same_ar = self._by_ar.get(fallback_key(channel))
+        if same_ar is not None and same_ar.get(channel) is txn:  # it was pending (and maybe evicted just now)
+            del same_ar[channel]
+            if not same_ar:
+                del self._by_ar[fallback_key(channel)]
+            self._forget_calls(txn)
+        txn.closed_by = why
+        txn.verdict = verdict_of(txn)
+        # copies seen so far, of answered and unanswered calls alike (protocol.md 7.6)
+        txn.retransmissions = sum(c.copies for c in txn.calls if c is not None)
+        if why in UNANSWERED_ENDS and not txn.pnio_status and txn.b5:
+            txn.pnio_status = B5_STATUS  # the last answer was B5 (txn.last_status)
+        self.last_done.remember(channel, LastDone(txn.write_frame, txn.ref, txn.verdict))
+        if txn.req_id == pt.REQ_READ and txn.verdict in ANSWERED:
+            for key, value in self.records.read_back(txn.request, txn.response, channel[0], txn.do):
+                self.read_values.remember(key, value)
+        self.closed.append(txn)
+
+    def _forget_calls(self, txn: Txn) -> None:
+        """A closed transaction's calls need no state: a late answer to them belongs to no transaction."""
+        for frame in txn.frames:  # its requests' frames among them (a reassembled one: the completing frame)
+            fsm = self._calls.get(frame)
+            if fsm is not None and all(t is None or t is txn or t.closed_by for t in fsm.txns):
+                self._calls.pop(frame)
+
+    def _remember(self, frame: int, fsm: FsmCall) -> None:
+        self._calls.remember(frame, fsm)  # the oldest are forgotten

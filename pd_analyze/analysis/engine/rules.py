@@ -1,0 +1,102 @@
+"""The transaction-level rules of protocol.md 6.4 and 6.5 and the verdicts of 7.4, as the engine applies
+them: the findings' texts in one place."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+from pd_analyze.analysis.engine.facts import Head
+from pd_analyze.analysis.engine.txn import Txn
+from pd_analyze.model import pd_values as pt
+from pd_analyze.model.rules import Finding, finding
+from pd_analyze.model.verdicts import ANSWERED, FAILED_UNANSWERED, PRECEDENCE
+
+# How a transaction that got no final answer ended (its verdict is then timeout, protocol.md 7.4).
+UNANSWERED_ENDS = frozenset({"deadline", "superseded", "capture_end", "evicted"})
+# The ends where the controller gave up inside the capture: its next write, or the deadline passed (7.3 step 5)
+GAVE_UP_ENDS = frozenset({"deadline", "superseded"})
+ANSWERS = {pt.REQ_READ: (pt.RES_READ, pt.RES_READ_NAK), pt.REQ_CHANGE: (pt.RES_CHANGE, pt.RES_CHANGE_NAK)}
+
+
+class LastDone(NamedTuple):
+    """What T1/T4 need of the last closed transaction of a channel."""
+
+    frame: int  # its write request frame: messages name a transaction by it
+    ref: int
+    verdict: str
+
+
+def refused_busy(closed_by: str, capture_ended: bool, b5_retries: int, reads: int) -> bool:
+    """protocol.md 7.3 step 5: every read of a transaction the controller gave up on was answered DE 80 B5.
+    The drive answered each time (it refused, it did not go silent): pnio_error with DE80B500, not a
+    timeout. A capture that ends before the deadline leaves it a timeout (capture_ended)."""
+    if not b5_retries or b5_retries != reads:
+        return False
+    return closed_by in GAVE_UP_ENDS or (closed_by == "capture_end" and not capture_ended)
+
+
+def verdict_of(txn: Txn) -> str:
+    """protocol.md 7.4: the first verdict, in PRECEDENCE order, whose condition holds."""
+    for verdict in PRECEDENCE:
+        if verdict == "malformed" and txn.malformed:
+            return verdict
+        if verdict == "pnio_error" and (txn.closed_by == "pnio_error" or refused_busy(
+                txn.closed_by, txn.capture_ended, txn.b5, len(txn.read_frames))):
+            return verdict
+        if verdict == "timeout" and txn.closed_by in UNANSWERED_ENDS:
+            return verdict
+        if verdict == "reference_mismatch" and txn.mismatch:
+            return verdict
+        if verdict == "nak" and txn.response_head is not None and txn.response_head.ident & 0x80:
+            return verdict
+    return "ok"
+
+
+def reuse_finding(last: LastDone, ref: int, frame: int) -> Finding | None:
+    """T1: a write with the Request Reference of the channel's last transaction (a retry after a failure)."""
+    if last.ref != ref:
+        return None
+    if last.verdict in ANSWERED:
+        return finding("reference_reused", frame, "pd.ref", ref, f"a reference other than {last.ref}",
+                       f"Request Reference {ref} reused from the transaction of frame {last.frame}")
+    if last.verdict in FAILED_UNANSWERED:
+        return finding("retry", frame, "pd.ref", ref, "",
+                       f"retry of the transaction of frame {last.frame} ({last.verdict}) with the same reference")
+    return None
+
+
+def superseded_finding(ref: int, old_frame: int, old_ref: int, frame: int) -> Finding:
+    """T3: a write (reference `ref`, at `frame`) while the transaction of `old_frame` is pending."""
+    return finding("write_while_pending", frame, "pd.ref", ref, f"none pending (the transaction of frame {old_frame})",
+                   f"write while the transaction of frame {old_frame} (ref {old_ref}) is pending: it ends as a timeout")
+
+
+def b5_finding(retries: int, threshold: int, frame: int) -> Finding:
+    """T5: the read answer that took a transaction's B5 answers above the threshold."""
+    return finding("b5_polling", frame, "txn.b5_retries", retries, f"<= {threshold}",
+                   f"more than {threshold} B5 (not ready) answers")
+
+
+def mirroring(txn: Txn, r: Head, frame: int) -> tuple[list[Finding], bool]:
+    """Q2-Q5: a response mirrors the request's reference, Request ID, DO and No. of parameters (protocol.md
+    6.4); (findings, whether Q2 or Q3 failed: the verdict is then reference_mismatch). A request field
+    not known is -1 and not compared; `txn.vendor`: the Response IDs of a vendor's own Request ID (5.5)."""
+    out = []
+    mismatch = False
+    if txn.ref >= 0 and r.ref != txn.ref:
+        out.append(finding("reference_mismatch", frame, "pd.ref", r.ref, txn.ref,
+                           f"response reference {r.ref} does not mirror the request's {txn.ref}"))
+        mismatch = True
+    expected = txn.vendor or ANSWERS.get(txn.req_id, (pt.RES_NOT_SUPPORTED,))
+    if txn.req_id >= 0 and r.ident not in expected:  # (a request cut before its header: nothing to answer)
+        out.append(finding("response_id_mismatch", frame, "pd.resp_id", f"{r.ident:#04x}",
+                           "/".join(f"{e:#04x}" for e in expected),
+                           f"Response ID {r.ident:#04x} does not answer Request ID {txn.req_id:#04x}"))
+        mismatch = True
+    if txn.do >= 0 and r.do != txn.do:
+        out.append(finding("do_not_mirrored", frame, "pd.do", r.do, txn.do, "DO-ID not mirrored"))
+    header_level = r.ident & 0x80 and r.blocks == 1 and r.first_error
+    if txn.n_params >= 0 and r.n != txn.n_params and not header_level:
+        out.append(finding("n_params_not_mirrored", frame, "pd.n_params", r.n, txn.n_params,
+                           "No. of parameters not mirrored"))
+    return out, mismatch

@@ -1,0 +1,330 @@
+"""The rows of the transactions closed in a batch, as Arrow tables (table_batches.batch_schema).
+
+A transaction whose records are column records of the batch has its parameter rows made from its
+request's addresses, the value blocks it wrote and the blocks of its response, gathered by index; the
+value texts are the columns' (BlockColumns.text). Only what is per transaction (and the few rows with an
+error or a change) is made in Python. A transaction with a record parsed frame by frame (an odd frame,
+or a request of an earlier batch) has its rows made by `analysis.rows.Rows.add`, the same cells.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import pyarrow as pa
+
+from pd_analyze.analysis.engine.facts import Carried
+from pd_analyze.analysis.engine.records import Records
+from pd_analyze.analysis.engine.txn import NS, Txn
+from pd_analyze.analysis.engine.txncols import MISSING, TxnCols, of_txns
+from pd_analyze.analysis.engine.view import BatchView
+from pd_analyze.analysis.rows import Rows, finding_row
+from pd_analyze.analysis.schema import COLUMNS, micros
+from pd_analyze.analysis.table_batches import TIME_TYPE, batch_schema, rows_to_batch
+from pd_analyze.model import pd_values as pt
+from pd_analyze.model.values import status_text
+from pd_analyze.model.verdicts import ANSWERED
+from pd_analyze.protocol import profidrive_batch
+from pd_analyze.protocol.profidrive_batch import DecodedRecords, merge_records
+from pd_analyze.protocol.profidrive_checks import Checker
+
+_NAMES = ("transactions", "parameters", "findings", "changes")
+
+
+def _hex_table() -> list[str]:
+    return [f"0x{v:02x}" for v in range(256)]
+
+
+_HEX = _hex_table()
+_FORMAT = [pt.FORMAT_NAME.get(v) or _HEX[v] for v in range(256)]
+_ATTRIBUTE = [pt.ATTRIBUTE.get(v) or _HEX[v] for v in range(256)]
+
+
+def _hex(value: int) -> str:
+    return f"0x{value:02x}" if value >= 0 else ""
+
+
+def _columnar(t: Txn, view: BatchView | None) -> bool:
+    """Its records are column records of the batch, or its request's bytes carried from an earlier batch
+    (decoded again by the columns here); the response's too, if any."""
+    if not (t.response is None or (view is not None and isinstance(t.response, int))):
+        return False
+    return isinstance(t.request, Carried) or (view is not None and isinstance(t.request, int))
+
+
+def _merged(view: BatchView | None, carried: list[bytes], checker: Checker) -> tuple[DecodedRecords, int]:
+    """The batch's decoded records and, after them, the carried requests' records decoded again by the
+    columns (their first index). Only what the tables read is merged: headers, addresses, block formats,
+    errors and texts (not the bytes a block's values are at)."""
+    buf = b"".join(carried)
+    lengths = np.fromiter((len(c) for c in carried), np.int64, len(carried))
+    starts = np.zeros(len(carried), np.int64)
+    np.cumsum(lengths[:-1], out=starts[1:])
+    extra = profidrive_batch.decode(buf, starts, lengths, np.zeros(len(carried), bool), checker)
+    if view is None:
+        return extra, 0
+    return merge_records(view.records, extra), len(view.records.records.ref)
+
+
+class TableBuilder:
+    """Rows of closed transactions, a batch at a time."""
+
+    def __init__(self, checker: Checker) -> None:
+        self.checker = checker
+        names = checker.names
+        self.names = names  # the run's profile's parameter names and error texts (Checker.names)
+        self._texts: dict[tuple, tuple[str, str, str, str]] = {}
+        self._error_texts: dict[int, str] = {}
+        self._fallback = Rows(names=names)
+
+    def tables(self, view: BatchView | None, txns: list[Txn], capture_of: Callable[[int], str], offset: int,
+               episodes: TxnCols | None = None) -> dict[str, list[pa.Table]]:
+        """The four tables' rows of `txns` (closed, numbered) and of the `episodes` the vector path took."""
+        out: dict[str, list[pa.Table]] = {name: [] for name in _NAMES}
+        here = [t for t in txns if _columnar(t, view)]
+        if len(here) < len(txns):
+            rows = self._fallback
+            records = Records(view)
+            for t in txns:
+                if not _columnar(t, view):
+                    rows.add(capture_of(t.write_frame), t, records, offset)
+            for name in _NAMES:
+                found = getattr(rows, name)
+                if found:
+                    out[name].append(rows_to_batch(name, found))
+                    found.clear()
+        if here:
+            carried = [t.request.data for t in here if isinstance(t.request, Carried)]
+            if carried:
+                decoded, first = _merged(view, carried, self.checker)
+                base = iter(range(first, first + len(carried)))
+                req = [next(base) if isinstance(t.request, Carried) else t.request for t in here]
+            else:
+                decoded, req = view.records, [t.request for t in here]  # type: ignore[union-attr]
+            self._columns(decoded, of_txns(here, req), capture_of, offset, out)  # type: ignore[arg-type]
+        if episodes is not None and len(episodes):
+            self._columns(view.records, episodes, capture_of, offset, out)  # type: ignore[union-attr]
+        return out
+
+    def _channel_texts(self, channel: tuple) -> tuple[str, str, str, str]:
+        texts = self._texts.get(channel)
+        if texts is None:
+            if len(self._texts) > 65536:
+                self._texts.clear()
+            texts = self._texts[channel] = self._fallback.channel_texts(channel)
+        return texts
+
+    def _error_text(self, err: int) -> str:
+        text = self._error_texts.get(err)
+        if text is None:
+            text = self._error_texts[err] = self.names.error(err)
+        return text
+
+    def _columns(self, records: DecodedRecords, t: TxnCols, capture_of: Callable[[int], str], offset: int,
+                 out: dict[str, list[pa.Table]]) -> None:
+        rc, ac, bc = records.records, records.addresses, records.blocks
+        n = len(t)
+        req, res = t.req, t.res
+        has_res = res >= 0
+        s = np.where(has_res, res, 0)
+        numbers = t.number + offset
+        captures = _captures(capture_of, t.write_frame)
+        chan_texts = [self._channel_texts(c) for c in t.channel]
+        texts = [chan_texts[c] for c in t.ch.tolist()]
+        # --- parameters: one row per address of each request -----------------------------------------
+        na = rc.n_addr[req].astype(np.int64)
+        owner = np.repeat(np.arange(n), na)
+        starts = np.zeros(n, np.int64)
+        np.cumsum(na[:-1], out=starts[1:])
+        j = np.arange(int(na.sum())) - np.repeat(starts, na)
+        ai = rc.first_addr[req][owner] + j
+        pnu, sub, elems, attr = ac.pnu[ai], ac.subindex[ai], ac.n_elems[ai], ac.attr[ai]
+        change = t.req_id == pt.REQ_CHANGE
+        wb = np.where(change[owner] & (j < rc.n_blocks[req][owner]), rc.first_block[req][owner] + j, -1)
+        rb = np.where(has_res[owner] & (j < np.where(has_res, rc.n_blocks[s], 0)[owner]),
+                      rc.first_block[s][owner] + j, -1)
+        # a header-level error (one error block answering several parameters, protocol.md 3.3): every
+        # parameter row carries it, marked whole_request (rows.whole_request_error); a request of no
+        # parameter is never regular here (profidrive_batch), so every request has its address rows
+        first_res = np.where(has_res, rc.first_block[s], 0)
+        whole = has_res & (np.where(has_res, rc.n_blocks[s], 0) == 1) & (na > 1)
+        whole[whole] &= bc.format[first_res[whole]] == pt.FMT_ERROR
+        whole_row = whole[owner]
+        rb = np.where(whole_row, first_res[owner], rb)
+        err = _at(bc.error, rb, -1)
+        err_sub = np.where(err >= 0, _at(bc.error_subindex, rb, -1), -1)
+        src = np.where(wb >= 0, wb, rb)
+        fmt = _at(bc.format, src, -1)
+        fmt_cell = np.where(fmt != pt.FMT_ERROR, fmt, -1)
+        count = np.maximum(elems, 1)
+        ranged = (attr == pt.ATTR_VALUE) & (count > 1)
+        labels = [f"P{p}[{a}..{a + c - 1}]" if r else f"P{p}[{a}]"
+                  for p, a, c, r in zip(pnu.tolist(), sub.tolist(), count.tolist(), ranged.tolist(), strict=True)]
+        text = _texts(bc.text)
+        written = _take(text, wb)
+        read = _take(text, rb)
+        errs = err.tolist()
+        owners = owner.tolist()
+        device_of = pa.array([x[0] for x in texts], pa.large_string())
+        owner_idx = pa.array(owner)
+        out["parameters"].append(pa.Table.from_arrays([
+            pa.array(numbers[owner], pa.int64()), captures.take(owner_idx), device_of.take(owner_idx),
+            pa.array(t.do[owner], pa.int64()), pa.array(labels, pa.large_string()),
+            pa.array(pnu, pa.int64()), _pnu_names(pnu, self.names), pa.array(sub, pa.int64()),
+            pa.array(elems, pa.int64()),
+            pa.array([_ATTRIBUTE[a] for a in attr.tolist()], pa.large_string()),
+            pa.array(["" if f < 0 else _FORMAT[f] for f in fmt_cell.tolist()], pa.large_string()),
+            written, read, pa.array([_hex(e) for e in errs], pa.large_string()),
+            pa.array([self._error_text(e) if e >= 0 else "" for e in errs], pa.large_string()),
+            pa.array(err_sub, pa.int64(), mask=err_sub < 0),
+            pa.array(whole_row, pa.bool_()),
+        ], schema=batch_schema("parameters")))
+        # --- per transaction: its label, its errors -------------------------------------------------------
+        params: list[list[str]] = [[] for _ in range(n)]
+        errors: list[list[str]] = [[] for _ in range(n)]
+        for o, label, e in zip(owners, labels, errs, strict=True):
+            params[o].append(label)
+            if e >= 0:
+                errors[o].append(f"{label}:{_hex(e)}")
+        for o in np.flatnonzero(whole).tolist():
+            errors[o] = [f"*:{_hex(int(bc.error[first_res[o]]))}"]
+        # --- changes: one row per value block written ---------------------------------------------------
+        changes = np.flatnonzero(wb >= 0).tolist()
+        if changes:
+            out["changes"].append(self._changes(t, changes, owners, labels, pnu, sub, written, errs, numbers,
+                                                captures, device_of, j))
+        # --- transactions ---------------------------------------------------------------------------------
+        resp_id = [_HEX[int(i)] if h else "" for i, h in zip(rc.ident[s].tolist(), has_res.tolist(), strict=True)]
+        out["transactions"].append(self._transactions(t, numbers, captures, texts, params, errors, resp_id))
+        cap = captures.to_pylist() if t.findings else []
+        found = [finding_row(cap[k], f, int(numbers[k])) for k, fs in t.findings.items() for f in fs]
+        if found:
+            out["findings"].append(rows_to_batch("findings", found))
+
+    def _changes(self, t: TxnCols, rows: list[int], owners: list[int], labels: list[str], pnu: np.ndarray,
+                 sub: np.ndarray, written: pa.Array, errs: list[int], numbers: np.ndarray, captures: pa.Array,
+                 devices: pa.Array, j: np.ndarray) -> pa.Table:
+        cols: list[list] = [[] for _ in range(13)]
+        idx = np.array(rows, np.int64)
+        values = written.take(pa.array(idx)).to_pylist()
+        positions = j[idx].tolist()
+        cap, dev = captures.to_pylist(), devices.to_pylist()
+        for row, value, i in zip(rows, values, positions, strict=True):
+            k = owners[row]
+            e = errs[row]
+            if e >= 0:
+                result = f"error {_hex(e)}: {self._error_text(e)}"
+            else:
+                result = "ok" if t.verdict[k] in ANSWERED else t.verdict[k]
+            before_all = t.values_before.get(k, ())
+            before = before_all[i] if i < len(before_all) else [None]
+            for col, cell in zip(cols, (cap[k], dev[k], int(t.do[k]), int(numbers[k]), int(t.write_frame[k]),
+                                        int(t.t_start[k]), labels[row], None, None, None, value, result,
+                                        " ".join(b for b in before if b is not None) if all(before) else ""),
+                                 strict=True):
+                col.append(cell)
+        cols[7], cols[8], cols[9] = pnu[idx], _pnu_names(pnu[idx], self.names), sub[idx]
+        return _table("changes", cols)
+
+    @staticmethod
+    def _transactions(t: TxnCols, numbers: np.ndarray, captures: pa.Array, texts: list[tuple],
+                      params: list[list[str]], errors: list[list[str]], resp_id: list[str]) -> pa.Table:
+        """The transactions' rows, a column at a time (the cells Rows.add makes)."""
+        text, integer = pa.large_string(), pa.int64()
+        channel = t.channel
+        ch = t.ch
+        start = t.t_start
+        columns = [
+            pa.array(numbers, integer), captures,
+            *(pa.array([x[i] for x in texts], text) for i in range(4)),
+            *(pa.array(np.array([c[i] for c in channel], np.int64)[ch] if channel else np.zeros(0, np.int64), integer)
+              for i in (4, 5, 6)),
+            _opt_int(t.ref), pa.array([_hex(v) for v in t.req_id.tolist()], text), _opt_int(t.do),
+            _opt_int(t.n_params),
+            pa.array([" ".join(p) for p in params], text), pa.array(resp_id, text),
+            pa.array(t.verdict, text), pa.array([" ".join(e) for e in errors], text),
+            pa.array(t.pnio_status, text), pa.array([status_text(s) for s in t.pnio_status], text),
+            pa.array(t.b5, integer), pa.array(t.reads, integer), pa.array(t.retrans, integer),
+            pa.array(t.write_frame, integer), pa.array(t.write_res_frame, integer, mask=t.write_res_frame == 0),
+            _joined(t.read_frames, t.read_offsets), pa.array(t.read_res_frame, integer, mask=t.read_res_frame == 0),
+            _joined(t.frames, t.frame_offsets),
+            pa.array([micros(v / NS) for v in start.tolist()], integer).cast(TIME_TYPE),
+            _seconds(t.t_write_res, start), _seconds(t.t_done, start), _seconds(t.t_done, t.t_last_read),
+            _seconds(t.t_first_read, t.t_write_res), _seconds(t.t_last_read, start),
+            pa.array(t.capture_ended, pa.bool_()), pa.array(t.closed_by, text),
+        ]
+        return pa.Table.from_arrays(columns, schema=batch_schema("transactions"))
+
+
+def _captures(capture_of: Callable[[int], str], frames: np.ndarray) -> pa.Array:
+    """Each transaction's capture (by its write request frame): one text for the usual single capture."""
+    if not len(frames):
+        return pa.array([], pa.large_string())
+    first, last = capture_of(int(frames.min())), capture_of(int(frames.max()))
+    if first == last:
+        return pa.array([first] * len(frames), pa.large_string())
+    return pa.array([capture_of(int(f)) for f in frames.tolist()], pa.large_string())
+
+
+def _opt_int(values: np.ndarray) -> pa.Array:
+    return pa.array(values, pa.int64(), mask=values < 0)
+
+
+def _seconds(end: np.ndarray, begin: np.ndarray) -> pa.Array:
+    """end - begin in seconds, exactly from the nanoseconds; missing where either is."""
+    missing = (end == MISSING) | (begin == MISSING)
+    return pa.array(np.where(missing, 0, end - begin) / NS, pa.float64(), mask=missing)
+
+
+def _joined(values: np.ndarray, offsets: np.ndarray) -> pa.Array:
+    """Each entry's integers as one text, separated by spaces ('' for none)."""
+    import pyarrow.compute as pc
+
+    strings = pa.array(values.astype(np.int64)).cast(pa.string())
+    lists = pa.ListArray.from_arrays(pa.array(offsets, pa.int32()), strings)
+    return pc.binary_join(lists, " ").cast(pa.large_string())
+
+
+def _at(column: np.ndarray, rows: np.ndarray, missing: int) -> np.ndarray:
+    """column[rows] as int64, `missing` where rows is -1."""
+    out = np.full(len(rows), missing, np.int64)
+    have = rows >= 0
+    out[have] = column[rows[have]]
+    return out
+
+
+def _texts(text: object) -> pa.Array:
+    return text if isinstance(text, pa.Array) else pa.array(text, pa.large_string())
+
+
+def _take(text: pa.Array, rows: np.ndarray) -> pa.Array:
+    """text[rows], "" where rows is -1."""
+    if not len(rows) or not len(text):
+        return pa.array([""] * len(rows), pa.large_string())
+    taken = text.take(pa.array(np.maximum(rows, 0)))
+    if text.type != pa.large_string():
+        taken = taken.cast(pa.large_string())
+    missing = rows < 0
+    if missing.any():
+        import pyarrow.compute as pc
+
+        taken = pc.if_else(pa.array(missing), pa.scalar("", pa.large_string()), taken)
+    return taken
+
+
+def _table(name: str, cols: list) -> pa.Table:
+    schema = batch_schema(name)
+    arrays = []
+    for c, field, values in zip(COLUMNS[name], schema, cols, strict=True):
+        if field.type == TIME_TYPE:
+            arrays.append(pa.array([micros(v / NS) for v in values], pa.int64()).cast(TIME_TYPE))
+        else:
+            arrays.append(pa.array(values, field.type))
+        del c
+    return pa.Table.from_arrays(arrays, schema=schema)
+
+
+def _pnu_names(pnu: np.ndarray, names: pt.Names) -> pa.Array:
+    """The name of each parameter number ("" for most: profile parameters and the profile's own table)."""
+    return pa.array([names.pnu(p) for p in pnu.tolist()], pa.large_string())

@@ -1,0 +1,182 @@
+"""The one analysis engine (analysis/engine): the same tables, accounting and summary whatever the batch
+size (its state carries exactly from batch to batch), every frame of a capture accounted for, on every
+sample and real capture, generated captures with faults of every kind, the fuzz corpus and the floods.
+
+What the tables must say is asserted elsewhere against the captures' own truth (test_samples_expected,
+test_fault_rich, test_transactions); here: that the batches change nothing, and that the columns decode
+what they should while the per-frame dissector takes only what they cannot.
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import pd_analyze
+from devtools import hostile
+from devtools.fuzz.corpus import load_seeds, seed_paths
+from devtools.fuzz.mutators import make_case
+from devtools.synth.mixed_capture import make_capture
+from pd_analyze.analysis.api import Analysis
+from pd_analyze.analysis.capture_run import CaptureResult, Settings
+from pd_analyze.analysis.engine.run import EngineRun, analyze_frames
+from pd_analyze.analysis.jobs import run
+from pd_analyze.analysis.rows import Rows
+from pd_analyze.capture import RawFrame
+from pd_analyze.capture.batches import batches
+from pd_analyze.output.report import summary
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared" / "captures"
+CAPTURES = sorted(p for d in (ROOT / "sample_pcaps", SHARED) if d.is_dir()
+                  for p in d.glob("*") if p.suffix in (".pcap", ".pcapng", ".gz"))
+TABLES = ("transactions", "parameters", "findings", "changes")
+SIZES = (1, 7, 1000)
+
+
+def analysed(path: str, size: int = 0, **kw: object) -> Analysis:
+    """The capture analysed in batches of `size` frames (0: the reader's default)."""
+    settings = Settings(batch_frames=size, **kw)
+    rows = Rows()
+    results = run([path], rows, settings)
+    return Analysis(rows, results, settings.profile, settings.txn_timeout, settings.rpc_timeout)
+
+
+def assert_same(one: Analysis, two: Analysis) -> None:
+    for name in TABLES:
+        pd.testing.assert_frame_equal(getattr(one, name), getattr(two, name), obj=name)
+    pd.testing.assert_frame_equal(one.accounting, two.accounting, obj="accounting")
+    assert one.errors == two.errors
+    assert summary(one) == summary(two)
+
+
+def frames_in_file(path: Path) -> int:
+    from pd_analyze import capture
+
+    count = 0
+    try:
+        for frame in capture.frames(str(path)):
+            count += frame.run or 1
+    except capture.CaptureError:
+        pass
+    return count
+
+
+@pytest.mark.parametrize("path", CAPTURES, ids=lambda p: p.name)
+def test_samples_and_real_captures_are_the_same_in_any_batches(path: Path) -> None:
+    whole = analysed(str(path))
+    assert int(whole.accounting.read.sum()) == frames_in_file(path)
+    assert whole.accounting.balanced.all()
+    for size in SIZES:
+        assert_same(whole, analysed(str(path), size))
+
+
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Captures of the generator with mixed verdicts: all PNIO RPC, and a 30 % mix."""
+    base = tmp_path_factory.mktemp("engine")
+    out = {"dense": base / "dense.pcap", "mix": base / "mix.pcap"}
+    make_capture(out["dense"], 12_000, seed=11, pnio_share=1.0, faults=0.08)
+    make_capture(out["mix"], 12_000, seed=12, pnio_share=0.3, faults=0.08)
+    return out
+
+
+@pytest.mark.parametrize("name", ["dense", "mix"])
+@pytest.mark.parametrize("size", SIZES[1:])
+def test_generated_captures_are_the_same_in_any_batches(generated: dict[str, Path], name: str, size: int) -> None:
+    whole = analysed(str(generated[name]))
+    assert_same(whole, analysed(str(generated[name]), size))
+    verdicts = set(whole.transactions.verdict.astype(str))
+    assert {"ok", "nak", "timeout", "pnio_error"} <= verdicts  # mixed verdicts, really
+    assert (whole.findings.name == "rpc_unanswered").any() and (whole.findings.name == "rpc_fault").any()
+
+
+@pytest.mark.parametrize("size", [7, 1000])
+def test_short_timeouts_expire_the_same_in_any_batches(generated: dict[str, Path], size: int) -> None:
+    """Deadlines and rpc_timeout passing inside and across batches."""
+    kw = {"txn_timeout": 0.004, "rpc_timeout": 0.003}
+    whole = analysed(str(generated["dense"]), **kw)
+    assert (whole.transactions.closed_by == "deadline").any()
+    assert_same(whole, analysed(str(generated["dense"]), size, **kw))
+
+
+def test_batches_decoded_in_parts_are_the_same(generated: dict[str, Path], monkeypatch: pytest.MonkeyPatch) -> None:
+    """A batch whose records declare more parameters than one decode may hold is decoded in parts (here
+    parts of about 50 parameters), with the same tables; and the parts really are made."""
+    from pd_analyze.analysis.engine import view
+
+    whole = analysed(str(generated["dense"]), 5000)
+    monkeypatch.setattr(view, "PARAMETERS_PER_DECODE", 50)
+    batch = next(batches(str(generated["dense"]), 5000))
+    parts = [part for part, _view in view.BatchView.parts(batch, Settings().checker())]
+    assert len(parts) > 10 and sum(len(p) for p in parts) == len(batch)
+    assert np.array_equal(np.concatenate([p.number for p in parts]), batch.number)
+    assert_same(whole, analysed(str(generated["dense"]), 5000))
+
+
+def test_the_columns_decode_the_ordinary_frames(generated: dict[str, Path]) -> None:
+    """On a generated capture with 8 % faults nearly every PNIO frame is decoded by the columns, and the
+    per-frame dissector takes the few others; each frame is counted once."""
+    results = [CaptureResult("dense", None)]
+    engine = EngineRun(Settings(), Rows(), lambda _f: "dense", results)
+    for batch in batches(str(generated["dense"]), 4096):
+        engine.feed(batch)
+    engine.finish()
+    totals = engine.totals()
+    assert totals.read == frames_in_file(generated["dense"]) and totals.balanced()
+    assert engine.decoder.accounting.read < totals.read * 0.02
+    assert engine.accounting.decoded > totals.decoded * 0.98
+
+
+def tables_of(frames: Sequence[RawFrame], size: int, settings: Settings) -> tuple[dict, tuple]:
+    rows = Rows()
+    result = analyze_frames(frames, settings, rows, "case", batch_frames=size)
+    analysis = Analysis(rows, [result], settings.profile, settings.txn_timeout, settings.rpc_timeout)
+    acc = result.accounting
+    tables = {name: getattr(analysis, name) for name in TABLES}
+    return tables, (acc.read, acc.decoded, dict(+acc.skipped), dict(+acc.malformed), summary(analysis))
+
+
+@pytest.fixture(scope="module")
+def seeds() -> list:
+    return load_seeds(seed_paths())
+
+
+@pytest.mark.parametrize("chunk", range(4))
+def test_fuzz_corpus_is_the_same_in_any_batches(seeds: list, chunk: int) -> None:
+    """Mutated windows of every seed capture (cut, flipped, spliced, reordered, flooded, time warped): every
+    frame accounted for, and the same tables in batches of 3 and 64 frames as in one."""
+    settings = Settings(profile="sinamics")
+    for number in range(chunk * 150, chunk * 150 + 150):
+        case = make_case(seeds, number, base_seed=7)
+        want = tables_of(case.frames, len(case.frames) + 1, settings)
+        assert want[1][0] == len(case.frames)
+        for size in (3, 64):
+            got = tables_of(case.frames, size, settings)
+            assert got[1] == want[1], (number, size)
+            for name in TABLES:
+                pd.testing.assert_frame_equal(got[0][name], want[0][name], obj=f"case {number} {name}")
+
+
+@pytest.mark.parametrize("kind", hostile.KINDS)
+def test_floods_are_the_same_in_any_batches(kind: str) -> None:
+    """Hostile floods (IP and CL fragments, never-answered calls...): every frame accounted for, the caps'
+    evictions stated, the same tables in small batches as in one."""
+    frames = list(hostile.frames(kind, 3000, seed=5))
+    rng = random.Random(5)
+    want = tables_of(frames, len(frames) + 1, Settings())
+    assert want[1][0] == len(frames)
+    got = tables_of(frames, rng.choice((7, 500)), Settings())
+    assert got[1] == want[1]
+    for name in TABLES:
+        pd.testing.assert_frame_equal(got[0][name], want[0][name], obj=name)
+
+
+def test_analyze_is_the_engine(generated: dict[str, Path]) -> None:
+    """pd_analyze.analyze() reads captures through the same engine, whatever their size."""
+    assert_same(pd_analyze.analyze(str(generated["mix"])), analysed(str(generated["mix"])))
