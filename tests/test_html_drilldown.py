@@ -24,6 +24,7 @@ from pd_analyze.output import html_plots, html_report, report
 from tests.test_html_report import REPO, SAMPLES, column, console_errors, embedded, load, type_filter
 
 AUDIT = REPO / "sample_pcaps" / "audit_commissioning.pcap"
+DRILL_SCREENSHOT = REPO / "docs" / "report_drilldown.png"
 AUDIT_SET = REPO / "sample_pcaps" / "sets" / "audit_commissioning.csv"
 RED = "rgb(198, 40, 40)"  # report.css --bad
 
@@ -443,4 +444,34 @@ def test_fault_rich_capture_in_the_browser(browser, rich) -> None:
             assert "decisive" in state["cls"] and state["colour"] == RED and state["inBox"], (txn, state)
             decided += 1
     assert decided == 51
+    first = int(failed[0])  # its timeline marker and its txn link open it, twice
+    for selector in (f"#plot-timeline a.mark[href='#txn-{first}']",
+                     f"div[data-table='transactions'] tbody a[href='#txn-{first}']"):
+        for _ in range(2):
+            click_link(browser, selector)
+            assert is_open(browser, first), selector
+            close(browser, first)
+    assert browser.execute_script("""
+        const w = document.querySelector("div[data-table='transactions'] .wrap").getBoundingClientRect();
+        return ['verdict', 'errors', 'pnio_error_text'].every(c => document.querySelector(
+          `div[data-table='transactions'] th[data-col='${c}']`).getBoundingClientRect().right <= w.right);""")
     assert console_errors(browser) == []
+
+
+def test_screenshot_of_a_drilldown_for_the_readme(browser, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """docs/report_drilldown.png: the reference mismatch of sample_pcaps/pd_interleaved.pcap opened from its link:
+    the frame that decided it, its pd.ref in red with the Q2 finding, the finding listed under the frame."""
+    monkeypatch.chdir(REPO)  # the page names the capture as the README's command does
+    page = _write(Path("sample_pcaps/pd_interleaved.pcap"), tmp_path / "r.html")
+    browser.set_window_size(1400, 760)
+    try:
+        open_hash(browser, page, 19)
+        browser.execute_script("document.querySelectorAll('.flash').forEach(r => r.classList.remove('flash'))")
+        state = row_state(browser, 19, 95, "pd.ref")
+        assert "decisive" in state["cls"] and state["inBox"] and state["inWindow"]
+        png = browser.get_screenshot_as_png()
+    finally:
+        browser.set_window_size(1400, 1000)
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000
+    if not DRILL_SCREENSHOT.exists() or DRILL_SCREENSHOT.read_bytes() != png:
+        DRILL_SCREENSHOT.write_bytes(png)

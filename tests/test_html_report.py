@@ -255,6 +255,8 @@ def click_header(driver, table: str, col: str) -> None:
 
 
 def test_every_sample_report_opens_without_errors(browser, reports: dict[str, Path]) -> None:
+    from selenium.webdriver.support.wait import WebDriverWait
+
     problems = []
     for name, path in reports.items():
         load(browser, path)
@@ -266,6 +268,10 @@ def test_every_sample_report_opens_without_errors(browser, reports: dict[str, Pa
         expected_tables = 3 + analysis.parameter_state.device.nunique()  # and a parameter-state table per drive
         rows = browser.execute_script("return document.querySelectorAll(\"div[data-table='transactions'] tbody tr\")"
                                       ".length")
+        browser.execute_script("document.querySelectorAll('details[data-txn]').forEach(d => { d.open = true; })")
+        WebDriverWait(browser, 10).until(lambda d: d.execute_script(  # every drill-down drawn (on toggle)
+            "return document.querySelectorAll('details[data-txn]:not([data-drawn])').length") == 0)
+        errors += console_errors(browser)
         if errors or drawn != 5 or tables != expected_tables or rows != expected_rows:
             problems.append(f"{name}: errors {errors}, plots {drawn}/5, tables {tables}/{expected_tables}, "
                             f"rows {rows}/{expected_rows}")

@@ -104,7 +104,8 @@
         return;
       }
       var decided = focus && focus[0] === f.n;
-      var head = spanRow("fhead", "Frame " + f.n + "  " + f.t + "  " + f.src + " \u2192 " + f.dst + "  " + f.s);
+      var head = spanRow("fhead", "Frame " + f.n + " \u00b7 " + f.t + " \u00b7 " + f.src + " \u2192 " + f.dst +
+        " \u00b7 " + f.s);
       head.setAttribute("data-frame", String(f.n));
       if (decided && failed) {
         head.rows[0].cells[0].appendChild(el("span", "  the field in red decided the verdict (" + drill.v + ")",
