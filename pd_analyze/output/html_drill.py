@@ -91,7 +91,7 @@ def drilldown(analysis: Analysis, txns: pd.DataFrame) -> dict[int, dict[str, obj
         wanted: dict[int, list[int]] = {}
         frames_of: dict[int, list[int]] = {}
         for row in group.itertuples():
-            frames = sorted(int(n) for n in str(row.frames).split())
+            frames = sorted(int(n) for n in _text(row.frames).split())
             frames_of[int(row.txn)] = frames
             for number in frames_to_show(frames, found):
                 wanted.setdefault(number, []).append(int(row.txn))
@@ -278,7 +278,7 @@ def heading(r: object, names: Mapping[str, str], pnu_names: dict[int, str]) -> l
         parts.append(("", _few(params, pnu_names)))  # (a NAK's errors name its parameters already)
     if what:
         parts.append(("what", what))
-    frames = len(str(r.frames).split())  # type: ignore[attr-defined]
+    frames = len(_text(r.frames).split())  # type: ignore[attr-defined]
     total = "" if pd.isna(r.t_total) else f", {float(r.t_total) * 1000:.1f} ms"  # type: ignore[attr-defined]
     parts.append(("dim", f"{frames} frame{'s' if frames != 1 else ''}{total}"))
     return parts
@@ -303,7 +303,8 @@ def _details(r: object, names: Mapping[str, str], pnu_names: dict[int, str], fou
     parts = heading(r, names, pnu_names)
     if not found:
         parts.append(("dim", "not found again in the capture"))
-    spans = [f"<span class=\"{c}\">{html.escape(text)}</span>" if c else html.escape(text) for c, text in parts]
+    spans = [f"<span class=\"{html.escape(c)}\">{html.escape(text)}</span>" if c else html.escape(text)
+             for c, text in parts]
     summary = " ".join(spans[:2]) + "".join(f"<span class=\"sep\"> · </span>{s}" for s in spans[2:])
     return (f"<details id=\"txn-{txn}\" data-txn=\"{txn}\"><summary>{summary}</summary>"
             "<div class=\"drill\"></div></details>\n")
