@@ -147,6 +147,9 @@ def test_headings_leave_out_empty_fields_and_give_the_reason(pages: dict[str, Pa
                        "8 frames, 9.0 ms")
     assert edge[11] == ("txn 11 nak · 192.168.1.25 DO 1 ref 2 · request error 0x16 parameter address impermissible "
                         "(attribute, elements, PNU, subindex or combination) · 4 frames, 4.0 ms")
+    page = pages["fault_trace"].read_text(encoding="utf-8")  # a long parameter list: shortened, whole on hover
+    params = " ".join(f"P{2000 + k}[0]" for k in range(20))
+    assert f'<span title="{params}">P2000[0] P2001[0] P2002[0] ... (20 parameters)</span>' in page
     timeouts = headings("pd_timeouts")
     assert timeouts[5] == ("txn 5 timeout · 192.168.1.23 DO 1 ref 1 · P964[0] (drive unit identification) · "
                            "timeout: no answer within the transaction timeout · 1 frame")

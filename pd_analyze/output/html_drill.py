@@ -38,7 +38,7 @@ MAX_FRAMES_PER_TXN = 30  # the first 20 and the last 10 frames of a transaction 
 MAX_FINDING_FRAMES = 10  # ... and up to this many frames between them that carry a finding
 MAX_FINDINGS_PER_FRAME = 100  # listed under a frame; the findings table lists any more
 _RAW_BYTES = 16  # bytes of a field shown
-_SHOW_CHARS = 300
+SHOW_CHARS = 300  # characters of a value shown (the page says where a value is cut)
 _ROLE = {"error": "E", "warning": "W", "info": "I"}
 _MARKED = frozenset({"E", "W", "I", "F", "R"})  # roles that keep a lower layer unfolded
 _REFUSALS = frozenset({"pd.val[i].error"})  # the field a NAK's error block names the refusal in
@@ -87,15 +87,15 @@ def drilldown(analysis: Analysis, txns: pd.DataFrame) -> dict[int, dict[str, obj
         return out
     groups = [("", txns)] if analysis.chain else txns.groupby("capture", observed=True, sort=False)
     for capture, group in groups:
-        found = _findings_at(analysis.findings, "" if analysis.chain else str(capture))
+        frames_of = {int(txn): sorted(int(n) for n in _text(frames).split())
+                     for txn, frames in zip(group.txn, group.frames, strict=True)}
+        every = {n for frames in frames_of.values() for n in frames}
+        found = _findings_at(analysis.findings, "" if analysis.chain else str(capture), every)
         wanted: dict[int, list[int]] = {}
-        frames_of: dict[int, list[int]] = {}
-        for row in group.itertuples():
-            frames = sorted(int(n) for n in _text(row.frames).split())
-            frames_of[int(row.txn)] = frames
+        for txn, frames in frames_of.items():
             for number in frames_to_show(frames, found):
-                wanted.setdefault(number, []).append(int(row.txn))
-        items: dict[int, list[dict[str, object]]] = {txn: [] for txn in frames_of}
+                wanted.setdefault(number, []).append(txn)
+        items: dict[int, list[dict[str, Any]]] = {txn: [] for txn in frames_of}
         results = annotated_frames(str(capture), wanted, analysis.profile, analysis.rpc_timeout, analysis.chain)
         for res in with_findings(results, found):
             item = frame_item(res)
@@ -108,14 +108,13 @@ def drilldown(analysis: Analysis, txns: pd.DataFrame) -> dict[int, dict[str, obj
     return out
 
 
-def _findings_at(f: pd.DataFrame, capture: str) -> dict[int, list[Finding]]:
-    """The findings table's rows of one capture ('' for all) as Findings, by frame."""
+def _findings_at(f: pd.DataFrame, capture: str, frames: set[int]) -> dict[int, list[Finding]]:
+    """The findings table's rows at `frames` of one capture ('' for all) as Findings, by frame."""
+    f = f[f.frame.isin(list(frames))]
     if capture:
         f = f[f.capture.astype(str) == capture]
     out: dict[int, list[Finding]] = {}
     for r in f.itertuples():
-        if pd.isna(r.frame):
-            continue
         out.setdefault(int(r.frame), []).append(Finding(
             str(r.rule), str(r.name), str(r.severity), int(r.frame), _text(r.field), _text(r.value),
             _text(r.expected), _text(r.source), _text(r.message)))
@@ -136,12 +135,12 @@ def frames_to_show(frames: list[int], found: Mapping[int, object]) -> list[int]:
     return head + middle + tail
 
 
-def _with_gaps(items: list[dict[str, object]], frames: list[int]) -> list[dict[str, object]]:
+def _with_gaps(items: list[dict[str, Any]], frames: list[int]) -> list[dict[str, Any]]:
     """The items in frame order, a {"gap": n} where n frames of the transaction are left out."""
     if not items:
         return []
-    shown = {int(i["n"]) for i in items}  # type: ignore[call-overload]
-    out: list[dict[str, object]] = []
+    shown = {int(i["n"]) for i in items}
+    out: list[dict[str, Any]] = []
     left_out = 0
     by_number = {i["n"]: i for i in items}
     for n in frames:
@@ -218,7 +217,7 @@ def _raw(raw: bytes) -> str:
 
 
 def _short(text: str) -> str:
-    return text if len(text) <= _SHOW_CHARS else text[:_SHOW_CHARS - 1] + "…"
+    return text if len(text) <= SHOW_CHARS else text[:SHOW_CHARS - 1] + "…"
 
 
 def _utc(ts: float) -> str:
@@ -264,47 +263,54 @@ def _heading_rows(rows: pd.DataFrame, analysis: Analysis) -> Iterable:
     return (r._replace(errors=e or "") for r, e in zip(rows.itertuples(), errors, strict=True))
 
 
-def heading(r: object, names: Mapping[str, str], pnu_names: dict[int, str]) -> list[tuple[str, str]]:
-    """A drill-down's heading as (css class, text) parts, empty fields left out."""
-    verdict = str(r.verdict)  # type: ignore[attr-defined]
-    parts = [("txn", f"txn {int(r.txn)}"), (f"badge v-{verdict}", verdict)]  # type: ignore[attr-defined]
-    where = [device_label(str(r.device), names)] if _text(r.device) else []  # type: ignore[attr-defined]
-    where += [f"{label} {_text(v)}" for label, v in (("DO", r.do), ("ref", r.ref)) if _text(v)]  # type: ignore[attr-defined]
+def heading(r: Any, names: Mapping[str, str], pnu_names: dict[int, str]) -> list[tuple[str, str, str]]:
+    """A drill-down's heading as (css class, text, full text where the text is shortened) parts, empty fields
+    left out."""
+    verdict = str(r.verdict)
+    parts = [("txn", f"txn {int(r.txn)}", ""), (f"badge v-{verdict}", verdict, "")]
+    where = [device_label(str(r.device), names)] if _text(r.device) else []
+    where += [f"{label} {_text(v)}" for label, v in (("DO", r.do), ("ref", r.ref)) if _text(v)]
     if where:
-        parts.append(("", " ".join(where)))
+        parts.append(("", " ".join(where), ""))
     what = _what(r)
-    params = _text(r.params)  # type: ignore[attr-defined]
-    if params and not (str(r.verdict) == "nak" and all(p in what for p in params.split())):  # type: ignore[attr-defined]
-        parts.append(("", _few(params, pnu_names)))  # (a NAK's errors name its parameters already)
+    params = _text(r.params)
+    if params and not (verdict == "nak" and all(p in what for p in params.split())):
+        short = _few(params, pnu_names)  # (a NAK's errors name its parameters already)
+        parts.append(("", short, params if len(short.split()) < len(params.split()) else ""))
     if what:
-        parts.append(("what", what))
-    frames = len(_text(r.frames).split())  # type: ignore[attr-defined]
-    total = "" if pd.isna(r.t_total) else f", {float(r.t_total) * 1000:.1f} ms"  # type: ignore[attr-defined]
-    parts.append(("dim", f"{frames} frame{'s' if frames != 1 else ''}{total}"))
+        parts.append(("what", what, ""))
+    frames = len(_text(r.frames).split())
+    total = "" if pd.isna(r.t_total) else f", {float(r.t_total) * 1000:.1f} ms"
+    parts.append(("dim", f"{frames} frame{'s' if frames != 1 else ''}{total}", ""))
     return parts
 
 
-def _what(r: object) -> str:
-    verdict = str(r.verdict)  # type: ignore[attr-defined]
+def _what(r: Any) -> str:
+    verdict = str(r.verdict)
     if verdict == "ok":
         return ""
     if verdict == "nak":
-        return _text(r.errors)  # type: ignore[attr-defined]
-    return _reason(verdict, _text(r.pnio_error_text), _text(r.closed_by), _value(r.b5_retries),  # type: ignore[attr-defined]
-                   _value(r.t_last_read))  # type: ignore[attr-defined]
+        return _text(r.errors)
+    return _reason(verdict, _text(r.pnio_error_text), _text(r.closed_by), _value(r.b5_retries), _value(r.t_last_read))
 
 
 def _value(value: object) -> object:
     return None if value is None or pd.isna(value) else value
 
 
-def _details(r: object, names: Mapping[str, str], pnu_names: dict[int, str], found: bool) -> str:
-    txn = int(r.txn)  # type: ignore[attr-defined]
+def _details(r: Any, names: Mapping[str, str], pnu_names: dict[int, str], found: bool) -> str:
+    txn = int(r.txn)
     parts = heading(r, names, pnu_names)
     if not found:
-        parts.append(("dim", "not found again in the capture"))
-    spans = [f"<span class=\"{html.escape(c)}\">{html.escape(text)}</span>" if c else html.escape(text)
-             for c, text in parts]
+        parts.append(("dim", "not found again in the capture", ""))
+    spans = [_span(c, text, full) for c, text, full in parts]
     summary = " ".join(spans[:2]) + "".join(f"<span class=\"sep\"> · </span>{s}" for s in spans[2:])
     return (f"<details id=\"txn-{txn}\" data-txn=\"{txn}\"><summary>{summary}</summary>"
             "<div class=\"drill\"></div></details>\n")
+
+
+def _span(cls: str, text: str, full: str) -> str:
+    if not cls and not full:
+        return html.escape(text)
+    attrs = (f' class="{html.escape(cls)}"' if cls else "") + (f' title="{html.escape(full)}"' if full else "")
+    return f"<span{attrs}>{html.escape(text)}</span>"

@@ -89,7 +89,7 @@ def render(analysis: Analysis, *, max_rows: int = MAX_ROWS, max_drilldown: int =
     tables |= param_tables
     single = analysis.captures[0].path if len(analysis.captures) == 1 else ""
     data = {"tables": tables, "drill": {str(k): v for k, v in drill.items()}, "page": PAGE_SIZE,
-            "capture": single}
+            "capture": single, "cut": html_drill.SHOW_CHARS}
     script = "\n".join(_asset(name) for name in _SCRIPTS)
     digest = base64.b64encode(hashlib.sha256(script.encode("utf-8")).digest()).decode("ascii")
     files = [os.path.basename(cap.path) for cap in analysis.captures]

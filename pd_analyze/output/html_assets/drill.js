@@ -18,7 +18,9 @@
     var name = el("td", fd[2], "name");
     name.style.paddingLeft = (4 + depth * 12) + "px";
     tr.appendChild(name);
-    tr.appendChild(el("td", fd[3], "show"));
+    var show = el("td", fd[3], "show");
+    if (fd[3].length >= DATA.cut) { show.title = "the value's first characters: pd-analyze dump shows it whole"; }
+    tr.appendChild(show);
     var check = fd[4] || (fd[5] === "R" ? "refused by the drive" : "");
     tr.appendChild(el("td", check ? "[" + check + "]" : "", "check " + (CHECK[fd[5]] || "dim")));
     if (focus) { tr.className += focus; }
@@ -205,7 +207,7 @@
   });
   document.addEventListener("click", function (e) {
     var a = e.target.closest && e.target.closest("a[href^='#txn-']");
-    if (!a) { return; }
+    if (!a || e.button !== 0 || e.ctrlKey || e.metaKey || e.shiftKey) { return; }  /* a new tab: it follows #txn-N */
     e.preventDefault();
     var href = a.getAttribute("href");
     if (location.hash !== href) {  /* the address names the transaction (back goes back), without a jump */
