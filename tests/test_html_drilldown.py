@@ -136,6 +136,25 @@ def test_the_field_that_decided_the_verdict(pages: dict[str, Path]) -> None:
     assert fields["ndr.status.code"][5] == "F" and fields["ndr.status.code"][4].startswith("failed: DF80B100 write")
 
 
+def test_a_finding_of_any_rule_marks_its_field_and_an_error_decides() -> None:
+    """A finding of a rule the drill-down has never heard of (the coming T8 txn_failed, at the frame that decided
+    the verdict) is listed, marks its field, and as an error decides: by field name and severity, not rule id."""
+    from pd_analyze.analysis.drilldown import annotated_frames, with_findings
+    from pd_analyze.model.rules import Finding
+    from pd_analyze.output.html_drill import deciding_field, frame_item
+
+    capture = str(REPO / "sample_pcaps" / "fault_trace.pcap")  # txn 12: a NAK, its error value in frame 52
+    decided = Finding("T8", "txn_failed", "error", 52, "pd.ref", "4", "", "", "the drive refused the request")
+    found = {52: [decided, decided]}  # (listed once, however often the table holds it)
+    items = [frame_item(r) for r in with_findings(annotated_frames(capture, {45, 52}, "generic", 5.0), found)]
+    assert items[1]["F"] == [["error", "T8", "txn_failed", "pd.ref", "the drive refused the request", "4", ""]]
+    marked = [fld for layer in items[1]["L"] for fld in layer[2] if fld[2] in ("pd.ref", "pd.val[0].error")]
+    assert [fld[4:] for fld in marked] == [["T8 error: the drive refused the request", "E"], ["", "R"]]
+    assert deciding_field(items, failed=True) == [52, "pd.ref"]  # an error finding's field before the error value
+    assert deciding_field(items[:1] + [frame_item(next(annotated_frames(capture, {52}, "generic", 5.0)))],
+                          failed=True) == [52, "pd.val[0].error"]  # without it, the error value
+
+
 def test_headings_leave_out_empty_fields_and_give_the_reason(pages: dict[str, Path]) -> None:
     def headings(name: str) -> dict[int, str]:
         page = pages[name].read_text(encoding="utf-8")
