@@ -27,7 +27,7 @@ import pd_analyze
 from devtools.synth import fixtures
 from devtools.synth.pd_encode import ParamAddress, error_block, pd_response, read_request, value_block
 from devtools.synth.sim_capture import Capture
-from pd_analyze.output import html_report
+from pd_analyze.output import html_drill, html_report
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = sorted(p for p in (REPO / "sample_pcaps").iterdir() if p.is_file() and p.name != "README.md")
@@ -96,11 +96,14 @@ def test_tables_and_drilldown_data(fault_html: str) -> None:
     verdicts = [r[names.index("verdict")] for r in t["rows"]]
     assert {v: verdicts.count(v) for v in set(verdicts)} == {"ok": 53, "nak": 7, "pnio_error": 2}
     assert len(data["tables"]["findings"]["rows"]) == 1 and len(data["tables"]["changes"]["rows"]) == 12
-    assert t["links"] == [5, 7, 12, 13, 15, 17, 43, 46, 59]  # every failed transaction has its frames
-    busy = data["drill"]["15"]  # given up after three B5 answers: pnio_error DE80B500 (protocol.md 7.3 step 5)
+    drilled = {int(k) for k, v in data["drill"].items() if v["v"] != "ok"}
+    assert drilled == {5, 7, 12, 13, 15, 17, 43, 46, 59}  # every failed transaction has its frames
+    assert len(data["drill"]) == 62  # and, the capture being small, every other one too
+    busy = data["drill"]["15"]["F"]  # given up after three B5 answers: pnio_error DE80B500 (protocol.md 7.3 step 5)
     assert [f["n"] for f in busy] == [60, 62, 63, 64, 65, 66, 67, 68]
     names = {fld[2] for f in busy for layer in f["L"] for fld in layer[2]}
     assert {"ndr.status.code1", "pd.ref", "iod.index"} <= names
+    assert data["drill"]["15"]["x"] == [68, "ndr.status.code"]  # the last B5 answer: the drive was still busy
     assert '<details id="txn-15" data-txn="15">' in fault_html
 
 
@@ -113,8 +116,11 @@ def test_caps_say_what_they_leave_out(reports: dict[str, Path]) -> None:
     assert "10 of 62 transactions embedded (every failed transaction (9), then the first 1 ok ones)" in t["note"]
     verdicts = [r[[c["name"] for c in t["columns"]].index("verdict")] for r in t["rows"]]
     assert verdicts.count("ok") == 1
-    assert sorted(data["drill"]) == ["12", "5", "7"]
-    assert "The first 3 of 9 failed transactions are shown" in page
+    failed = sorted(int(k) for k, v in data["drill"].items() if v["v"] != "ok")
+    assert failed == [5, 7, 12]
+    named = {14, 20, 22, 25, 31, 34, 39, 41, 53, 56}  # the slowest transactions the summary names (14: most B5)
+    assert named <= {int(k) for k in data["drill"]}
+    assert "The frames of the first 3 of 9 failed transactions are embedded" in page
 
 
 @pytest.fixture(scope="module")
@@ -149,8 +155,18 @@ def test_250000_transactions_are_capped(big_report: tuple[Path, float]) -> None:
     assert len(t["rows"]) == html_report.MAX_ROWS and t["total"] == 250_000
     assert t["note"].startswith("5,000 of 250,000 transactions embedded (the first 5,000 failed ones)")
     assert len(data["tables"]["changes"]["rows"]) == 5_000 and "of 48,396 changes" in data["tables"]["changes"]["note"]
-    assert len(data["drill"]) == html_report.MAX_DRILLDOWN
-    assert "The first 50 of 36,293 failed transactions are shown" in page
+    failed = sorted(int(k) for k, v in data["drill"].items() if v["v"] != "ok")
+    assert failed == sorted(data_failed_first(page, html_report.MAX_DRILLDOWN))
+    others = [int(k) for k, v in data["drill"].items() if v["v"] == "ok"]
+    assert 0 < len(others) <= html_drill.MAX_MORE + 12
+    assert "The frames of the first 50 of 36,293 failed transactions are embedded" in page
+
+
+def data_failed_first(page: str, n: int) -> list[int]:
+    """The first n failed transactions of the page's transactions table (which holds every failed one first)."""
+    t = embedded(page)["tables"]["transactions"]
+    at = [c["name"] for c in t["columns"]]
+    return [r[at.index("txn")] for r in t["rows"] if r[at.index("verdict")] != "ok"][:n]
 
 
 def hostile_capture(path: Path) -> None:
@@ -178,7 +194,7 @@ def test_capture_strings_are_escaped(hostile_report: Path) -> None:
     assert page.count("<script") == 2 and page.count("</script>") == 2
     assert "a&lt;img src=x onerror=&quot;alert(2)&quot;&gt;.pcap" in page and "b&amp;amp;&lt;b&gt;.pcap" in page
     data = embedded(page)  # the JSON still carries the exact strings
-    shows = [fld[3] for f in data["drill"]["1"] for layer in f["L"] for fld in layer[2]]
+    shows = [fld[3] for f in data["drill"]["1"]["F"] for layer in f["L"] for fld in layer[2]]
     assert any(HOSTILE in s for s in shows)
     t = data["tables"]["transactions"]
     at = [c["name"] for c in t["columns"]].index("capture")
@@ -239,6 +255,8 @@ def click_header(driver, table: str, col: str) -> None:
 
 
 def test_every_sample_report_opens_without_errors(browser, reports: dict[str, Path]) -> None:
+    from selenium.webdriver.support.wait import WebDriverWait
+
     problems = []
     for name, path in reports.items():
         load(browser, path)
@@ -250,6 +268,10 @@ def test_every_sample_report_opens_without_errors(browser, reports: dict[str, Pa
         expected_tables = 3 + analysis.parameter_state.device.nunique()  # and a parameter-state table per drive
         rows = browser.execute_script("return document.querySelectorAll(\"div[data-table='transactions'] tbody tr\")"
                                       ".length")
+        browser.execute_script("document.querySelectorAll('details[data-txn]').forEach(d => { d.open = true; })")
+        WebDriverWait(browser, 10).until(lambda d: d.execute_script(  # every drill-down drawn (on toggle)
+            "return document.querySelectorAll('details[data-txn]:not([data-drawn])').length") == 0)
+        errors += console_errors(browser)
         if errors or drawn != 5 or tables != expected_tables or rows != expected_rows:
             problems.append(f"{name}: errors {errors}, plots {drawn}/5, tables {tables}/{expected_tables}, "
                             f"rows {rows}/{expected_rows}")

@@ -373,15 +373,15 @@ def test_html_report_has_a_state_table_per_drive_with_the_set(tmp_path: Path) ->
     r = run("report", A, "--format", "html", "--out", str(tmp_path), "--expect", str(five))
     assert r.returncode == 0, r.stderr
     page = (tmp_path / "report.html").read_text()
-    assert ("Checked against the intended set: 10 intended elements: 3 as intended, 5 expect_mismatch, "
-            "1 expect_missing, 1 expect_refused.") in page
+    assert ("Checked against the intended set (<code>--expect</code>): 10 intended elements: 3 as intended, "
+            "5 expect_mismatch, 1 expect_missing, 1 expect_refused.") in page
     assert re.findall(r"<h3>([^<]+) <small>\((\d+)\)</small></h3>", page) == [("192.168.1.21 (pump-1)", "9"),
                                                                            ("192.168.1.22", "1")]
     data = json.loads(re.search(r'<script type="application/json" id="pd-data">(.*?)</script>', page, re.S).group(1))
     t = data["tables"]["params-0"]
     names = [c["name"] for c in t["columns"]]
-    assert names[-3:] == ["intended", "result", "why"]
-    by_param = {row[1]: dict(zip(names, row, strict=True)) for row in t["rows"]}
+    assert names[:5] == ["param", "do", "result", "intended", "why"]  # the element and its result first
+    by_param = {row[0]: dict(zip(names, row, strict=True)) for row in t["rows"]}
     assert by_param["P1500[0]"]["result"] == "expect_missing" and by_param["P1500[0]"]["writes"] is None
     assert by_param["P1300[0]"]["result"] == "expect_refused" and by_param["P1300[0]"]["last_error"] == "0x02"
     assert by_param["P1121[0]"]["result"] == "as intended" and by_param["P1121[0]"]["agrees"] == "yes"

@@ -60,7 +60,7 @@ def test_chain_pairs_a_transaction_split_over_two_files(tmp_path):
 def test_chain_drilldown_follows_the_chain_numbering(tmp_path):
     """fields() and the HTML drill-down find a chained transaction's frames by the report's numbers, in
     whichever file each frame is (frames 4-6 are frames 1-3 of the second file)."""
-    from pd_analyze.output import html_report
+    from pd_analyze.output import html_drill
 
     a, b = tmp_path / "ring_00001.pcap", tmp_path / "ring_00002.pcap"
     split_pcap(SAMPLES / "worked_example.pcap", 3, a, b)
@@ -70,8 +70,8 @@ def test_chain_drilldown_follows_the_chain_numbering(tmp_path):
     assert f.loc[f.name == "rpc.seq", ["frame", "value"]].values.tolist() == [[1, 1], [2, 1], [3, 2], [4, 2],
                                                                              [5, 3], [6, 3]]
     assert f.loc[f.name == "pd.resp_id", "frame"].tolist() == [6]  # the response, in the second file
-    drill = html_report.drilldown(chained, chained.transactions)
-    assert [item["n"] for item in drill[1]] == [1, 2, 3, 4, 5, 6]
+    drill = html_drill.drilldown(chained, chained.transactions)
+    assert [item["n"] for item in drill[1]["F"]] == [1, 2, 3, 4, 5, 6]
     whole = pd_analyze.analyze(str(SAMPLES / "worked_example.pcap")).fields(1)
     assert f.drop(columns="value").equals(whole.drop(columns="value"))  # as if one capture
 

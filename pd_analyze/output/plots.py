@@ -12,6 +12,7 @@ Scatter layers with many points are rasterised, so an SVG of a 250,000-transacti
 from __future__ import annotations
 
 import io
+import textwrap
 from collections.abc import Callable
 from typing import Protocol
 
@@ -35,6 +36,8 @@ DEVICE_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564
 RASTERISE_ABOVE = 2_000  # points in one scatter layer
 MAX_DEVICES = 20  # lanes / boxes per chart; the rest is named in the title
 MAX_LABELS = 30  # failures annotated on the timeline when there are at most this many
+TXN_URL = "#txn-"  # a failure marker's link in the SVG (+ its txn number): the HTML report's drill-down
+NAK_LABEL_WIDTH = 44  # characters per line of a NAK chart label (longer ones wrap, never cut)
 WIDTH = 9.0
 TIMELINE_WIDTH = 14.0  # the timeline's own width (its failure labels are placed for it: resize it, and they may meet)
 
@@ -106,12 +109,13 @@ def naks(a: Tables, ax: Axes | None = None, top: int = 15) -> Figure:
     errs = p[p.error.fillna("") != ""] if not p.empty else p
     grouped = (errs.groupby(["pnu", "error", "error_text"], observed=True, dropna=False).size()
                .sort_values(ascending=False)) if not errs.empty else pd.Series(dtype="int64")
-    ax = _axes(ax, 1.0 + 0.3 * min(top, max(len(grouped), 3)))
+    shown = grouped.head(top)
+    labels = [textwrap.fill(f"P{pnu}  {err}  {text}", NAK_LABEL_WIDTH) for pnu, err, text in shown.index]
+    extra = sum(label.count("\n") for label in labels)  # wrapped lines
+    ax = _axes(ax, 1.0 + 0.3 * min(top, max(len(grouped), 3)) + 0.13 * extra)
     title = "NAKs by PNU and error"
     if errs.empty:
         return _empty(ax, title, "no parameter was refused")
-    shown = grouped.head(top)
-    labels = [f"P{pnu}  {err}  {_short(text, 36)}" for pnu, err, text in shown.index]
     errors = sorted({e for _, e, _ in grouped.index})
     colour = {e: DEVICE_COLOURS[i % len(DEVICE_COLOURS)] for i, e in enumerate(errors)}
     bars = ax.barh(labels[::-1], list(shown.values)[::-1], color=[colour[e] for _, e, _ in shown.index][::-1])
@@ -131,7 +135,9 @@ def timeline(a: Tables, ax: Axes | None = None) -> Figure:
 
     Failures are drawn large on top of the ok ticks; with at most MAX_LABELS failures each is labelled
     with its transaction number and what failed. With more than RASTERISE_ABOVE transactions the lane
-    splits into one row per verdict, so dense failures of one kind cannot hide another.
+    splits into one row per verdict, so dense failures of one kind cannot hide another. Each failure marker
+    carries the link TXN_URL + its txn number in an SVG (for at most RASTERISE_ABOVE failures of a verdict:
+    more are drawn as one image): the HTML report puts a link over each.
     """
     t = a.transactions
     n_dev = min(t.device.nunique(), MAX_DEVICES) if not t.empty else 1
@@ -158,7 +164,8 @@ def timeline(a: Tables, ax: Axes | None = None) -> Figure:
         ax.scatter(secs[sel], y[sel] + row, marker=VERDICT_MARKERS[verdict], s=(20 if dense else 60 if ok else 70),
                    c=VERDICT_COLOURS[verdict], linewidths=1.2 if ok else 0.6,
                    edgecolors=None if ok or dense else "white", zorder=2 if ok else 3, label=f"{verdict} ({n:,})",
-                   rasterized=n > RASTERISE_ABOVE)
+                   rasterized=n > RASTERISE_ABOVE,
+                   urls=None if ok or n > RASTERISE_ABOVE else [f"{TXN_URL}{v}" for v in t.txn[sel]])
     ax.set_yticks(range(len(devices)), list(map(_named(a), devices)))
     ax.set_ylim(len(devices) - 0.4, -0.6)
     ax.set_xlabel(_since(start))

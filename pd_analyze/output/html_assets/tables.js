@@ -1,9 +1,11 @@
-
-(function () {
+/* pd-analyze HTML report, part 1: the tables (sort, filter, page). Data from the page's JSON, text set with
+   textContent only. Part 2 (drill.js) opens a transaction's frames from any txn link. */
+var PD = (function () {
   "use strict";
   var DATA = JSON.parse(document.getElementById("pd-data").textContent);
   var PAGE = DATA.page;
   var CLASS = {verdict: "v", severity: "s"};
+  var TIME_TEMPLATE = "0000-01-01 00:00:00.000000";
 
   function el(tag, text, cls) {
     var e = document.createElement(tag);
@@ -13,20 +15,43 @@
   }
   function isNum(kind) { return kind === "num" || kind === "ms"; }
   function shown(v) { return v === null ? "" : String(v); }
+  function compareOp(op, a, b) {
+    return op === "<" ? a < b : op === ">" ? a > b : op === "<=" ? a <= b : op === ">=" ? a >= b : a === b;
+  }
+
+  /* A time typed in a filter as the cells hold it ("2026-01-01 00:00:05" or a time of day "00:00:05.5"):
+     [the text padded to the cells' full width, whether it is a time of day], or null. */
+  function timeKey(text) {
+    if (/^\d{4}-\d\d(-\d\d( \d\d(:\d\d(:\d\d(\.\d{1,6})?)?)?)?)?$/.test(text)) {
+      return [text + TIME_TEMPLATE.slice(text.length), false];
+    }
+    var m = /^(\d{1,2}):(\d\d)(?::(\d\d)(\.\d{1,6})?)?$/.exec(text);
+    if (!m) { return null; }
+    var day = ("0" + m[1]).slice(-2) + ":" + m[2] + ":" + (m[3] || "00") + (m[4] || ".");
+    return [day + TIME_TEMPLATE.slice(11 + day.length), true];
+  }
 
   function parseFilter(text, kind) {
     if (!text) { return null; }
     var neg = false;
     if (text.charAt(0) === "!") { neg = true; text = text.slice(1); }
-    var m = /^(<=|>=|<|>|=)\s*(.*)$/.exec(text), test;
-    if (m && isNum(kind) && m[2] !== "" && !isNaN(Number(m[2]))) {
-      var n = Number(m[2]), op = m[1];
+    var m = /^(<=|>=|<|>|=)\s*(.*)$/.exec(text), test = null;
+    var rest = m ? m[2] : text, op = m ? m[1] : "=";
+    var number = rest !== "" && !isNaN(Number(rest)) ? Number(rest) : null;
+    if (isNum(kind) && number !== null) {  /* a number: compared, a bare one exactly */
+      test = function (v) { return v !== null && compareOp(op, v, number); };
+    } else if (kind === "frames" && number !== null) {  /* any frame of the list */
       test = function (v) {
         if (v === null) { return false; }
-        return op === "<" ? v < n : op === ">" ? v > n : op === "<=" ? v <= n : op === ">=" ? v >= n : v === n;
+        var frames = String(v).split(" ");
+        for (var k = 0; k < frames.length; k++) { if (compareOp(op, Number(frames[k]), number)) { return true; } }
+        return false;
       };
+    } else if (kind === "time" && m && m[1] !== "=" && timeKey(rest)) {
+      var key = timeKey(rest);
+      test = function (v) { return v !== null && compareOp(op, key[1] ? String(v).slice(11) : String(v), key[0]); };
     } else if (m && m[1] === "=") {
-      var exact = m[2].toLowerCase();
+      var exact = rest.toLowerCase();
       test = function (v) { return shown(v).toLowerCase() === exact; };
     } else {
       var needle = text.toLowerCase();
@@ -44,10 +69,15 @@
     };
   }
 
+  function txnLink(v) {
+    var a = el("a", v);
+    a.href = "#txn-" + v;
+    a.title = "the frames of transaction " + v;
+    return a;
+  }
+
   function makeTable(host, spec) {
     var cols = spec.columns, rows = spec.rows;
-    var links = {};
-    (spec.links || []).forEach(function (t) { links[t] = true; });
     var state = {sort: -1, dir: 1, tests: cols.map(function () { return null; }), page: 0, size: PAGE};
     var table = el("table"), thead = table.createTHead();
     var hrow = thead.insertRow(), frow = thead.insertRow();
@@ -65,7 +95,7 @@
       heads.push(th);
       var fth = el("th"), input = el("input");
       input.type = "search";
-      input.placeholder = isNum(c.kind) ? "> < =" : "filter";
+      input.placeholder = isNum(c.kind) || c.kind === "time" ? "> < =" : c.kind === "frames" ? "frame" : "filter";
       input.setAttribute("aria-label", "filter " + c.label);
       input.setAttribute("data-col", c.name);
       input.addEventListener("input", function () {
@@ -133,13 +163,11 @@
         for (var i = 0; i < cols.length; i++) {
           var c = cols[i], v = row[i], td = el("td", null, isNum(c.kind) ? "num" : "");
           if (CLASS[c.kind] && v !== null) { td.className = CLASS[c.kind] + " " + CLASS[c.kind] + "-" + v; }
-          if (c.name === "txn" && v !== null && links[v]) {
-            var a = el("a", v);
-            a.href = "#txn-" + v;
-            td.appendChild(a);
+          if (c.name === "txn" && v !== null) {
+            td.appendChild(txnLink(v));
           } else {
             td.textContent = shown(v);
-            if (td.textContent.length > 40) { td.title = td.textContent; }  /* cut with an ellipsis */
+            if (td.textContent.length > 30) { td.title = td.textContent; }  /* a cut cell: its full text */
           }
           tr.appendChild(td);
         }
@@ -158,66 +186,8 @@
     draw();
   }
 
-  function drawFrames(box, frames) {
-    if (!frames || !frames.length) {
-      box.appendChild(el("p", "No frame of this transaction was found again in the capture.", "dim"));
-      return;
-    }
-    frames.forEach(function (f) {
-      if (f.gap) {
-        box.appendChild(el("p", "\u2026 " + f.gap + " frames left out \u2026", "gap"));
-        return;
-      }
-      var div = el("div", null, "frame");
-      div.appendChild(el("div", "Frame " + f.n + "  " + f.t + "  " + f.src + " \u2192 " + f.dst + "  " + f.s,
-        "fhead"));
-      var table = el("table", null, "fields"), body = table.createTBody();
-      f.L.forEach(function (layer) {
-        var tr = body.insertRow(), td = el("td", layer[0]);
-        td.colSpan = 5;
-        td.style.paddingLeft = (layer[1] * 14) + "px";
-        tr.className = "layer";
-        tr.appendChild(td);
-        layer[2].forEach(function (fd) {
-          var r = body.insertRow();
-          var off = fd[0] >= 0 ? ("0000" + fd[0].toString(16)).slice(-4) : "";
-          var check = fd[4] || "";
-          r.appendChild(el("td", off, "dim"));
-          r.appendChild(el("td", fd[1], "dim"));
-          r.appendChild(el("td", fd[2]));
-          r.appendChild(el("td", fd[3]));
-          r.appendChild(el("td", check ? "[" + check + "]" : "", check === "ok" ? "good" :
-            (/BREAKS| error:| warning:/.test(check) ? "bad" : "dim")));
-        });
-      });
-      div.appendChild(table);
-      if (f.F.length) {
-        var ul = el("ul", null, "findings");
-        f.F.forEach(function (x) { ul.appendChild(el("li", x[0] + " " + x[1], "s-" + x[0])); });
-        div.appendChild(ul);
-      }
-      box.appendChild(div);
-    });
-  }
-
-  function openDrill(details) {
-    if (!details || details.getAttribute("data-drawn")) { return; }
-    details.setAttribute("data-drawn", "1");
-    drawFrames(details.querySelector(".drill"), DATA.drill[details.getAttribute("data-txn")]);
-  }
-
   document.querySelectorAll("div.pdtable").forEach(function (host) {
     makeTable(host, DATA.tables[host.getAttribute("data-table")]);
   });
-  document.querySelectorAll("details[data-txn]").forEach(function (d) {
-    d.addEventListener("toggle", function () { if (d.open) { openDrill(d); } });
-  });
-  function follow() {
-    var m = /^#txn-(\d+)$/.exec(location.hash);
-    var d = m && document.getElementById("txn-" + m[1]);
-    if (d) { d.open = true; openDrill(d); d.scrollIntoView(); }
-  }
-  window.addEventListener("hashchange", follow);
-  follow();
-  document.body.setAttribute("data-ready", "1");
+  return {DATA: DATA, el: el};
 })();
