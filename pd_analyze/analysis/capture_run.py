@@ -25,6 +25,9 @@ class Settings:
     txn_timeout: float = DEFAULT_TXN_TIMEOUT  # seconds a transaction may wait for its final response
     rpc_timeout: float = DEFAULT_RPC_TIMEOUT  # seconds a call may wait for its response
     batch_frames: int = 0  # frames per batch (0: capture.batches' default)
+    # the ordinary sequences taken whole as vector expressions (False: every row through the engine's loop,
+    # with the same tables: the tests compare the two)
+    vector: bool = True
 
     def checker(self) -> Checker:
         return Checker.for_profile(self.profile)

@@ -8,6 +8,8 @@ both tables capped (model.capped), every eviction stated.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from pd_analyze.analysis.engine.facts import Key, Pdu
 from pd_analyze.model import rules
 from pd_analyze.model.capped import ANSWERED_CALLS, KNOWN_ACTIVITIES, MAX_LISTED, OPEN_CALLS, CappedTable
@@ -33,10 +35,11 @@ class Call:
     __slots__ = ("answered", "copies", "digest", "dst", "frame", "fsm", "ifc", "opnum", "raw", "request",
                  "response_frame", "src", "ts")
 
-    def __init__(self, row: Pdu) -> None:
-        self.frame, self.ts = row.frame, row.ts
-        self.src, self.dst, self.ifc, self.opnum = row.src, row.dst, row.ifc, row.opnum
-        self.digest = row.digest
+    def __init__(self, row: Pdu | None) -> None:
+        if row is not None:
+            self.frame, self.ts = row.frame, row.ts
+            self.src, self.dst, self.ifc, self.opnum = row.src, row.dst, row.ifc, row.opnum
+            self.digest = row.digest
         self.request = row  # the request's row (its records, its frames for the checks of the answer)
         self.copies = 0
         self.response_frame = 0
@@ -44,6 +47,25 @@ class Call:
         self.fsm: object = None  # what the transactions keep of the call (machine)
         self.raw = None  # its request frame, kept when the call outlives its batch unanswered (the checks of
         # its answer read it)
+
+
+@dataclass(slots=True)
+class AnsweredLog:
+    """Calls the vector path took whole in one batch, answered: remembered rpc_timeout after their answer
+    as columns, found by key through `index` (key -> row); a call found becomes a Call of the table."""
+
+    columns: dict[str, list]  # frame, ts, answered, src, dst, if_hi, if_lo, opnum, digest, size, response_frame
+    index: dict[Key, int]
+    last: int  # the latest answer among them (ns)
+
+    def call(self, i: int) -> Call:
+        c = self.columns
+        call = Call(None)
+        call.frame, call.ts, call.answered = c["frame"][i], c["ts"][i], c["answered"][i]
+        call.src, call.dst, call.opnum = c["src"][i], c["dst"][i], c["opnum"][i]
+        call.ifc = (c["if_hi"][i], c["if_lo"][i])
+        call.digest, call.response_frame = (c["digest"][i], c["size"][i]), c["response_frame"][i]
+        return call
 
 
 def ip_text(value: int) -> str:
@@ -60,6 +82,7 @@ class Pairing:
         self.open: CappedTable[Key, Call] = CappedTable(OPEN_CALLS)
         self.closed: CappedTable[Key, Call] = CappedTable(ANSWERED_CALLS)
         self.activities: CappedTable[tuple[int, int], None] = CappedTable(KNOWN_ACTIVITIES)
+        self.logs: list[AnsweredLog] = []  # the vector path's answered calls, batch by batch
         self.loose: list[Finding] = []  # findings of no frame's own: calls that expired or were never answered
         self.now = -(1 << 62)
 
@@ -67,8 +90,41 @@ class Pairing:
         """Whether a PDU whose interface is not PNIO's belongs to a PNIO call or activity (protocol.md 1.4)."""
         key = row.key
         if row.ptype in _ANSWERS:
-            return key in self.open or key in self.closed
+            return key in self.open or self._answered(key) is not None
         return (key[0], key[1]) in self.activities
+
+    def _answered(self, key: Key) -> Call | None:
+        """The call of `key` answered less than rpc_timeout ago: in the table, or in the vector path's logs
+        (moved to the table when found: a copy counts on it)."""
+        call = self.closed.get(key)
+        if call is None:
+            for log in self.logs:
+                i = log.index.get(key)
+                if i is not None:
+                    call = log.call(i)
+                    del log.index[key]
+                    self.closed.remember(key, call)
+                    break
+        if call is not None and call.answered + self.timeout < self.now:
+            self.closed.pop(key, None)
+            return None
+        return call
+
+    def known(self, key: Key) -> bool:
+        """Whether a key is open or answered lately (as far as the vector path must keep off it)."""
+        return key in self.open or key in self.closed or any(key in log.index for log in self.logs)
+
+    def remember_log(self, keys: list[Key], columns: dict[str, list], activities: set[tuple[int, int]]) -> None:
+        """The calls the vector path took whole in a batch, answered; their activities known."""
+        if not keys:
+            return
+        self.logs.append(AnsweredLog(columns, dict(zip(keys, range(len(keys)), strict=True)),
+                                     max(columns["answered"])))
+        for act in activities:
+            if act not in self.activities:
+                self.activities.remember(act, None)
+        while len(self.logs) > 1 and sum(len(log.index) for log in self.logs) > ANSWERED_CALLS.count:
+            self.logs.pop(0)  # the oldest batch's calls are forgotten (ANSWERED_CALLS)
 
     def tick(self, now: int) -> None:
         """Capture time reached `now` (over every frame, PNIO or not): the calls due expire."""
@@ -98,7 +154,7 @@ class Pairing:
 
     def _request(self, row: Pdu) -> None:
         key = row.key
-        known = self.open.get(key) or self.closed.get(key)
+        known = self.open.get(key) or self._answered(key)
         if known is not None:
             if known.digest == row.digest:
                 known.copies += 1
@@ -124,7 +180,7 @@ class Pairing:
         key = row.key
         call = self._close(key, row.ts)
         if call is None:
-            dup = self.closed.get(key)
+            dup = self._answered(key)
             if dup is not None:
                 row.findings.append(rules.finding(
                     "rpc_retransmission", row.frame, "rpc.seq", key[2], "one response per call",
@@ -153,6 +209,8 @@ class Pairing:
         """Calls opened more than rpc_timeout before now are unanswered; answered calls are forgotten as
         long after their answer."""
         now, timeout, closed = self.now, self.timeout, self.closed
+        if self.logs and self.logs[0].last + timeout < now:
+            self.logs = [log for log in self.logs if log.last + timeout >= now]
         while closed:  # in the order answered: stop at the first still remembered
             key = next(iter(closed))
             if closed[key].answered + timeout >= now:

@@ -62,9 +62,13 @@ class Decoded:
 
     batch: FrameBatch
     view: BatchView
-    columns: list[Pdu]  # the rows the columns decoded, in frame order (their `col`: index into view.p)
+    rows: np.ndarray  # int64: the PDUs the columns decoded (indices into view.p), in frame order
     odd: np.ndarray  # int64: positions in the batch of the frames the per-frame dissector decodes
     accounting: Accounting = field(default_factory=Accounting)  # the columns' share of the frames
+    odd_rows: list[Pdu] = field(default_factory=list)  # the dissector's rows of those frames, in frame order
+    # findings the dissector made at column rows: a response that found its request's fragment set
+    # unfinished (rpc_fragments.drop_call), by PDU index
+    dropped: dict[int, list[Finding]] = field(default_factory=dict)
 
 
 class Decoder:
@@ -88,7 +92,7 @@ class Decoder:
     def _decode(self, batch: FrameBatch, view: BatchView) -> Decoded:
         p = view.p
         f = view.decoded.frames
-        out = Decoded(batch, view, [], np.empty(0, np.int64))
+        out = Decoded(batch, view, np.empty(0, np.int64), np.empty(0, np.int64))
         acc = out.accounting
         acc.read = len(batch)
         counts = np.bincount(f.skip_reason[f.route == ROUTE_SKIP].astype(np.int64), minlength=len(SKIP_REASONS))
@@ -103,14 +107,47 @@ class Decoder:
         pnio[sel[odd_record]] = False
         rows = np.flatnonzero(pnio)
         acc.decoded = len(rows)
-        out.columns = self._column_pdus(batch, view, rows)
+        out.rows = rows
         # the frames the per-frame dissector decodes: those the columns route to it, the DECIDE ones, and
         # the PNIO ones just taken back
         take = (f.route == ROUTE_FRAMES) | (f.route == ROUTE_DECIDE)
         take[p.pos[view.pnio & ~pnio]] = True
         out.odd = np.flatnonzero(take)
         acc.read -= len(out.odd)  # the dissector counts them
+        self._odd_rows(out)
         return out
+
+    def _odd_rows(self, dec: Decoded) -> None:
+        """The dissector's rows of the part's odd frames, in frame order; between them, the answers the
+        columns decoded tell it (in frame order too) that their calls were answered, so an unfinished
+        fragment set of such a call's request is reported at the answer, as the dissector would."""
+        batch, view, p = dec.batch, dec.view, dec.view.p
+        answers = dec.rows[(p.ptype[dec.rows] == PTYPE_RESPONSE) | (p.ptype[dec.rows] == PTYPE_FAULT)
+                           | (p.ptype[dec.rows] == PTYPE_REJECT)]
+        answer_frames = view.frame_no[answers]
+        frags = self.d.frags
+        k = 0
+        out = dec.odd_rows
+        for pos in dec.odd.tolist():
+            number = int(batch.number[pos])
+            if frags.pending_calls():
+                while k < len(answers) and answer_frames[k] < number:
+                    self._drop(dec, int(answers[k]))
+                    k += 1
+            else:
+                k = int(np.searchsorted(answer_frames, number))
+            out += self.frame_rows(batch, pos)
+        if frags.pending_calls():
+            for i in answers[k:].tolist():
+                self._drop(dec, int(i))
+
+    def _drop(self, dec: Decoded, i: int) -> None:
+        p = dec.view.p
+        found: list[Finding] = []
+        key = (int(p.act_hi[i]).to_bytes(8, "big") + int(p.act_lo[i]).to_bytes(8, "big"), int(p.seq[i]))
+        self.d.frags.drop_call(key, int(dec.view.frame_no[i]), found)
+        if found:
+            dec.dropped[i] = found
 
     # --- frames by the dissector ---------------------------------------------------------------
     def frame_rows(self, batch: FrameBatch, pos: int) -> list[Pdu]:
@@ -166,14 +203,6 @@ class Decoder:
         self.d.loose_findings.clear()
         return rows, loose
 
-    def answered(self, row: Pdu) -> None:
-        """A response (or a fault answering a call) decoded by the columns: any unfinished fragment set of
-        its call's request is missing pieces (rpc_fragments.drop_call, as the dissector does it)."""
-        frags = self.d.frags
-        if frags.pending_calls():
-            hi, lo, seq = row.key
-            frags.drop_call((hi.to_bytes(8, "big") + lo.to_bytes(8, "big"), seq), row.frame, row.findings)
-
     def loose(self) -> list[Finding]:
         """The dissector's findings on frames that are not PNIO RPC (link layer, fragments), drained."""
         out = list(self.d.loose_findings)
@@ -182,7 +211,8 @@ class Decoder:
 
     # --- frames by the columns -------------------------------------------------------------------
     @staticmethod
-    def _column_pdus(batch: FrameBatch, view: BatchView, rows: np.ndarray) -> list[Pdu]:
+    def column_pdus(batch: FrameBatch, view: BatchView, rows: np.ndarray) -> list[Pdu]:
+        """The column rows `rows` (indices into view.p, frame order) as the loop's rows."""
         p = view.p
         if not len(rows):
             return []

@@ -18,22 +18,17 @@ from typing import NamedTuple
 from pd_analyze.analysis.capture_run import DEFAULT_B5_THRESHOLD, DEFAULT_TXN_TIMEOUT
 from pd_analyze.analysis.engine.calls import Call
 from pd_analyze.analysis.engine.facts import Channel, Pdu, Write
-from pd_analyze.analysis.engine.records import Element, Records
+from pd_analyze.analysis.engine.records import Records
 from pd_analyze.analysis.engine.rules import (
     UNANSWERED_ENDS,
-    LastDone,
     b5_finding,
     mirroring,
-    reuse_finding,
     superseded_finding,
     verdict_of,
 )
 from pd_analyze.analysis.engine.txn import Txn
-from pd_analyze.model import pd_values as pt
 from pd_analyze.model.capped import (
-    CHANNEL_HISTORY,
     PENDING_TRANSACTIONS,
-    READ_VALUES,
     TXN_CALLS,
     TXN_FRAMES,
     CappedTable,
@@ -48,7 +43,6 @@ from pd_analyze.model.values import (
     PTYPE_RESPONSE,
     RECORD_SERVICES,
 )
-from pd_analyze.model.verdicts import ANSWERED
 
 FRAME_COST = 1024  # bytes a transaction keeps per frame (frame lists, its RPC calls)
 _B5 = 0x80 << 16 | PNIORW_STATE_CONFLICT << 8  # ErrorDecode PNIORW, ErrorCode1 state conflict (packed status)
@@ -84,16 +78,15 @@ class Machine:
         # open transactions by channel, in opening order; the oldest ends as a timeout when the table is full
         self.pending: CappedTable[Channel, Txn] = CappedTable(PENDING_TRANSACTIONS)
         self._by_ar: dict[tuple, OrderedDict[Channel, Txn]] = {}  # the fallback pairing's key (7.2)
-        self.last_done: CappedTable[Channel, LastDone] = CappedTable(CHANNEL_HISTORY)  # for T1, T4
         self._calls: CappedTable[int, FsmCall] = CappedTable(TXN_CALLS)  # by request frame
-        self.read_values: CappedTable[Element, str] = CappedTable(READ_VALUES)  # the last read back, per element
         self.now = -(1 << 62)
 
     # --- the row loop -------------------------------------------------------------------------
-    def feed(self, row: Pdu) -> Txn | None:
-        """One PNIO RPC frame's row (in frame order); the transaction it belongs to, if any."""
-        if row.ts > self.now:
-            self.now = row.ts
+    def feed(self, row: Pdu, now: int) -> Txn | None:
+        """One PNIO RPC frame's row (in frame order; `now`: the capture time reached at its frame over every
+        PNIO frame, those the vector path takes included); the transaction it belongs to, if any."""
+        if now > self.now:
+            self.now = now
         self._expire()  # (also when time stood still or went back: a transaction opened past its deadline)
         owner = self._row(row)
         if owner is not None:
@@ -105,6 +98,10 @@ class Machine:
                     if len(frames) > TXN_FRAMES:
                         self._evict(owner, row.frame, f"more than {TXN_FRAMES} frames")
         return owner
+
+    def calls_table(self) -> CappedTable:
+        """The calls the machine awaits answers to (their count bounds what the vector path may leave out)."""
+        return self._calls
 
     def advance(self, now: int) -> None:
         """Capture time reached `now`: the transactions due close."""
@@ -177,11 +174,6 @@ class Machine:
             txn.ref, txn.req_id, txn.do, txn.n_params = w.head
         txn.malformed = w.malformed
         txn.vendor = w.vendor
-        records = self.records
-        if records.writes_values(w.record, txn.req_id):  # what the change replaces, known before it
-            device, do, get = w.channel[0], txn.do, self.read_values.get
-            txn.values_before = [[get((device, do, pnu, sub + j)) for j in range(max(n, 1))]
-                                 for _attr, n, pnu, sub in records.addresses(w.record)]
         self._admit(txn, row.frame)
         return txn
 
@@ -195,17 +187,14 @@ class Machine:
         return txn
 
     def _admit(self, txn: Txn, frame: int) -> None:
-        """A new transaction becomes its channel's pending one: T3 on a pending one, T1/T4, the caps."""
+        """A new transaction becomes its channel's pending one: T3 on a pending one, the caps (T1/T4, which
+        compare it with the channel's last transaction, are the run's: finals.reuse)."""
         channel = txn.channel
+        txn.admitted = frame
         old = self.pending.get(channel)
         if old is not None:
             txn.findings.append(superseded_finding(txn.ref, old.write_frame, old.ref, frame))
             self._close(old, "superseded")
-        last = self.last_done.get(channel)
-        if last is not None:
-            reuse = reuse_finding(last, txn.ref, frame)
-            if reuse is not None:
-                txn.findings.append(reuse)
         self.pending.put(channel, txn, 1024 + self.records.cost(txn.request))
         self._by_ar.setdefault(fallback_key(channel), OrderedDict())[channel] = txn
         while len(self.pending) > 1 and self.pending.full():
@@ -352,10 +341,6 @@ class Machine:
         txn.retransmissions = sum(c.copies for c in txn.calls if c is not None)
         if why in UNANSWERED_ENDS and not txn.pnio_status and txn.b5:
             txn.pnio_status = B5_STATUS  # the last answer was B5 (txn.last_status)
-        self.last_done.remember(channel, LastDone(txn.write_frame, txn.ref, txn.verdict))
-        if txn.req_id == pt.REQ_READ and txn.verdict in ANSWERED:
-            for key, value in self.records.read_back(txn.request, txn.response, channel[0], txn.do):
-                self.read_values.remember(key, value)
         self.closed.append(txn)
 
     def _forget_calls(self, txn: Txn) -> None:

@@ -13,7 +13,8 @@ class Txn:
     """A transaction: opened by a write of a parameter request, closed by its final answer, a failure,
     its deadline, the next write on its channel, the caps or the capture's end."""
 
-    __slots__ = ("b5", "calls", "capture_ended", "channel", "closed_by", "do", "fallback", "findings", "frames",
+    __slots__ = ("admitted", "b5", "calls", "capture_ended", "channel", "closed_by", "do", "fallback", "findings",
+                 "frames",
                  "last_b5", "malformed", "mismatch", "n_params", "number", "opened_at", "pnio_status", "position",
                  "read_frames", "read_res_frame", "ref", "req_id", "request", "response", "response_head",
                  "retransmissions", "t_read_res", "t_reads", "t_start", "t_write_res", "values_before", "vendor",
@@ -24,6 +25,7 @@ class Txn:
         self.write_frame = write_frame  # its write request's first frame (a fragmented one's first fragment)
         self.t_start = t_start  # ns: timed at the request's first frame (protocol.md 7.6)
         self.opened_at, self.position = opened_at, position  # numbered in this order (README: txn)
+        self.admitted = opened_at  # the frame T1/T4 and T3 name it at (a cut write's: its request's)
         self.number = 0
         self.ref = self.req_id = self.do = self.n_params = -1  # -1: not in the frame (a cut request)
         self.request: Record = None

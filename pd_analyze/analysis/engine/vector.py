@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pd_analyze.analysis.engine.checks import paired_flags
 from pd_analyze.analysis.engine.view import KIND_READ, KIND_WRITE, BatchView
 from pd_analyze.model.capped import TXN_FRAMES
 from pd_analyze.model.values import PNIORW_STATE_CONFLICT, PTYPE_REQUEST, PTYPE_RESPONSE
@@ -89,6 +90,8 @@ def pair(view: BatchView, rows: np.ndarray, runmax_all: np.ndarray, timeout: int
     ts = view.batch.ns[p.pos[q]]
     ok &= runmax_all[s] - ts <= timeout  # (runmax_all is indexed by PDU)
     q, s = q[ok], s[ok]
+    plain = ~paired_flags(view, q, s)  # N4, H6-H8 may report: the loop's, with the reference's checks
+    q, s = q[plain], s[plain]
     if known and len(q):
         fresh = np.fromiter(((k not in known) for k in zip(p.act_hi[q].tolist(), p.act_lo[q].tolist(),
                                                             p.seq[q].tolist(), strict=True)), bool, len(q))
@@ -110,10 +113,25 @@ def channel_ids(view: BatchView, q: np.ndarray) -> tuple[np.ndarray, np.ndarray,
                      p.subslot[q].astype(np.uint64), p.index[q].astype(np.uint64)], axis=1)
     if not len(q):
         return np.empty(0, np.int64), np.empty(0, np.int64), []
-    uniq, channel = np.unique(cols, axis=0, return_inverse=True)
-    _g, group = np.unique(cols[:, [0, 1, 2, 3, 7]], axis=0, return_inverse=True)
-    channels = [tuple(int(x) for x in u) for u in uniq.tolist()]
-    return channel.astype(np.int64).ravel(), group.astype(np.int64).ravel(), channels
+    channel, first = _ids(cols)
+    group, _ = _ids(cols[:, [0, 1, 2, 3, 7]])
+    channels = [tuple(int(x) for x in u) for u in cols[first].tolist()]
+    return channel, group, channels
+
+
+def _ids(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of uint64 columns numbered by their distinct values: (id per row, first row of each id). A hash
+    of the row sorts them (rows equal in every column, checked, make one id; a hash shared by rows that
+    differ, never seen in practice, falls back to comparing the rows themselves)."""
+    h = np.zeros(len(cols), np.uint64)
+    with np.errstate(over="ignore"):
+        for j in range(cols.shape[1]):
+            h = (h ^ cols[:, j]) * _MIX + np.uint64(j + 1)
+    uniq, first, ids = np.unique(h, return_index=True, return_inverse=True)
+    if not np.array_equal(cols, cols[first][ids.ravel()]):  # a collision: the rows themselves
+        _u, first, ids = np.unique(cols, axis=0, return_index=True, return_inverse=True)
+    del uniq
+    return ids.astype(np.int64).ravel(), first
 
 
 def episodes(view: BatchView, calls: Calls, loop_events: dict[int, np.ndarray], runmax_pnio: np.ndarray,
@@ -151,6 +169,8 @@ def episodes(view: BatchView, calls: Calls, loop_events: dict[int, np.ndarray], 
         return none
     # the first closing call at or after each write, and the next write (or change of channel) after it
     cl_pos = np.flatnonzero(cl)
+    if not len(cl_pos):
+        return none
     at = np.searchsorted(cl_pos, start_pos)
     close_at = np.where(at < len(cl_pos), cl_pos[np.minimum(at, len(cl_pos) - 1)], n)
     boundary = np.flatnonzero(wr | np.r_[True, ch[1:] != ch[:-1]])  # where a channel or a write starts
