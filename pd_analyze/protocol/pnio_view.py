@@ -86,19 +86,20 @@ def explain_status(fields: list[Field], status: rec.Status | None) -> list[Field
     well-formed field ("ok"), on its ErrorCode."""
     if status is None or status.ok:
         return fields
-    for f in fields:
+    for i, f in enumerate(fields):
         part = f.name.rpartition(".")[2]
+        check = None
         if part == "code1":
             meaning = code1_name(status.decode, status.code1)
         elif part == "code2":
             meaning = code2_name(status.decode, status.code1, status.code2)
         elif part == "code" and ".status." in f.name:
             meaning = PNIO_ERROR_CODE.get(status.code, "")
-            f.check = status_check(status)
+            check = status_check(status)
         else:
             continue
-        f.show = f"0x{f.value:02x} ({meaning})" if meaning and isinstance(f.value, int) else f.show
-        f.shared = None  # shown for this status only: not the Layout's shared text
+        shown = f"0x{f.value:02x} ({meaning})" if meaning and isinstance(f.value, int) else None
+        fields[i] = f.replaced(shown, check)  # shown for this status only: a copy, not the Layout's shared field
     return fields
 
 
