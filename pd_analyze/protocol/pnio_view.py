@@ -7,6 +7,8 @@ from pd_analyze.model.layout import Field, plain
 from pd_analyze.model.values import (
     ERROR_CODE_READ,
     ERROR_DECODE_PNIORW,
+    INDEX_PD_GLOBAL,
+    INDEX_PD_LOCAL,
     INDEX_WRITE_MULTIPLE,
     PNIO_ERROR_CODE,
     PNIO_OPNUM,
@@ -19,7 +21,7 @@ from pd_analyze.model.values import (
     status_text,
 )
 from pd_analyze.protocol import pnio as rec
-from pd_analyze.protocol import profidrive_view
+from pd_analyze.protocol import profidrive, profidrive_view
 from pd_analyze.protocol.frames import Layer
 from pd_analyze.protocol.profidrive_view import Checks
 
@@ -67,7 +69,8 @@ def stub_layers(stub: rec.Stub, body: bytes, base: int, opnum: int, response: bo
                             explain_status(block.layout.annotate(body, block.offset, block.values, base),
                                            block.status)))
         if block.layout in (rec.WRITE_REQ, rec.READ_RES) and block.index != INDEX_WRITE_MULTIPLE:
-            layers += record_layers(block, base, depth + 1, checks)
+            refused = response and stub.status is not None and not stub.status.ok
+            layers += record_layers(block, base, depth + 1, checks, refused)
         end = block.record_offset + len(block.record)
         if end in pads:
             pad = body[end:end + pads[end]]
@@ -112,17 +115,36 @@ def status_check(status: rec.Status) -> str:
     return f"failed: {status_text(status.text())}"
 
 
-def record_layers(block: rec.Block, base: int, depth: int, checks: Checks) -> list[Layer]:
-    """A record's layers: a PROFIdrive request or response field by field, any other record raw."""
+def record_layers(block: rec.Block, base: int, depth: int, checks: Checks, refused: bool = False) -> list[Layer]:
+    """A record's layers: a PROFIdrive request or response field by field, any other record raw.
+
+    A PROFIdrive record cut short (fewer bytes than its RecordDataLength: the snaplen, a short PDU) is shown
+    decoded as far as its bytes go, as tshark shows it: the header, the whole addresses and value blocks,
+    the part the bytes end inside as `pd.cut` (protocol.md 1.3). It is decoded here for the dump only: the
+    record_truncated finding (H5) stands for it, and no transaction takes its contents. At index 0x002F
+    (plausible as PROFIdrive only when whole, protocol.md 1.4) and in a refused read response it stays raw."""
     data = block.record
-    if isinstance(block.pd, tuple):
-        parsed, request = block.pd
+    parsed, request = block.pd if isinstance(block.pd, tuple) else (cut_record(block, checks, refused), None)
+    if parsed is not None:
         at = base + block.record_offset
         return [Layer(title, depth, fields) for title, fields in
                 profidrive_view.annotate(parsed, data, at, checks, request)]
     what = "PROFIdrive, not decoded" if block.index in PROFIDRIVE_INDICES else "not PROFIdrive"
     return [Layer(f"Record data, index {block.index:#06x} ({len(data)} bytes, {what})", depth,
                   [raw_record(block, base)])]
+
+
+def cut_record(block: rec.Block, checks: Checks, refused: bool) -> profidrive.Parsed | None:
+    """A PROFIdrive record at 0xB02E/0xB02F with fewer bytes than its RecordDataLength, parsed as far as
+    they go (its findings are not the frame's: H5 reports the cut); None for any other record."""
+    if refused or block.index not in _CUT_DECODED or len(block.record) >= block.record_len \
+            or block.layout not in (rec.WRITE_REQ, rec.READ_RES):
+        return None
+    parse = profidrive.parse_response if block.layout is rec.READ_RES else profidrive.parse_request
+    return parse(block.record, 0, [], checks.ids)
+
+
+_CUT_DECODED = frozenset({INDEX_PD_LOCAL, INDEX_PD_GLOBAL})
 
 
 def raw_record(block: rec.Block, base: int) -> Field:
