@@ -4,6 +4,7 @@ blocks, Write-Multiple padding, records), each field with offset, bytes and valu
 from __future__ import annotations
 
 from pd_analyze.model.layout import Field, plain
+from pd_analyze.model.pd_values import NEGATIVE_RESPONSE
 from pd_analyze.model.values import (
     ERROR_CODE_READ,
     ERROR_DECODE_PNIORW,
@@ -24,6 +25,7 @@ from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol import profidrive, profidrive_view
 from pd_analyze.protocol.frames import Layer
 from pd_analyze.protocol.profidrive_view import Checks
+from pd_analyze.protocol.profiles import VendorResponse
 
 
 def pdu_summary(ptype: int, seq: int, stub: rec.Stub, fragments: int, opnum: int) -> str:
@@ -39,11 +41,27 @@ def pdu_summary(ptype: int, seq: int, stub: rec.Stub, fragments: int, opnum: int
         if block.layout in (rec.WRITE_REQ, rec.READ_RES):
             text += f" {block.record_len} bytes"
         parts.append(text)
+        negative = negative_response(block)
+        if negative:
+            parts.append(negative)
     if len(stub.blocks) > 4:
         parts.append(f"... {len(stub.blocks) - 4} more blocks")
     if fragments:
         parts.append(f"reassembled from {fragments} fragments")
     return ", ".join(parts)
+
+
+def negative_response(block: rec.Block) -> str:
+    """A negative parameter response in the record, as the heading names it: "PROFIdrive negative read
+    response (0x81), ref 1" (tshark's Info: "Negative read response"); "" for anything else."""
+    parsed = block.pd[0] if isinstance(block.pd, tuple) else None
+    if parsed is None or not parsed.response or not parsed.header_ok:
+        return ""
+    if isinstance(parsed.vendor, VendorResponse):  # a vendor's own negative Response ID (protocol.md 5.5)
+        words = parsed.vendor.name if parsed.vendor.negative else ""  # its name says negative
+    else:
+        words = NEGATIVE_RESPONSE.get(parsed.ident, "")
+    return f"PROFIdrive {words} ({parsed.ident:#04x}), ref {parsed.ref}" if words else ""
 
 
 def stub_layers(stub: rec.Stub, body: bytes, base: int, opnum: int, response: bool, checks: Checks) -> list[Layer]:

@@ -294,9 +294,10 @@ def _named(label: str, pnu: int | None, names: pt.Names) -> str:
 
 def _block_title(i: int, block: Block, addr: Address | None, owner: Parsed, names: pt.Names) -> str:
     response = owner.response
-    label = addr.label(block.n_values if addr is not None and addr.attr == pt.ATTR_VALUE
-                       and not block.is_error else None) if addr is not None else f"block [{i}]"
+    label = addr.label() if addr is not None else f"block [{i}]"  # the address (P7 reports a count differing)
     label = _named(label, addr.pnu if addr is not None else None, names)
+    if block.is_error and block.n_values == 0:  # an error block without its error number (E, error_block_count)
+        return f"Parameter [{i}]: {label} error block without an error number (No. of values 0)"
     if block.is_error:
         number = f"{block.error:#06x}" if block.error > 0xFF else f"{block.error:#04x}"
         return f"Parameter [{i}]: {label} error {number} ({error_meaning(block.error, owner, names)})"
