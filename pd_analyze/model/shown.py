@@ -11,7 +11,7 @@ offset, and the few fields whose values keep changing (sequence numbers, checksu
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, MutableSequence
+from collections.abc import Callable, Iterator, MutableSequence, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -101,20 +101,27 @@ class SharedField(_Draft):
                 found = SharedField.make(self.name, self.offset, self.length, self.raw, self.value, self.show, check)
                 object.__setattr__(self, "ok", found)
             return found
+        return self.replaced(None, check)
+
+    def replaced(self, show: str | None = None, check: str | None = None) -> Field:
+        """This field with another text and/or check: a SharedField too, remembered (the texts repeat: a
+        profile's verdict, a PNIOStatus in words; a few hold values)."""
+        show = self.show if show is None else show
+        check = self.check if check is None else check
         variants = self._checked
         if variants is None:
             variants = {}
             object.__setattr__(self, "_checked", variants)
-        found = variants.get(check)
+        found = variants.get((show, check))
         if found is None:
-            found = SharedField.make(self.name, self.offset, self.length, self.raw, self.value, self.show, check)
-            if len(variants) < _VARIANTS:  # check texts repeat ("ok", a profile's verdict); a few hold values
-                variants[check] = found
+            found = SharedField.make(self.name, self.offset, self.length, self.raw, self.value, show, check)
+            if len(variants) < _VARIANTS:
+                variants[(show, check)] = found
         return found
 
 
 _RENDER_SLOTS = frozenset({"indent", "json", "line"})
-_VARIANTS = 8  # checks remembered per shared field
+_VARIANTS = 8  # texts and checks remembered per shared field
 
 
 def json_value(value: object) -> object:
@@ -144,7 +151,7 @@ class View:
     A field that has shown _CHANGING values (a sequence number, a checksum) is taken as changing from frame
     to frame; the others are grouped into runs between such fields (`pieces`)."""
 
-    __slots__ = ("_changing", "_changing_entries", "_defaults", "_made", "_spans", "_templates", "entries", "names")
+    __slots__ = ("_changing", "_defaults", "_made", "_slots", "_spans", "_templates", "entries", "names")
 
     def __init__(self, entries: tuple[Entry, ...]) -> None:
         self.entries = entries
@@ -152,7 +159,7 @@ class View:
         self._defaults: dict[frozenset[str], tuple[str, ...]] = {}
         self._made = [0] * len(entries)  # values shown so far, per entry
         self._changing: set[int] = set()  # positions of the entries whose values keep changing
-        self._changing_entries: tuple[Entry, ...] = ()  # those entries, in order
+        self._slots: tuple[tuple[int, Entry], ...] = ()  # the changing entries and their places in a template
         self._spans: tuple[tuple[int, int, int, int], ...] = ()  # runs: (first, end entry, first, end byte)
         self._templates: dict[tuple[int, int, bytes], tuple[Run | int, ...]] = {}
         self._split()
@@ -178,43 +185,44 @@ class View:
             found = self._defaults[checked] = tuple("ok" if entry[0] in checked else "" for entry in self.entries)
         return found
 
-    def fields(self, buf: bytes, offset: int, values: tuple, base: int, checks: tuple[str, ...],
-               entries: tuple[Entry, ...] | None = None) -> Iterator[Field]:
-        """The SharedField of each entry (default: all), with its check (`checks`, "" or "ok" per entry)."""
-        copy = type(buf) is not bytes  # a slice of bytes is bytes already; of anything else, copied
-        at = base + offset
-        for name, rel, size, memo, conv, show_value, src, i in self.entries if entries is None else entries:
-            value = values[src]
-            raw = buf[offset + rel:offset + rel + size]
-            if copy:
-                raw = bytes(raw)
-            known = memo.get(value)
-            if known is None or known.offset != at + rel or known.raw != raw:
-                if known is not None and known.raw == raw:  # the same value at another offset
-                    known = memo[value] = known.moved(at + rel)
-                else:
-                    if len(memo) >= _MEMO_SIZE:  # a field whose values keep changing (sequence numbers...)
-                        memo.clear()
-                    made = self._made[i] = self._made[i] + 1
-                    if made == _CHANGING:  # written one by one from now on, not in a run
-                        self._changing.add(i)
-                        self._split()
-                    converted = value if conv is None else conv(value)
-                    known = memo[value] = SharedField.make(name, at + rel, size, raw, converted, show_value(converted))
-            check = checks[i]
-            if check:
-                known = known.ok or known.with_check(check)
-            yield known
+    def fields(self, buf: bytes, offset: int, values: tuple, base: int, checks: tuple[str, ...]) -> Iterator[Field]:
+        """The SharedField of each entry, with its check (`checks`, "" or "ok" per entry)."""
+        shared = self._shared
+        for entry in self.entries:
+            yield shared(entry, buf, offset, values, base + offset, checks[entry[7]])
+
+    def _shared(self, entry: Entry, buf: bytes, offset: int, values: tuple, at: int, check: str) -> Field:
+        """The SharedField of one entry of the structure at `offset` (shown at `at`), with its check."""
+        name, rel, size, memo, conv, show_value, src, i = entry
+        value = values[src]
+        raw = buf[offset + rel:offset + rel + size]
+        if type(raw) is not bytes:  # a slice of bytes is bytes already; of anything else, copied
+            raw = bytes(raw)
+        known = memo.get(value)
+        if known is None or known.offset != at + rel or known.raw != raw:
+            if known is not None and known.raw == raw:  # the same value at another offset
+                known = memo[value] = known.moved(at + rel)
+            else:
+                if len(memo) >= _MEMO_SIZE:  # a field whose values keep changing (sequence numbers...)
+                    memo.clear()
+                made = self._made[i] = self._made[i] + 1
+                if made == _CHANGING:  # written one by one from now on, not in a run
+                    self._changing.add(i)
+                    self._split()
+                converted = value if conv is None else conv(value)
+                known = memo[value] = SharedField.make(name, at + rel, size, raw, converted, show_value(converted))
+        if check:
+            return known.ok or known.with_check(check)
+        return known
 
     def pieces(self, buf: bytes, offset: int, values: tuple, base: int, checks: tuple[str, ...]
-               ) -> list[Run | Field]:
+               ) -> Sequence[Run | Field]:
         """The fields in order as the dump writes them: each run of fields whose values do not keep
         changing as one Run, found by the bytes of all the runs together (one look-up for the structure),
         the changing fields one by one. The same SharedFields as `fields`, grouped."""
         spans = self._spans
         if len(spans) == 1:
-            _, _, lo, hi = spans[0]
-            key = buf[offset + lo:offset + hi]
+            key = buf[offset + spans[0][2]:offset + spans[0][3]]
         else:
             key = b"".join([buf[offset + lo:offset + hi] for _, _, lo, hi in spans])
         templates = self._templates
@@ -227,10 +235,14 @@ class View:
             if spans is self._spans:  # not split again while the fields were made
                 templates[(id(checks), base + offset, bytes(key))] = found
             return [piece if piece.__class__ is Run else made[piece] for piece in found]
-        if len(found) == 1:
-            return list(found)
-        changing = self.fields(buf, offset, values, base, checks, self._changing_entries)
-        return [piece if piece.__class__ is Run else next(changing) for piece in found]
+        slots = self._slots
+        if not slots:
+            return found  # runs only
+        out = list(found)
+        shared, at = self._shared, base + offset
+        for j, entry in slots:
+            out[j] = shared(entry, buf, offset, values, at, checks[entry[7]])
+        return out
 
     def _template(self, made: list[Field]) -> tuple[Run | int, ...]:
         """The runs of `made` (one frame's fields) as Runs, the changing fields as their positions."""
@@ -257,7 +269,15 @@ class View:
                 spans.append((first, i, min(e[1] for e in run), max(e[1] + e[2] for e in run)))
                 first = None
         self._spans = tuple(spans)
-        self._changing_entries = tuple(entry for entry in self.entries if entry[7] in self._changing)
+        # where a template (_template) holds each changing entry, and the entry
+        slots, j, last = [], 0, 0
+        for first, end, _, _ in (*spans, (len(self.entries), len(self.entries), 0, 0)):
+            for i in range(last, first):
+                slots.append((j, self.entries[i]))
+                j += 1
+            j += 1 if end > first else 0
+            last = end
+        self._slots = tuple(slots)
         self._templates.clear()
 
 
