@@ -1,8 +1,9 @@
 """The dump's exact output, and the precomputed shortcuts behind it staying equal to their definitions.
 
-Layouts resolve each field's show function once and memoise shown values; the JSON and text writers
-reuse the text of a value shown before. Each shortcut is checked here against the plain definition
-(show_def, the uuid module, json.dumps of the fields' dicts, the text line spelt out).
+Layouts resolve each field's show function once and hand out one SharedField for every frame with the
+same bytes at the same offset, grouped in runs; the JSON and text writers keep their texts on them. Each
+shortcut is checked here against the plain definition (show_def, the uuid module, json.dumps of the fields'
+dicts, the text line spelt out).
 """
 
 import json
@@ -14,6 +15,7 @@ import pytest
 
 from pd_analyze.model import fields as registry
 from pd_analyze.model import layout as structs
+from pd_analyze.model import shown
 from pd_analyze.model.layout import Field, Layout
 from pd_analyze.output import dump
 from pd_analyze.protocol import pnio_checks as checks
@@ -82,12 +84,12 @@ def _fresh(layout: Layout, buf: bytes, offset: int, values: tuple, base: int) ->
 def test_layout_memo_follows_the_bytes_and_stays_bounded() -> None:
     layout = Layout("test", "<", (("rpc.activity", "16s"), ("rpc.seq", "I"), ("iod.index", "H"), ("rpc.flags1", "B")))
     rng = random.Random(3)
-    for _ in range(3 * structs._MEMO_SIZE):
+    for _ in range(3 * shown._MEMO_SIZE):
         buf = b"\xaa" + rng.randbytes(layout.size) + b"\xbb"
         values = layout.unpack(buf, 1)
         assert layout.annotate(buf, 1, values, 40) == _fresh(layout, buf, 1, values, 40)
         assert layout.annotate(bytearray(buf), 1, values, 0) == _fresh(layout, buf, 1, values, 0)
-    assert all(len(memo) <= structs._MEMO_SIZE for _, _, _, memo, _, _ in layout.plan)
+    assert all(len(entry[3]) <= shown._MEMO_SIZE for entry in layout.view.entries)
     # the same values over other bytes (a caller's values need not come from this buffer): raw follows the buffer
     buf = bytes(range(layout.size))
     values = layout.unpack(buf)
@@ -127,15 +129,25 @@ def test_json_and_text_of_every_sample_equal_their_definitions() -> None:
     assert frames > 200
 
 
-def test_a_field_changed_after_annotation_is_written_as_it_is_now() -> None:
+def test_a_shared_field_is_one_object_never_changed_but_replaced() -> None:
     first, second = _results(REPO / "sample_pcaps" / "worked_example.pcap")[:2]
-    dump.frame_json(first), dump.frame_text(first)  # the shared text of the header fields is made
+    dump.frame_json(first), dump.frame_text(first)  # the texts of the header fields are made (kept on them)
     ver = next(f for f in second.fields() if f.name == "rpc.ver")
-    assert ver.shared is not None and ver.shared.json and ver.shared.text  # made for the first frame
-    ver.show, ver.value = "four", 44
-    assert '"name":"rpc.ver","offset":42,"length":1,"raw":"04","value":44,"show":"four"' in dump.frame_json(second)
-    assert "002a  04                          rpc.ver = four" in dump.frame_text(second)
+    assert ver is next(f for f in first.fields() if f.name == "rpc.ver")  # the same bytes at the same offset
+    assert isinstance(ver, shown.SharedField)
+    with pytest.raises(AttributeError, match=r"rpc\.ver: a shared field does not change"):
+        ver.show = "four"
+    checked = ver.with_check("ok")
+    assert checked is not ver and checked is ver.with_check("ok") and checked.check == "ok" and ver.check == ""
+    assert checked == Field("rpc.ver", 42, 1, b"\x04", 4, "4", "ok")
+    layer = next(layer for layer in second.layers if any(f is ver for f in layer.fields))
+    layer.fields[[id(f) for f in layer.fields].index(id(ver))] = ver.replaced("four", "seen")
+    assert '"name":"rpc.ver","offset":42,"length":1,"raw":"04","value":4,"show":"four","check":"seen"' in \
+        dump.frame_json(second)
+    assert "    002a  04                          rpc.ver = four  [seen]" in dump.frame_text(second).split("\n")
+    assert "    002a  04                          rpc.ver = 4" in dump.frame_text(first).split("\n")  # unchanged
     assert dump.frame_json(second) == _reference_json(second)
+    assert dump.frame_text(second) == _reference_text(second)
 
 
 def test_worked_example_read_response_text_exactly() -> None:
@@ -163,3 +175,79 @@ def test_equal_bytes_at_another_offset_are_written_at_theirs() -> None:
     for _ in range(2):
         assert dump.frame_json(res) == _reference_json(res)
         assert dump.frame_text(res) == _reference_text(res)
+
+
+def _flat(pieces: list) -> list[Field]:
+    return [f for piece in pieces for f in (piece.fields if isinstance(piece, shown.Run) else (piece,))]
+
+
+def test_runs_hold_the_fields_of_the_frame_as_values_start_to_change() -> None:
+    """A View groups its fields into runs found by their bytes; a field that keeps changing leaves the runs.
+    Whatever the grouping, the pieces are the frame's own fields, and the text and JSON equal the definitions."""
+    from pd_analyze.protocol.frames import Layer
+
+    layout = Layout("test", ">", (("udp.sport", "H"), ("rpc.seq", "I"), ("iod.index", "H"), ("rpc.activity", "16s"),
+                                  ("rpc.flags1", "B")))
+    view = layout.shown(*layout.names)
+    rng = random.Random(5)
+    activities = [rng.randbytes(16) for _ in range(3)]
+    checked = frozenset({"rpc.seq", "rpc.flags1"})
+    for n in range(3 * shown._CHANGING):
+        buf = (b"\x88\x94" + n.to_bytes(4, "big") + rng.choice([b"\xb0\x2e", b"\xb0\x2f"]) + rng.choice(activities)
+               + bytes([rng.choice([0x20, 0x0a])]))
+        values = layout.unpack(buf)
+        fields = view.annotate(buf, 0, values, 14)
+        fields.checked = checked if n % 2 else None
+        expected = [f.with_check("ok") if fields.checked and f.name in checked else f
+                    for f in _fresh(layout, buf, 0, values, 14)]
+        assert list(fields) == expected
+        assert _flat(fields.pieces()) == expected
+        assert all(a is b for a, b in zip(_flat(fields.pieces()), fields, strict=True))  # the same objects
+        res = FrameResult(n, 1.5, b"\x01\x02\x03\x04", b"\x05\x06\x07\x08", "s", 0, layers=[Layer("t", 1, fields)])
+        assert dump.frame_text(res) == _reference_text(res)
+        assert dump.frame_json(res) == _reference_json(res)
+        assert not fields.made  # written from the runs, no list of fields made
+    assert [view.entries[i][0] for i in sorted(view._changing)] == ["rpc.seq"]  # the others repeat
+    assert len(view._spans) == 2  # sport; index, activity, flags1
+
+
+def test_an_annotated_structure_is_a_list_of_its_fields() -> None:
+    layout = Layout("test", "<", (("rpc.activity", "16s"), ("rpc.seq", "I"), ("iod.index", "H")))
+    buf = bytes(range(22))
+    fields = layout.annotate(buf, 0, layout.unpack(buf), 8)
+    expected = _fresh(layout, buf, 0, layout.unpack(buf), 8)
+    assert len(fields) == 3 and not fields.made and fields == expected
+    assert fields[1].name == "rpc.seq" and fields.made  # indexed: the list is made, the same fields
+    fields[1] = fields[1].with_check("seen")
+    fields.append(Field("rpc.rtt", -1, 0, b"", 0.5, "0.500000 s"))
+    assert [f.check for f in fields] == ["", "seen", "", ""] and len(fields) == 4
+    assert list(fields.pieces()) == list(fields)  # once made, the renderers read the list
+    copied = layout.annotate(bytearray(buf), 0, layout.unpack(buf), 8)  # bytes that may change: made at once
+    assert copied.made and copied == expected and all(type(f.raw) is bytes for f in copied)
+
+
+def test_checks_of_an_annotated_structure_as_mark_checks_sets_them() -> None:
+    from pd_analyze.model.rules import finding
+    from pd_analyze.protocol import rpc
+    from pd_analyze.protocol.frames import Layer
+
+    buf = bytes(range(rpc.HEADER_SIZE))
+    values = rpc.HEADER_LE.unpack(buf)
+    plain_res = FrameResult(1, 1.0, b"\x01\x02\x03\x04", b"\x05\x06\x07\x08", "s", 0, layers=[
+        Layer("t", 0, list(rpc.HEADER_LE.annotate(buf, 0, values, 42)))])
+    lazy_res = FrameResult(1, 1.0, b"\x01\x02\x03\x04", b"\x05\x06\x07\x08", "s", 0, layers=[
+        Layer("t", 0, rpc.HEADER_LE.annotate(buf, 0, values, 42))])
+    for res in (plain_res, lazy_res):
+        mark_checks(res, checks.CHECKED_FIELDS)
+    assert not lazy_res.layers[0].fields.made  # no finding names its fields: the checks come as it is read
+    assert list(lazy_res.fields()) == list(plain_res.fields())
+    assert {f.name for f in lazy_res.fields() if f.check == "ok"} == \
+        {f.name for f in plain_res.fields()} & checks.CHECKED_FIELDS
+    assert dump.frame_text(lazy_res) == dump.frame_text(plain_res) == _reference_text(plain_res)
+    cut = finding("rpc_truncated", 1, "rpc.frag_len", 94, "<= 90", "fragment body cut")
+    for res in (plain_res, lazy_res):
+        res.findings.append(cut)
+        mark_checks(res, checks.CHECKED_FIELDS)
+    assert lazy_res.layers[0].fields.made
+    assert next(f.check for f in lazy_res.fields() if f.name == "rpc.frag_len") == "R1 error: fragment body cut"
+    assert list(lazy_res.fields()) == list(plain_res.fields())

@@ -12,69 +12,22 @@ from __future__ import annotations
 import struct
 import uuid
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
-from dataclasses import field as dc_field
 from socket import inet_ntoa
 from typing import TYPE_CHECKING
 
 from pd_analyze.model import fields as registry
+from pd_analyze.model.shown import Annotated, Converter, Field, Shower, View
 from pd_analyze.model.values import flag_names, name_of
 
 if TYPE_CHECKING:
     import numpy as np
 
 
-@dataclass(slots=True)
-class Field:
-    """One annotated field of a dissected frame."""
-
-    name: str
-    offset: int
-    length: int
-    raw: bytes
-    value: object
-    show: str
-    check: str = ""
-    shared: Shown | None = dc_field(default=None, compare=False, repr=False)  # set by Layout.annotate
-
-    def as_dict(self) -> dict[str, object]:
-        return {"name": self.name, "offset": self.offset, "length": self.length,
-                "raw": self.raw.hex(), "value": json_value(self.value), "show": self.show,
-                "check": self.check}
-
-
-class Shown:
-    """One value of one Layout field as shown: kept in the Layout's memo and shared by the fields of later
-    frames with the same bytes, so that each renderer formats it once (`json`, `text`: theirs to fill,
-    with the offset they were made for). A field may use them only while its name, length, value, show
-    and raw are still these."""
-
-    __slots__ = ("json", "json_at", "length", "name", "raw", "show", "text", "text_at", "value")
-
-    def __init__(self, name: str, length: int, value: object, show: str, raw: bytes) -> None:
-        self.name, self.length, self.value, self.show, self.raw = name, length, value, show, raw
-        self.json = self.text = ""
-        self.json_at = self.text_at = -1
-
-    def holds(self, f: Field) -> bool:
-        """`f` is still as annotated from this value (identity, not equality: the objects themselves)."""
-        return (f.value is self.value and f.show is self.show and f.raw is self.raw and f.name is self.name
-                and f.length == self.length)
-
-
-def json_value(value: object) -> object:
-    if isinstance(value, bytes | bytearray | memoryview):
-        return bytes(value).hex()
-    if isinstance(value, tuple):
-        return list(value)
-    return value
-
-
 class Layout:
     """A fixed-size structure: fields in wire order with struct codes, one byte order."""
 
-    __slots__ = ("_columnar", "codes", "defs", "names", "offsets", "order", "plan", "positions", "size", "sizes",
-                 "struct", "title")
+    __slots__ = ("_columnar", "codes", "defs", "names", "offsets", "order", "positions", "size", "sizes", "struct",
+                 "title", "view")
 
     def __init__(self, title: str, order: str, fields: tuple[tuple[str, str], ...]) -> None:
         self.title = title
@@ -94,11 +47,8 @@ class Layout:
         self.positions = {name: i for i, name in enumerate(self.names)}
         # registry entries resolved once (a typo in a declaration fails at import, not at run time)
         self.defs = tuple(registry.field(name) for name in self.names)
-        # what annotate needs per field, decided here rather than for every frame of a dump; the memo
-        # keeps recent (value, shown text) pairs, as most header fields repeat from frame to frame
-        little = order == "<"
-        self.plan = tuple((fdef.name, rel, size, {}, _converter(fdef, little), shower(fdef))
-                          for fdef, rel, size in zip(self.defs, self.offsets, self.sizes, strict=True))
+        # what annotate needs per field, decided here rather than for every frame of a dump
+        self.view = self.shown(*self.names)
         # numpy record types for `columns`, by the tuple of fields asked for; built on first use, so the
         # per-frame path never imports numpy
         self._columnar: dict[tuple[tuple[str, ...], bool], tuple[int, np.dtype]] = {}
@@ -158,29 +108,32 @@ class Layout:
             "itemsize": hi - lo}))
         return plan
 
-    def annotate(self, buf: bytes, offset: int, values: tuple, base: int = 0) -> list[Field]:
-        """Fields of the structure at `offset` in `buf`; `base` is added to shown offsets.
+    def shown(self, *fields: str | tuple[str, str, Callable[[int], int]] | tuple[str, str, Callable[[int], int],
+                                                                                 Shower]) -> View:
+        """What the dump shows of this structure, in order: a field by its name, or a field derived from one
+        (name, source field, function of the source's value, optionally how it is shown): a bit field, shown
+        at its source's offset and bytes. `self.view` shows every field as declared."""
+        little = self.order == "<"
+        entries = []
+        for spec in fields:
+            if isinstance(spec, str):
+                i = self.positions[spec]
+                fdef = self.defs[i]
+                conv, show_value = _converter(fdef, little), shower(fdef)
+            else:
+                name, source, derive, *how = spec
+                i = self.positions[source]
+                fdef = registry.field(name)
+                conv, show_value = derive, (how[0] if how else shower(fdef))
+            entries.append((fdef.name, self.offsets[i], self.sizes[i], {}, conv, show_value, i, len(entries)))
+        return View(tuple(entries))
 
-        `values` as unpacked by this Layout's struct: each field's values are of one type, so equal
-        values convert and show alike and the memo may key on the value (its bytes are compared too)."""
-        copy = type(buf) is not bytes  # a slice of bytes is bytes already; of anything else, copied
-        at = base + offset
-        out = []
-        for (name, rel, size, memo, conv, show_value), value in zip(self.plan, values, strict=True):
-            raw = buf[offset + rel:offset + rel + size]
-            if copy:
-                raw = bytes(raw)
-            known = memo.get(value)
-            if known is None or known.raw != raw:
-                if len(memo) >= _MEMO_SIZE:  # a field whose values keep changing (sequence numbers...)
-                    memo.clear()
-                converted = value if conv is None else conv(value)
-                known = memo[value] = Shown(name, size, converted, show_value(converted), raw)
-            out.append(Field(name, at + rel, size, known.raw, known.value, known.show, "", known))
-        return out
+    def annotate(self, buf: bytes, offset: int, values: tuple, base: int = 0) -> Annotated:
+        """Fields of the structure at `offset` in `buf` (`values` as unpacked by this Layout's struct);
+        `base` is added to shown offsets. See View.annotate."""
+        return self.view.annotate(buf, offset, values, base)
 
 
-_MEMO_SIZE = 256  # per Layout field; a Shown with its texts is some 400 bytes
 # struct codes with a numpy integer of the same width and signedness (the byte order is the Layout's)
 _NUMPY_INTEGERS = {"B": "u1", "H": "u2", "I": "u4", "Q": "u8", "b": "i1", "h": "i2", "i": "i4", "q": "i8"}
 
@@ -253,10 +206,6 @@ def be_halves(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     both = np.ascontiguousarray(raw).view(">u8").astype(np.uint64)
     return both[:, 0], both[:, 1]
-
-
-Converter = Callable[[object], object]
-Shower = Callable[[object], str]
 
 
 def convert(name: str, value: object, little: bool = False) -> object:

@@ -25,6 +25,10 @@ RESPONSE_ID: Mapping[int, str] = MappingProxyType({
     0x01: "request parameter, positive", 0x02: "change parameter, positive",
     0x80: "negative: request not supported", 0x81: "request parameter, negative",
     0x82: "change parameter, negative"})
+# A negative response as the dump's frame heading names it (tshark's Info column: "Negative read response")
+NEGATIVE_RESPONSE: Mapping[int, str] = MappingProxyType({
+    0x80: "negative response, request not supported", 0x81: "negative read response",
+    0x82: "negative change response"})
 ATTRIBUTE: Mapping[int, str] = MappingProxyType({0x10: "Value", 0x20: "Description", 0x30: "Text"})
 
 

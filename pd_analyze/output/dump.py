@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import gc
 import json
 import math
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from datetime import UTC, datetime
 
-from pd_analyze.model.layout import Field, json_value
 from pd_analyze.model.rules import ERROR, INFO, WARNING, Finding
+from pd_analyze.model.shown import Annotated, Field, Run, SharedField, json_value
 from pd_analyze.protocol.frames import FrameResult
 
 Style = Callable[[str, str], str]  # (text, role) -> text, roles: severity names, "frame", "dim"
@@ -30,22 +32,22 @@ def safe(text: str) -> str:
 def frame_json(result: FrameResult) -> str:
     """One JSON Lines object, written directly rather than by json.dumps of a dict per field (several
     times dearer). The text equals json.dumps(..., ensure_ascii=True, separators=(",", ":")): names
-    are registry names, strings go through the json module's own escaping, numbers as json writes them."""
-    esc = _esc
+    are registry names, strings go through the json module's own escaping, numbers as json writes them.
+    A Layout's field (SharedField) keeps its JSON object, made for the first frame that has it."""
     fields = []
+    add = fields.append
     for layer in result.layers:
-        for f in layer.fields:
-            shared, check = f.shared, f.check
-            if shared is None:
-                text = _json_field(f)
-            elif (f.offset == shared.json_at and f.value is shared.value and f.show is shared.show
-                  and f.raw is shared.raw and f.name is shared.name and f.length == shared.length):
-                text = shared.json  # made for an earlier field with these bytes at this offset (holds, inline)
+        shown = layer.fields
+        for f in shown.pieces() if shown.__class__ is Annotated else shown:
+            kind = f.__class__
+            if kind is SharedField:
+                add(f.json or _shared_json(f))
+            elif kind is Run:
+                if not f.json:
+                    f.json = ",".join([g.json or _shared_json(g) for g in f.fields])
+                add(f.json)
             else:
-                text = _json_field(f)
-                if shared.holds(f):
-                    shared.json, shared.json_at = text, f.offset
-            fields.append(f'{text}{_CHECKS.get(check) or esc(check)}}}')
+                add(_json_field(f))
     head = (f'{{"frame":{_json_value(result.frame)},"time":{_json_value(result.ts)},"src":{_json_value(result.src)},'
             f'"dst":{_json_value(result.dst)},"summary":{_json_value(result.summary)}')
     findings = json.dumps([f.as_dict() for f in result.findings], ensure_ascii=True, separators=(",", ":")) \
@@ -53,11 +55,17 @@ def frame_json(result: FrameResult) -> str:
     return f'{head},"fields":[{",".join(fields)}],"findings":{findings}}}'
 
 
+def _shared_json(f: SharedField) -> str:
+    f.json = text = _json_field(f)
+    return text
+
+
 def _json_field(f: Field) -> str:
-    """A field's JSON object up to its check."""
-    value = f.value
+    """A field's JSON object."""
+    value, check = f.value, f.check
     return (f'{{"name":"{f.name}","offset":{f.offset},"length":{f.length},"raw":"{f.raw.hex()}",'
-            f'"value":{value if type(value) is int else _json_value(value)},"show":{_esc(f.show)},"check":')
+            f'"value":{value if type(value) is int else _json_value(value)},"show":{_esc(f.show)},'
+            f'"check":{_CHECKS.get(check) or _esc(check)}}}')
 
 
 _esc = json.encoder.encode_basestring_ascii
@@ -127,12 +135,40 @@ def frame_text(result: FrameResult, style: Style = plain_style, findings_only: b
         f"  {when}  {result.src} -> {result.dst}  {safe(result.summary)}"
     lines = [head]
     if not findings_only:
+        add = lines.append
+        kept = style is plain_style  # without colour, a Layout's fields keep their lines (SharedField, Run)
         for layer in result.layers:
-            indent = "  " * (layer.depth + 1)
-            lines.append(f"{indent}{safe(layer.title)}")
-            lines += [_field_line(f, indent + "  ", style) for f in layer.fields]
+            indent = _INDENTS[layer.depth] if layer.depth < len(_INDENTS) else "  " * (layer.depth + 1)
+            add(f"{indent}{safe(layer.title)}")
+            indent += "  "
+            shown = layer.fields
+            if not kept:
+                lines += [_field_line(f, indent, style) for f in shown]
+                continue
+            for f in shown.pieces() if shown.__class__ is Annotated else shown:
+                kind = f.__class__
+                if kind is SharedField:
+                    add(f.line if f.indent == indent else _shared_line(f, indent))
+                elif kind is Run:
+                    if f.indent != indent:
+                        f.text = "\n".join([g.line if g.indent == indent else _shared_line(g, indent)
+                                            for g in f.fields])
+                        f.indent = indent
+                    add(f.text)
+                else:
+                    add(_field_line(f, indent, style))
     lines += [finding_line(f, "  ", style) for f in result.findings]
     return "\n".join(lines)
+
+
+_INDENTS = tuple("  " * (depth + 1) for depth in range(8))  # a layer's indent by its depth
+
+
+def _shared_line(f: SharedField, indent: str) -> str:
+    """A shared field's line, kept on it for the next frame with the field at this indent."""
+    text = _field_line(f, indent, plain_style)
+    f.line, f.indent = text, indent
+    return text
 
 
 def decoded_text(sections: list[tuple[str, list[Field]]], findings: list[Finding], style: Style = plain_style) -> str:
@@ -154,16 +190,12 @@ def decoded_json(sections: list[tuple[str, list[Field]]], findings: list[Finding
 
 def _field_line(f: Field, indent: str, style: Style) -> str:
     styled = style is not plain_style  # without colour, the style calls are skipped (same text)
-    shared = f.shared
-    if styled or shared is None:
-        text = _text_field(f, style)
-    elif (f.offset == shared.text_at and f.value is shared.value and f.show is shared.show
-          and f.raw is shared.raw and f.name is shared.name and f.length == shared.length):
-        text = shared.text  # made for an earlier field with these bytes at this offset (holds, inline)
+    if f.offset < 0:
+        where = " " * 32
     else:
-        text = _text_field(f, style)
-        if shared.holds(f):
-            shared.text, shared.text_at = text, f.offset
+        raw = f.raw[:8].hex(" ") + (" .." if len(f.raw) > 8 else "")
+        where = f"{f.offset:04x}  {raw:<26}"
+    text = f"{style(where, 'dim') if styled else where}  {f.name} = {safe(f.show)}"
     check = f.check
     if not check:
         return f"{indent}{text}"
@@ -176,16 +208,6 @@ def _field_line(f: Field, indent: str, style: Style) -> str:
 
 
 _MARKS: dict[str, tuple[str, str]] = {}  # check text -> (its bracketed text, its style role)
-
-
-def _text_field(f: Field, style: Style) -> str:
-    """A field's text line without indent and check: offset, bytes, name and shown value."""
-    if f.offset < 0:
-        where = " " * 32
-    else:
-        raw = f.raw[:8].hex(" ") + (" .." if len(f.raw) > 8 else "")
-        where = f"{f.offset:04x}  {raw:<26}"
-    return f"{style(where, 'dim')}  {f.name} = {safe(f.show)}"
 
 
 def _check_role(check: str) -> str:
@@ -246,11 +268,28 @@ def beyond(ranges: list[tuple[int, int]], frames: int) -> list[str]:
 
 def render(results: Iterable[FrameResult], fmt: str, write: Callable[[str], None], style: Style,
            findings_only: bool, clock: Clock | None = None) -> int:
-    """Write each result; returns the number of frames written."""
+    """Write each result; returns the number of frames written. The results are usually made while this
+    loop draws them (the dissector), so the garbage collector's young generation is collected less often
+    meanwhile (see fewer_collections)."""
     count = 0
-    for result in results:
-        if findings_only and not result.findings:
-            continue
-        write(frame_json(result) if fmt == "json" else frame_text(result, style, findings_only, clock) + "\n")
-        count += 1
+    with fewer_collections():
+        for result in results:
+            if findings_only and not result.findings:
+                continue
+            write(frame_json(result) if fmt == "json" else frame_text(result, style, findings_only, clock) + "\n")
+            count += 1
     return count
+
+
+@contextmanager
+def fewer_collections(young: int = 20_000) -> Iterator[None]:
+    """The cyclic garbage collector's young generation collected every `young` allocations (default 700).
+    A dumped frame allocates some 200 objects that live until it is written (its result, layers, texts);
+    at the default, a collection ran every few frames and walked the held frames again each time: a
+    quarter of the dump's time. Cycles are rare here, so little waits longer to be freed."""
+    before = gc.get_threshold()
+    gc.set_threshold(max(young, before[0]), *before[1:])
+    try:
+        yield
+    finally:
+        gc.set_threshold(*before)

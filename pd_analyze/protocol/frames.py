@@ -4,11 +4,11 @@ accounting of every frame read."""
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Iterator, MutableSequence
 from dataclasses import dataclass, field
 
-from pd_analyze.model.layout import Field
 from pd_analyze.model.rules import Finding
+from pd_analyze.model.shown import Annotated, Field
 from pd_analyze.protocol import link
 from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol.rpc_calls import Call
@@ -18,7 +18,7 @@ from pd_analyze.protocol.rpc_calls import Call
 class Layer:
     title: str
     depth: int
-    fields: list[Field]
+    fields: MutableSequence[Field]  # a list, or a Layout's Annotated (the same fields, made as they are read)
 
 
 @dataclass(slots=True)
@@ -110,23 +110,31 @@ def ranked(reasons: Counter) -> list[tuple[str, int]]:
 
 
 def mark_checks(result: FrameResult, checked: frozenset[str]) -> None:
-    """Each field's check result: the finding that names it, or 'ok' for a checked field."""
+    """Each field's check result: the finding that names it, or 'ok' for a checked field. A field is
+    replaced by itself with the check (a Layout's fields are shared between frames, SharedField)."""
     by_field: dict[str, list[Finding]] = {}
     for f in result.findings:
         by_field.setdefault(f.field, []).append(f)
     for layer in result.layers:
-        for fld in layer.fields:  # some 60 a frame: two set lookups each, a call only where a finding is
+        fields = layer.fields
+        if fields.__class__ is Annotated:
+            if not fields.made and by_field.keys().isdisjoint(fields.view.names):
+                fields.checked = checked  # no finding names these fields: the checked ones show "ok" as read
+                continue
+            fields = fields.materialize()
+        for i, fld in enumerate(fields):  # some 60 a frame: two set lookups each, a call only where a finding is
             name = fld.name
             if name in by_field:
-                mark_field(fld, by_field, checked)
+                fields[i] = mark_field(fld, by_field, checked)
             elif name in checked and not fld.check:
-                fld.check = "ok"
+                fields[i] = fld.with_check("ok")
 
 
-def mark_field(fld: Field, by_field: dict[str, list[Finding]], checked: frozenset[str]) -> None:
+def mark_field(fld: Field, by_field: dict[str, list[Finding]], checked: frozenset[str]) -> Field:
+    """The field with its check: the findings that name it, else 'ok' for a checked field."""
     found = by_field.get(fld.name)
     if found:
-        broken = "; ".join(f"{f.rule} {f.severity}: {f.message}" for f in found)
-        fld.check = broken
-    elif not fld.check and fld.name in checked:
-        fld.check = "ok"
+        return fld.with_check("; ".join(f"{f.rule} {f.severity}: {f.message}" for f in found))
+    if not fld.check and fld.name in checked:
+        return fld.with_check("ok")
+    return fld

@@ -41,6 +41,14 @@ IPV4 = Layout("Internet Protocol Version 4", ">", (
     ("ip.ttl", "B"), ("ip.proto", "B"), ("ip.checksum", "H"), ("ip.src", "4s"), ("ip.dst", "4s")))
 UDP = Layout("User Datagram Protocol", ">", (("udp.sport", "H"), ("udp.dport", "H"), ("udp.len", "H"),
                                              ("udp.checksum", "H")))
+# What the dump shows of the IPv4 header: version and header length from their byte, the More Fragments bit
+# and the fragment offset from the flags word; the offset is the wire value, in 8-byte units as tshark's
+# ip.frag_offset (protocol.md 1.3, 8.2), with the bytes in the text.
+IPV4_SHOWN = IPV4.shown(
+    ("ip.version", "ip.version", lambda v: v >> 4), ("ip.ihl", "ip.version", lambda v: v & 0x0F),
+    "ip.tos", "ip.len", "ip.id", "ip.flags", ("ip.mf", "ip.flags", lambda v: (v >> 13) & 1),
+    ("ip.frag_offset", "ip.flags", lambda v: v & 0x1FFF, lambda v: f"{v} ({v * 8} bytes)"),
+    "ip.ttl", "ip.proto", "ip.checksum", "ip.src", "ip.dst")
 _ip_unpack = IPV4.struct.unpack_from
 _udp_unpack = UDP.struct.unpack_from
 
@@ -282,14 +290,8 @@ def annotate(linktype: int, data: bytes, dgram: Datagram) -> list[tuple[str, lis
         layers.append((SLL2.title, SLL2.annotate(data, 0, SLL2.unpack(data))))
         off = 20
     values = IPV4.unpack(data, off)
-    ip = IPV4.annotate(data, off, values)
-    ver_ihl, flags_frag = values[0], values[4]
-    ip[0:1] = [plain("ip.version", off, data, 1, ver_ihl >> 4), plain("ip.ihl", off, data, 1, ver_ihl & 0x0F)]
-    ip.insert(6, plain("ip.mf", off + 6, data, 2, (flags_frag >> 13) & 1))
-    # The wire value, in 8-byte units as tshark's ip.frag_offset (protocol.md 1.3, 8.2); bytes in the text.
-    frag = plain("ip.frag_offset", off + 6, data, 2, flags_frag & 0x1FFF)
-    frag.show = f"{frag.value} ({(flags_frag & 0x1FFF) * 8} bytes)"
-    ip.insert(7, frag)
+    ip = IPV4_SHOWN.annotate(data, off, values)
+    ver_ihl = values[0]
     if (ver_ihl & 0x0F) > 5:
         ip.append(plain("ip.options", off + 20, data, (ver_ihl & 0x0F) * 4 - 20,
                         bytes(data[off + 20:off + (ver_ihl & 0x0F) * 4])))

@@ -4,9 +4,12 @@ blocks, Write-Multiple padding, records), each field with offset, bytes and valu
 from __future__ import annotations
 
 from pd_analyze.model.layout import Field, plain
+from pd_analyze.model.pd_values import NEGATIVE_RESPONSE
 from pd_analyze.model.values import (
     ERROR_CODE_READ,
     ERROR_DECODE_PNIORW,
+    INDEX_PD_GLOBAL,
+    INDEX_PD_LOCAL,
     INDEX_WRITE_MULTIPLE,
     PNIO_ERROR_CODE,
     PNIO_OPNUM,
@@ -19,9 +22,10 @@ from pd_analyze.model.values import (
     status_text,
 )
 from pd_analyze.protocol import pnio as rec
-from pd_analyze.protocol import profidrive_view
+from pd_analyze.protocol import profidrive, profidrive_view
 from pd_analyze.protocol.frames import Layer
 from pd_analyze.protocol.profidrive_view import Checks
+from pd_analyze.protocol.profiles import VendorResponse
 
 
 def pdu_summary(ptype: int, seq: int, stub: rec.Stub, fragments: int, opnum: int) -> str:
@@ -37,11 +41,27 @@ def pdu_summary(ptype: int, seq: int, stub: rec.Stub, fragments: int, opnum: int
         if block.layout in (rec.WRITE_REQ, rec.READ_RES):
             text += f" {block.record_len} bytes"
         parts.append(text)
+        negative = negative_response(block)
+        if negative:
+            parts.append(negative)
     if len(stub.blocks) > 4:
         parts.append(f"... {len(stub.blocks) - 4} more blocks")
     if fragments:
         parts.append(f"reassembled from {fragments} fragments")
     return ", ".join(parts)
+
+
+def negative_response(block: rec.Block) -> str:
+    """A negative parameter response in the record, as the heading names it: "PROFIdrive negative read
+    response (0x81), ref 1" (tshark's Info: "Negative read response"); "" for anything else."""
+    parsed = block.pd[0] if isinstance(block.pd, tuple) else None
+    if parsed is None or not parsed.response or not parsed.header_ok:
+        return ""
+    if isinstance(parsed.vendor, VendorResponse):  # a vendor's own negative Response ID (protocol.md 5.5)
+        words = parsed.vendor.name if parsed.vendor.negative else ""  # its name says negative
+    else:
+        words = NEGATIVE_RESPONSE.get(parsed.ident, "")
+    return f"PROFIdrive {words} ({parsed.ident:#04x}), ref {parsed.ref}" if words else ""
 
 
 def stub_layers(stub: rec.Stub, body: bytes, base: int, opnum: int, response: bool, checks: Checks) -> list[Layer]:
@@ -67,7 +87,8 @@ def stub_layers(stub: rec.Stub, body: bytes, base: int, opnum: int, response: bo
                             explain_status(block.layout.annotate(body, block.offset, block.values, base),
                                            block.status)))
         if block.layout in (rec.WRITE_REQ, rec.READ_RES) and block.index != INDEX_WRITE_MULTIPLE:
-            layers += record_layers(block, base, depth + 1, checks)
+            refused = response and stub.status is not None and not stub.status.ok
+            layers += record_layers(block, base, depth + 1, checks, refused)
         end = block.record_offset + len(block.record)
         if end in pads:
             pad = body[end:end + pads[end]]
@@ -86,19 +107,20 @@ def explain_status(fields: list[Field], status: rec.Status | None) -> list[Field
     well-formed field ("ok"), on its ErrorCode."""
     if status is None or status.ok:
         return fields
-    for f in fields:
+    for i, f in enumerate(fields):
         part = f.name.rpartition(".")[2]
+        check = None
         if part == "code1":
             meaning = code1_name(status.decode, status.code1)
         elif part == "code2":
             meaning = code2_name(status.decode, status.code1, status.code2)
         elif part == "code" and ".status." in f.name:
             meaning = PNIO_ERROR_CODE.get(status.code, "")
-            f.check = status_check(status)
+            check = status_check(status)
         else:
             continue
-        f.show = f"0x{f.value:02x} ({meaning})" if meaning and isinstance(f.value, int) else f.show
-        f.shared = None  # shown for this status only: not the Layout's shared text
+        shown = f"0x{f.value:02x} ({meaning})" if meaning and isinstance(f.value, int) else None
+        fields[i] = f.replaced(shown, check)  # shown for this status only: a copy, not the Layout's shared field
     return fields
 
 
@@ -111,17 +133,36 @@ def status_check(status: rec.Status) -> str:
     return f"failed: {status_text(status.text())}"
 
 
-def record_layers(block: rec.Block, base: int, depth: int, checks: Checks) -> list[Layer]:
-    """A record's layers: a PROFIdrive request or response field by field, any other record raw."""
+def record_layers(block: rec.Block, base: int, depth: int, checks: Checks, refused: bool = False) -> list[Layer]:
+    """A record's layers: a PROFIdrive request or response field by field, any other record raw.
+
+    A PROFIdrive record cut short (fewer bytes than its RecordDataLength: the snaplen, a short PDU) is shown
+    decoded as far as its bytes go, as tshark shows it: the header, the whole addresses and value blocks,
+    the part the bytes end inside as `pd.cut` (protocol.md 1.3). It is decoded here for the dump only: the
+    record_truncated finding (H5) stands for it, and no transaction takes its contents. At index 0x002F
+    (plausible as PROFIdrive only when whole, protocol.md 1.4) and in a refused read response it stays raw."""
     data = block.record
-    if isinstance(block.pd, tuple):
-        parsed, request = block.pd
+    parsed, request = block.pd if isinstance(block.pd, tuple) else (cut_record(block, checks, refused), None)
+    if parsed is not None:
         at = base + block.record_offset
         return [Layer(title, depth, fields) for title, fields in
                 profidrive_view.annotate(parsed, data, at, checks, request)]
     what = "PROFIdrive, not decoded" if block.index in PROFIDRIVE_INDICES else "not PROFIdrive"
     return [Layer(f"Record data, index {block.index:#06x} ({len(data)} bytes, {what})", depth,
                   [raw_record(block, base)])]
+
+
+def cut_record(block: rec.Block, checks: Checks, refused: bool) -> profidrive.Parsed | None:
+    """A PROFIdrive record at 0xB02E/0xB02F with fewer bytes than its RecordDataLength, parsed as far as
+    they go (its findings are not the frame's: H5 reports the cut); None for any other record."""
+    if refused or block.index not in _CUT_DECODED or len(block.record) >= block.record_len \
+            or block.layout not in (rec.WRITE_REQ, rec.READ_RES):
+        return None
+    parse = profidrive.parse_response if block.layout is rec.READ_RES else profidrive.parse_request
+    return parse(block.record, 0, [], checks.ids)
+
+
+_CUT_DECODED = frozenset({INDEX_PD_LOCAL, INDEX_PD_GLOBAL})
 
 
 def raw_record(block: rec.Block, base: int) -> Field:

@@ -12,7 +12,7 @@ from typing import Protocol
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.layout import Field, show
 from pd_analyze.protocol.profidrive import HEADER, RESPONSE_HEADER, Address, Block, Parsed, as_value, error_meaning
-from pd_analyze.protocol.profiles import DEFAULT, VendorRequest
+from pd_analyze.protocol.profiles import DEFAULT, VendorIds, VendorRequest
 
 _EPOCH_1984 = date(1984, 1, 1)
 
@@ -133,8 +133,31 @@ class Checks(Protocol):
 
     names: pt.Names
 
+    @property
+    def ids(self) -> VendorIds | None: ...  # the selected profile's own Request and Response IDs
+
     def describe(self, key: str, value: object) -> str: ...
 
+
+
+def _described(checks: Checks, key: str, value: object) -> str:
+    """checks.describe(key, value), remembered: the same few values of a field recur in every record of a
+    capture, and each text names every profile's limits."""
+    memo = _DESCRIBED.get(id(checks))
+    if memo is None or memo[0] is not checks:  # another run's checker (the id of one gone)
+        if len(_DESCRIBED) >= 16:
+            _DESCRIBED.clear()
+        memo = _DESCRIBED[id(checks)] = (checks, {})
+    texts = memo[1]
+    text = texts.get((key, value))
+    if text is None:
+        text = checks.describe(key, value)
+        if len(texts) < 4096:
+            texts[(key, value)] = text
+    return text
+
+
+_DESCRIBED: dict[int, tuple[Checks, dict[tuple[str, object], str]]] = {}  # by checker: (checker, texts)
 
 
 def annotate(p: Parsed, data: bytes, base: int, checks: Checks,
@@ -147,11 +170,10 @@ def annotate(p: Parsed, data: bytes, base: int, checks: Checks,
         return [(f"Parameter {side} header (cut: {len(data)} of 4 bytes)",
                  _fields_present(data, 0, base, tuple(zip(layout.names, layout.sizes, strict=True))))]
     head = layout.annotate(data, 0, (p.ref, p.ident, p.do, p.n), base)
-    for fld, key in zip(head, ("ref", "resp_id" if p.response else "req_id", "do", "n_params"), strict=True):
-        fld.check = checks.describe(f"{side}.{key}", fld.value)
+    for i, key in enumerate(("ref", "resp_id" if p.response else "req_id", "do", "n_params")):
+        head[i] = head[i].with_check(_described(checks, f"{side}.{key}", head[i].value))
     if p.vendor is not None:  # the vendor's own ID: the generic profile does not define it (protocol.md 5.5)
-        head[1].show = f"0x{p.ident:02x} ({p.vendor.name})"
-        head[1].check = _vendor_check(head[1].check)
+        head[1] = head[1].replaced(f"0x{p.ident:02x} ({p.vendor.name})", _vendor_check(head[1].check))
     vendor = request.vendor if p.response and request is not None else p.vendor
     service = vendor if isinstance(vendor, VendorRequest) else None
     sections: list[Section] = [(f"Parameter {side} header", head)]
@@ -162,7 +184,7 @@ def annotate(p: Parsed, data: bytes, base: int, checks: Checks,
                   (("attr", 0, 1, a.attr), ("n_elems", 1, 1, a.n_elems), ("pnu", 2, 2, a.pnu),
                    ("subindex", 4, 2, a.subindex))]
         for fld, key in zip(fields, ("attribute", "n_elems", "pnu", "subindex"), strict=True):
-            fld.check = checks.describe(f"request.{key}", fld.value)
+            fld.check = _described(checks, f"request.{key}", fld.value)
             if service is not None and key in ("attribute", "pnu"):  # the service's, not the profile's
                 fld.check = _vendor_check(fld.check)
         sections.append((f"Parameter address [{i}]: {_named(a.label(), a.pnu, checks.names)}", fields))
@@ -272,9 +294,10 @@ def _named(label: str, pnu: int | None, names: pt.Names) -> str:
 
 def _block_title(i: int, block: Block, addr: Address | None, owner: Parsed, names: pt.Names) -> str:
     response = owner.response
-    label = addr.label(block.n_values if addr is not None and addr.attr == pt.ATTR_VALUE
-                       and not block.is_error else None) if addr is not None else f"block [{i}]"
+    label = addr.label() if addr is not None else f"block [{i}]"  # the address (P7 reports a count differing)
     label = _named(label, addr.pnu if addr is not None else None, names)
+    if block.is_error and block.n_values == 0:  # an error block without its error number (E, error_block_count)
+        return f"Parameter [{i}]: {label} error block without an error number (No. of values 0)"
     if block.is_error:
         number = f"{block.error:#06x}" if block.error > 0xFF else f"{block.error:#04x}"
         return f"Parameter [{i}]: {label} error {number} ({error_meaning(block.error, owner, names)})"
@@ -294,10 +317,10 @@ def _block_fields(i: int, block: Block, data: bytes, base: int, side: str, check
     pos = block.offset
     fmt_show = f"0x{block.format:02x} ({pt.FORMAT_NAME.get(block.format, 'unknown format')})"
     fields = [Field(f"pd.val[{i}].format", base + pos, 1, bytes(data[pos:pos + 1]), block.format, fmt_show,
-                    checks.describe(f"{side}.format", block.format)),
+                    _described(checks, f"{side}.format", block.format)),
               Field(f"pd.val[{i}].n_values", base + pos + 1, 1, bytes(data[pos + 1:pos + 2]), block.n_values,
                     str(block.n_values),
-                    checks.describe(f"{side}.n_values", block.n_values) if not block.is_error else "")]
+                    _described(checks, f"{side}.n_values", block.n_values) if not block.is_error else "")]
     if block.is_error:
         words = [block.data[k:k + 2] for k in range(0, len(block.data), 2)]
         for k, word in enumerate(words):
