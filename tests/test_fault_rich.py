@@ -19,6 +19,8 @@ for the mark to be removed:
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -221,6 +223,20 @@ def test_the_shape_is_issue_23s() -> None:
     assert 0.013 <= share["out"] / n <= 0.03
     assert 0.07 <= sum(t["b5_retries"] > 0 for t in txns) / n <= 0.13
     assert 0.07 <= sum(t["index"] == "0xb02f" for t in txns) / n <= 0.13
+
+
+def test_the_generator_is_deterministic_and_its_command_line_writes_both_files(tmp_path: Path) -> None:
+    one, two = tmp_path / "one.pcap", tmp_path / "two.pcap"
+    got = fault_rich.make_fault_rich(one, 1500, seed=2, truth=False)
+    assert "transactions" not in got and got["frames"] >= 1500
+    proc = subprocess.run([sys.executable, "-m", "devtools.synth.fault_rich", str(two), "--frames", "1500", "--seed",
+                           "2", "--truth", str(tmp_path / "two.json")], capture_output=True, text=True, timeout=120,
+                          cwd=Path(__file__).resolve().parents[1])
+    assert proc.returncode == 0, proc.stderr
+    assert one.read_bytes() == two.read_bytes()
+    truth = json.loads((tmp_path / "two.json").read_text())
+    assert truth["frames"] == got["frames"] and len(truth["transactions"]) == got["transactions_count"]
+    assert f"{got['frames']:,} frames" in proc.stderr
 
 
 def test_truth_is_written_beside_the_capture_as_json(captures: dict) -> None:
