@@ -227,16 +227,17 @@ class Actor:
         """Write, B5 polls, final read answered with a parameter response ("ok", "nak" or "mismatch")."""
         wkw: dict[str, Any] = {}
         rkw: dict[str, Any] = {}
-        retransmit = dup == "retransmit" or (not (cut or fragment or dup) and self.rng.random() < \
-            self.shape.duplicate * 0.3)
+        chance = self.shape.duplicate * 0.3  # (0.7: mirror copies, _duplicate)
+        retransmit = dup == "retransmit" or (not (cut or fragment or dup) and self.rng.random() < chance)
         if retransmit:
             (wkw if self.rng.random() < 0.5 else rkw)["retransmit_after_us"] = [self.rng.uniform(50_000, 400_000)]
         if fragment == "cl_write":
             wkw["req_rpc"] = {"max_body": self.rng.choice((48, 64, 100, 120))}
         elif fragment == "cl_answer":
             rkw["res_rpc"] = {"max_body": self.rng.choice((48, 64, 100)), "flags1": F1_NOFACK}
-        if fragment in ("ip_write", "ip_answer"):
-            self.s.medium = Medium(mtu=self.rng.choice((120, 150, 180)))
+        small = Medium(mtu=self.rng.choice((120, 150, 180)))  # IP fragments: the call's both PDUs
+        if fragment == "ip_write":
+            self.s.medium = small
         if cut == "write_header":  # a slow answer: other controllers' writes come before it
             wkw["rtt_us"] = self.rng.uniform(5_000, 30_000)
         txn, wreq, wres = self._write(kind, w, ref if cut != "write_header" else None, request, **wkw)
@@ -247,6 +248,8 @@ class Actor:
         elif cut == "write_record":  # cut inside the record, after its header (the reference is known)
             self._cut(txn, wreq[0], RECORD_AT + self.rng.randrange(4, len(request)), "record_truncated")
         polls = self._reads(txn, w, self._b5_count())
+        if fragment == "ip_answer":
+            self.s.medium = small
         req, res = self._final(txn, w, answer, **rkw)
         self.s.medium = None
         if cut == "answer":
