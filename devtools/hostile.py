@@ -17,13 +17,20 @@ Kinds:
            activity/sequence number sets, and sets flooded with fragment numbers
   calls    PNIO Write requests of PROFIdrive change requests (39 parameters each) on ever new channels,
            and Read requests, never answered
-  mixed    the three interleaved
+  txns     half-finished PROFIdrive transactions on ever new channels: the write request answered OK, then
+           0-3 reads answered B5 (not ready), then nothing more on that channel
+  changes40  PROFIdrive change requests of 40 parameters (one over the profile's 39: P2, and 404 bytes:
+           H13) on ever new channels, never answered
+  mixed    ip, cl and calls interleaved
+
+`write_pcap(kind, count, path)` writes a flood as a pcap file, for the command line (benchmarks/bench.py).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import random
 import resource
 import struct
@@ -36,14 +43,16 @@ from collections.abc import Iterator
 
 from pd_analyze.capture import RawFrame
 
-KINDS = ("ip", "cl", "calls", "mixed")
+KINDS = ("ip", "cl", "calls", "mixed")  # the memory bounds' floods (tests/test_columnar.py runs each)
+TRANSACTION_KINDS = ("txns", "changes40")  # issue #23's transaction floods (tests/test_floods.py)
+ALL_KINDS = KINDS + TRANSACTION_KINDS
 LIMIT_MB = 200
 _EPOCH = 1_767_225_600.0
 
 
 def _templates() -> dict[str, bytes]:
     """One frame per kind, from the sample generator (Ethernet, no VLAN: IPv4 at 14, RPC at 42)."""
-    from devtools.synth import net_encode, rpc_encode
+    from devtools.synth import net_encode, pnio_encode, rpc_encode
     from devtools.synth.pd_encode import ParamAddress, change_request, value_block
     from devtools.synth.pnio_session import PnioSession
     from devtools.synth.sim_capture import Capture, host
@@ -65,6 +74,16 @@ def _templates() -> dict[str, bytes]:
     out["cl"] = cap.frames[-1].data
     payload = net_encode.udp(49152, 34964, bytes(2900), src_ip=ctrl.ip, dst_ip=dev.ip)
     out["ip"] = cap.send_ip(ctrl, dev, payload)[0].data  # the first IP fragment: MF set, offset 0
+    items = [(ParamAddress(1000 + i), value_block(0x06, [i])) for i in range(40)]
+    write40, _ = s.write_stubs(0xB02E, change_request(1, 1, items))
+    half_req, half_res = s.write_stubs(0xB02E, change_request(1, 1, [(ParamAddress(1120), value_block(0x08, [1.0]))]))
+    b5_req, b5_res, _ = s.read_stubs(0xB02E, status=pnio_encode.STATUS_B5)
+    for name, stub, opnum, client in (("write40", write40, 3, True), ("half_write", half_req, 3, True),
+                                      ("half_write_res", half_res, 3, False), ("half_read", b5_req, 2, True),
+                                      ("half_b5", b5_res, 2, False)):
+        ptype = rpc_encode.REQUEST if client else rpc_encode.RESPONSE
+        s.send(s.pdu(ptype, stub, seq=1, opnum=opnum, from_client=client), from_client=client)
+        out[name] = cap.frames[-1].data
     return out
 
 
@@ -73,17 +92,43 @@ _ACTIVITY, _SEQ, _FRAG_NUM = 42 + 40, 42 + 64, 42 + 76
 _SLOT, _SUBSLOT = 42 + 80 + 20 + 28, 42 + 80 + 20 + 30
 
 
+def _half_finished(t: dict[str, bytes], rng: random.Random) -> Iterator[bytearray]:
+    """Transactions left half-finished, each on a new channel: the write request and its OK answer, then 0-3
+    reads answered B5 (the drive not ready), then nothing more; a new activity every 50 channels."""
+    channel = seq = 0
+    while True:
+        channel += 1
+        script = ["half_write", "half_write_res"] + ["half_read", "half_b5"] * rng.choice((0, 1, 2, 3))
+        for k, name in enumerate(script):
+            seq += k % 2 == 0  # a request and its answer share the call's sequence number
+            data = bytearray(t[name])
+            struct.pack_into("<IH", data, _ACTIVITY, 0x10000 + channel // 50, 0xBEEF)
+            struct.pack_into("<I", data, _SEQ, seq)
+            if name != "half_b5":  # (a B5 answer carries no IOD header)
+                struct.pack_into(">HH", data, _SLOT, channel & 0xFFFF, (channel >> 16) & 0xFFFF)
+            yield data
+
+
 def frames(kind: str, count: int, seed: int = 1) -> Iterator[RawFrame]:
     """`count` hostile frames of one kind, numbered from 1, one microsecond apart."""
     t = _templates()
     rng = random.Random(f"pd-analyze hostile {kind} {seed}")
     kinds = ("ip", "cl", "calls") if kind == "mixed" else (kind,)
+    half = _half_finished(t, rng)
     ip_id = 0
     activity = 0
     seq = 0
     for n in range(1, count + 1):
         what = kinds[n % len(kinds)]
-        if what == "ip":
+        if what == "txns":
+            data = next(half)
+        elif what == "changes40":
+            seq += 1
+            data = bytearray(t["write40"])
+            struct.pack_into("<IH", data, _ACTIVITY, 0x20000 + seq // 50, 0xCAFE)
+            struct.pack_into("<I", data, _SEQ, seq)
+            struct.pack_into(">HH", data, _SLOT, seq & 0xFFFF, (seq >> 16) & 0xFFFF)  # a new channel each time
+        elif what == "ip":
             data = bytearray(t["ip"])
             if n % 1000 < 200:  # a flood of pieces for one datagram (same bytes where they overlap)
                 struct.pack_into(">HH", data, _IP_ID, 0xF00D, 0x2000 | rng.randrange(0x2000))
@@ -113,6 +158,17 @@ def frames(kind: str, count: int, seed: int = 1) -> Iterator[RawFrame]:
             struct.pack_into("<I", data, _SEQ, seq)
             struct.pack_into(">HH", data, _SLOT, seq & 0xFFFF, (seq >> 16) & 0xFFFF)  # a new channel each time
         yield RawFrame(n, _EPOCH + n * 1e-6, 1, bytes(data))
+
+
+def write_pcap(kind: str, count: int, path: str | os.PathLike[str], seed: int = 1) -> int:
+    """The flood as a microsecond pcap file; returns the frames written."""
+    with open(path, "wb") as f:
+        f.write(struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 262144, 1))
+        for raw in frames(kind, count, seed):
+            sec = int(raw.ts)
+            f.write(struct.pack("<IIII", sec, round((raw.ts - sec) * 1e6), len(raw.data), len(raw.data)))
+            f.write(raw.data)
+    return count
 
 
 def peak_rss_mb() -> float:
@@ -230,7 +286,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m devtools.hostile", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter, epilog="\n\n".join(
                                          __doc__.split("\n\n")[2:]))
-    parser.add_argument("--kind", choices=(*KINDS, "all"), default="all")
+    parser.add_argument("--kind", choices=(*ALL_KINDS, "all"), default="all")
     parser.add_argument("--frames", type=int, default=1_000_000)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--dump", action="store_true", help="the dump path (annotated) instead of the report path")
@@ -239,7 +295,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true", help="one JSON object per kind")
     parser.add_argument("--inline", action="store_true", help=argparse.SUPPRESS)  # run here, not in a child
     args = parser.parse_args(argv)
-    kinds = KINDS if args.kind == "all" else (args.kind,)
+    kinds = ALL_KINDS if args.kind == "all" else (args.kind,)
     worst = 0.0
     if not args.json:
         print(f"{'kind':<7} {'path':<7} {'frames':>10} {'balanced':>9} {'peak RSS':>9} {'time':>7}  caps hit")

@@ -25,4 +25,10 @@ The imports flow one way, each module from those above it:
     build                         imports every sample module; build_all(), build_expected()
     __main__                      the command line
     mixed_capture                 a large mixed capture for benchmarks and scale tests
+    fault_truth                   what protocol.md 6-7 says the analyser must report of a transaction, decided
+                                  from what the generator put on the wire (the fault-rich capture's truth)
+    fault_kinds                   the drives' parameters; the requests and answers of each kind of transaction
+    fault_actor                   one controller's session with one drive, making transactions of a kind
+    fault_rich                    a commissioning capture with faults on every drive (issue #23's shape),
+                                  streamed, and its truth (python -m devtools.synth.fault_rich OUT.pcap)
 """

@@ -8,6 +8,7 @@ keyword arguments whose default (None) means "the correct computed value".
 
 from __future__ import annotations
 
+import functools
 import ipaddress
 import struct
 from collections.abc import Sequence
@@ -40,6 +41,7 @@ def mac(text: str) -> bytes:
     return raw
 
 
+@functools.cache  # a capture names a few hosts millions of times (the large generated ones)
 def ip4(text: str) -> bytes:
     return ipaddress.IPv4Address(text).packed
 

@@ -9,6 +9,7 @@ produce a PDU whose DREP lies about its own byte order.
 
 from __future__ import annotations
 
+import functools
 import struct
 import uuid
 from collections.abc import Sequence
@@ -71,6 +72,7 @@ def drep_little(drep: bytes) -> bool:
     return bool(drep[0] & 0x10)
 
 
+@functools.cache  # a session repeats its three UUIDs in every PDU
 def uuid_wire(u: UuidLike, little: bool) -> bytes:
     """DREP-ordered UUID: first three fields in the integer order, last 8
     bytes as-is (little-endian is Python's bytes_le form)."""
