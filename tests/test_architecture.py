@@ -4,6 +4,7 @@ product only. Read from the source with `ast`, deferred imports included."""
 from __future__ import annotations
 
 import ast
+import fnmatch
 import re
 import shutil
 import subprocess
@@ -152,3 +153,27 @@ def test_built_wheel_holds_only_the_product(tmp_path: Path) -> None:
     assert shipped == {str(p.relative_to(REPO)) for p in PACKAGE.rglob("*")
                        if p.is_file() and p.suffix in (".py", ".toml", ".css", ".js") and "__pycache__" not in p.parts}
     assert not [n for n in names if re.search(r"synth|fuzz|hostile|devtools|tests/", n)]
+
+
+
+# The top level as the design lays it out (README, "Architecture"): anything else there is stray output
+# (a `--help/` directory holding copies of the samples was once committed by a merge)
+TOP_LEVEL = frozenset({"pyproject.toml", "pd_analyze", "tests", "sample_pcaps", "notebooks", "README.md", "docs",
+                       "devtools", "benchmarks", ".ci"})
+LICENCE = re.compile(r"(LICEN[CS]E|COPYING)(\.(md|txt))?")
+
+
+def _stray(names: list[str], ignored: list[str]) -> list[str]:
+    """The names that are neither the design's entries, a dotfile, a licence nor ignored (.gitignore patterns)."""
+    return sorted(n for n in names if n not in TOP_LEVEL and not n.startswith(".") and not LICENCE.fullmatch(n)
+                  and not any(fnmatch.fnmatch(n, p.strip("/")) for p in ignored))
+
+
+def test_the_top_level_holds_only_the_designs_entries() -> None:
+    """What a checkout (or a developer's work tree, less what .gitignore names: the venv, build output) holds at
+    the top: the design's entries, dotfiles and a licence."""
+    ignored = [line.strip() for line in (REPO / ".gitignore").read_text().splitlines()
+               if line.strip() and not line.startswith("#")]
+    assert _stray([p.name for p in REPO.iterdir()], ignored) == []
+    assert _stray(["--help", "LICENSE", "pd_analyze.egg-info", "out", "report.html"], ignored) == ["--help",
+                                                                                                   "report.html"]
