@@ -177,3 +177,38 @@ def test_the_top_level_holds_only_the_designs_entries() -> None:
     assert _stray([p.name for p in REPO.iterdir()], ignored) == []
     assert _stray(["--help", "LICENSE", "pd_analyze.egg-info", "out", "report.html"], ignored) == ["--help",
                                                                                                    "report.html"]
+
+
+def _docstrings(tree: ast.AST) -> set[int]:
+    return {id(node.body[0].value) for node in ast.walk(tree)
+            if isinstance(getattr(node, "body", None), list) and node.body and isinstance(node.body[0], ast.Expr)
+            and isinstance(node.body[0].value, ast.Constant)}
+
+
+def _unguarded_shared(source: str) -> list[int]:
+    """Lines of a test module that name ../shared themselves (a "shared" path part in a string that is not a
+    docstring) or build a path inside it (`SHARED_CAPTURES / name`) instead of asking tests.support, whose
+    shared_capture() skips with the reason when the directory is absent and shared_captures() finds none."""
+    tree = ast.parse(source)
+    docs = _docstrings(tree)
+    lines = []
+    for node in ast.walk(tree):
+        names_it = isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docs \
+            and re.search(r"(^|[/\\])shared([/\\]|$)", node.value)
+        joins_it = isinstance(node, ast.BinOp) and isinstance(node.op, ast.Div) \
+            and (getattr(node.left, "id", None) or getattr(node.left, "attr", None)) in ("SHARED_CAPTURES", "SHARED")
+        if names_it or joins_it:
+            lines.append(node.lineno)
+    return sorted(lines)
+
+
+def test_no_test_reaches_the_shared_captures_without_the_guard() -> None:
+    """A clone of the project alone has no ../shared: every test passes or skips with its reason there."""
+    found = {str(p.relative_to(REPO)): _unguarded_shared(p.read_text()) for p in sorted((REPO / "tests").glob("*.py"))
+             if p.name not in ("support.py", "test_architecture.py")}  # the guard's home; this check's examples
+    assert {k: v for k, v in found.items() if v} == {}
+    # the check finds the forms it is for
+    assert _unguarded_shared('p = ROOT.parent / "shared" / "captures" / "x.pcap"\n') == [1]
+    assert _unguarded_shared('x = 1\nopen("../shared/captures/x.pcap")\n') == [2]
+    assert _unguarded_shared('def f():\n    """from ../shared/captures"""\n    return SHARED_CAPTURES / "x"\n') == [3]
+    assert _unguarded_shared('p = shared_capture("x.pcap")\nq = "shared hosts"\n') == []

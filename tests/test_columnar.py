@@ -27,10 +27,11 @@ from pd_analyze.analysis.stations import names_in_frames
 from pd_analyze.capture import RawFrame
 from pd_analyze.capture.batches import FrameBatch
 from pd_analyze.output.report import summary
+from tests.support import shared_captures
 
 ROOT = Path(__file__).resolve().parents[1]
-CAPTURES = sorted(p for d in (ROOT / "sample_pcaps", ROOT.parent / "shared" / "captures")
-                  for p in d.glob("*") if p.suffix in (".pcap", ".pcapng", ".gz"))
+CAPTURES = sorted(p for p in (ROOT / "sample_pcaps").glob("*") if p.suffix in (".pcap", ".pcapng", ".gz")) \
+    + shared_captures()
 TABLES = ("transactions", "parameters", "findings", "changes")
 SIZES = (1, 7, 1000, 0)  # 0: the default
 

@@ -24,6 +24,7 @@ from pd_analyze.analysis.param_state import (
 )
 from pd_analyze.analysis.schema import TIME
 from pd_analyze.output import param_diff
+from tests.support import shared_capture
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "sample_pcaps"
@@ -81,19 +82,21 @@ def test_api_frame_is_typed_and_matches_the_streamed_state() -> None:
 
 
 def test_station_names_from_pn_dcp() -> None:
+    """The promise on a sample: the name frame 25 of audit_commissioning announces is found by the columnar
+    batches and by the per-frame path's own pass alike, per capture, in a set and in a chain."""
     from pd_analyze.analysis.jobs import run
     from pd_analyze.analysis.rows import Rows
     from pd_analyze.analysis.stations import names_in_file
     from pd_analyze.protocol.dcp import station
 
-    real = ROOT.parent / "shared" / "captures" / "cisagov_icsnpp-profinet-io-cm__profinet_io_cm_mixed_1.pcap"
-    for columns in (False, True):  # found by the columnar batches and by the per-frame path's own pass alike
-        for size in (1, 100, 0):
-            results = run([str(real), A], Rows(), Settings(columns=columns, batch_frames=size))
-            assert [r.stations for r in results] == [{"192.168.1.2": "versamax-pns11"},  # frame 466, as tshark
-                                                     {"192.168.1.21": "pump-1"}], (columns, size)
-        chain = run([A, str(real)], Rows(), Settings(columns=columns), chain=True)
-        assert [r.stations for r in chain] == [{"192.168.1.21": "pump-1"}, {"192.168.1.2": "versamax-pns11"}]
+    for columns in (False, True):
+        for size in (1, 7, 100, 0):
+            results = run([B, A, "sample_pcaps/worked_example.pcap"], Rows(), Settings(columns=columns,
+                                                                                        batch_frames=size))
+            assert [r.stations for r in results] == [{}, {"192.168.1.21": "pump-1"}, {}], (columns, size)
+        chain = run([B, A], Rows(), Settings(columns=columns), chain=True)
+        assert [r.stations for r in chain] == [{}, {"192.168.1.21": "pump-1"}]
+    assert names_in_file(A) == {"192.168.1.21": "pump-1"}
     assert names_in_file("-") == {} and names_in_file(str(ROOT / "sample_pcaps" / "absent.pcap")) == {}
     eth = bytes(12) + b"\x88\x92"
     ident = bytes.fromhex("feff0501000010010000") + (28).to_bytes(2, "big")
@@ -105,6 +108,22 @@ def test_station_names_from_pn_dcp() -> None:
     assert station(eth + ident + ip) is None and station(eth + ident[:5]) is None and station(bytes(10)) is None
     cut = eth + ident[:-2] + (40).to_bytes(2, "big") + ip + name  # DCPDataLength beyond the frame
     assert station(cut) == ("10.0.0.7", "abc")
+
+
+def test_station_names_of_a_real_capture() -> None:
+    """The same on a real capture (../shared; skipped in a clone of the project alone): frame 466 of
+    profinet_io_cm_mixed_1 names .2, as tshark shows it."""
+    from pd_analyze.analysis.jobs import run
+    from pd_analyze.analysis.rows import Rows
+
+    real = shared_capture("cisagov_icsnpp-profinet-io-cm__profinet_io_cm_mixed_1.pcap")
+    for columns in (False, True):
+        for size in (1, 100, 0):
+            results = run([str(real), A], Rows(), Settings(columns=columns, batch_frames=size))
+            assert [r.stations for r in results] == [{"192.168.1.2": "versamax-pns11"},
+                                                     {"192.168.1.21": "pump-1"}], (columns, size)
+        chain = run([A, str(real)], Rows(), Settings(columns=columns), chain=True)
+        assert [r.stations for r in chain] == [{"192.168.1.21": "pump-1"}, {"192.168.1.2": "versamax-pns11"}]
 
 
 def test_station_names_behind_vlan_tags_are_found_on_both_paths(tmp_path: Path) -> None:
