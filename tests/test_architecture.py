@@ -141,13 +141,18 @@ def test_built_wheel_holds_only_the_product(tmp_path: Path) -> None:
     # stale modules (one since renamed) would go into the wheel
     src = tmp_path / "src"
     shutil.copytree(PACKAGE, src / "pd_analyze", ignore=shutil.ignore_patterns("__pycache__"))
-    for name in ("pyproject.toml", "README.md"):
+    for name in ("pyproject.toml", "README.md", "LICENSE"):
         shutil.copy(REPO / name, src / name)
-    r = subprocess.run([sys.executable, "-m", "pip", "wheel", str(src), "--no-deps", "-q", "-w", str(tmp_path)],
+    # -v: the build backend's own output, where setuptools announces what it will stop supporting
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", str(src), "--no-deps", "-v", "-w", str(tmp_path)],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
+    assert [line for line in (r.stdout + r.stderr).splitlines() if "DeprecationWarning" in line] == []
     (wheel,) = tmp_path.glob("pd_analyze-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
+    metadata = zipfile.ZipFile(wheel).read(f"{wheel.name.split('-py3')[0]}.dist-info/METADATA").decode()
+    assert "License-Expression: MIT" in metadata.splitlines() and "License-File: LICENSE" in metadata.splitlines()
+    assert f"{wheel.name.split('-py3')[0]}.dist-info/licenses/LICENSE" in names
     assert {n.split("/")[0] for n in names} == {"pd_analyze", f"{wheel.name.split('-py3')[0]}.dist-info"}
     shipped = {n for n in names if n.startswith("pd_analyze/")}
     assert shipped == {str(p.relative_to(REPO)) for p in PACKAGE.rglob("*")
@@ -212,3 +217,36 @@ def test_no_test_reaches_the_shared_captures_without_the_guard() -> None:
     assert _unguarded_shared('x = 1\nopen("../shared/captures/x.pcap")\n') == [2]
     assert _unguarded_shared('def f():\n    """from ../shared/captures"""\n    return SHARED_CAPTURES / "x"\n') == [3]
     assert _unguarded_shared('p = shared_capture("x.pcap")\nq = "shared hosts"\n') == []
+
+
+def _third_party_imports() -> dict[str, set[str]]:
+    """Top-level names of the packages pd_analyze imports, anywhere (deferred imports too), by module."""
+    found: dict[str, set[str]] = {}
+    for name, path in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                tops = {alias.name.split(".")[0] for alias in node.names}
+            elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+                tops = {node.module.split(".")[0]}
+            else:
+                continue
+            for top in tops - set(sys.stdlib_module_names) - {"pd_analyze"}:
+                found.setdefault(top, set()).add(name)
+    return found
+
+
+def test_every_package_the_product_imports_is_declared() -> None:
+    """numpy once came only through pandas: each package pd_analyze imports is a dependency of its own (dask,
+    imported by analysis.distributed alone, is the `dask` extra)."""
+    import tomllib
+
+    def name(requirement: str) -> str:  # "dask[dataframe]>=2024.1" -> "dask"
+        return re.match(r"[A-Za-z0-9._-]+", requirement).group(0).lower()  # type: ignore[union-attr]
+
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    declared = {name(r) for r in project["dependencies"]}
+    extras = {extra: {name(r) for r in reqs} for extra, reqs in project["optional-dependencies"].items()}
+    imported = _third_party_imports()
+    assert sorted(imported) == ["click", "dask", "dpkt", "matplotlib", "numpy", "pandas", "pyarrow", "tqdm"]
+    assert sorted(set(imported) - declared) == ["dask"]
+    assert "dask" in extras["dask"] and imported["dask"] == {"pd_analyze.analysis.distributed"}
