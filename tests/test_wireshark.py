@@ -23,6 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "sample_pcaps"
 FAULT = SAMPLES / "fault_trace.pcap"
 WORKED = SAMPLES / "worked_example.pcap"
+TIMEOUTS = SAMPLES / "pd_timeouts.pcap"
 
 
 def run(*args: str) -> subprocess.CompletedProcess:
@@ -227,6 +228,15 @@ FILTERS = [  # (capture, expression, frames it selects among the PNIO RPC frames
     (FAULT, "pd.val.error == 0x11", [52, 396]),  # txns 12 and 59
     (FAULT, "pn_io.profidrive.parameter.error_num in {0x02 0x03} and ip.src == 192.168.1.21", [56]),
     (SAMPLES / "pd_negative.pcap", "txn.verdict == \"nak\" and pd.val.error_subindex", [10, 14, 18]),
+    # contains and matches on every text field, the analysis fields included (== keeps to the value names)
+    (TIMEOUTS, "txn.verdict contains \"out\"", [9, 10, 15, 73, 75, 77, 79, 80, 85, 90, 127, 128, 129, 130, 135, 136]),
+    (TIMEOUTS, "finding.severity contains \"arn\"", [15, 80]),
+    (FAULT, "txn.verdict matches \"^(NAK|pnio)\" and frame.number < 60", [19, 20, 21, 22, 27, 28, 45, 46, 47, 48,
+                                                                          49, 50, 51, 52, 53, 54, 55, 56]),
+    (FAULT, "txn.verdict matches \"(?-i)^NAK\"", []),  # (?-i): case-sensitive, as PCRE2's
+    (FAULT, "finding.rule ~ \"t4\"", [291]),
+    (FAULT, "finding.rule matches \"^T[0-9]$\" or finding.rule contains \"Q\"", [291]),
+    (WORKED, "eth.src contains 02:00:00 and eth.src matches \"\\\\x02\\\\x01$\" and frame.number < 3", [2]),
 ]
 
 
@@ -246,6 +256,12 @@ def test_filter_selects(capture: Path, expression: str, frames: list[int]) -> No
     ("pd.ref == abc", 11, "'abc' is not an integer (pd.ref holds integers)"),
     ("pd.addr.pnu in {964", 20, "expected a set element or }, found the end"),
     ('txn.verdict == "late"', 16, "'late' is not a verdict"),
+    ('txn.verdict == "out"', 16, "'out' is not a verdict (ok, nak, reference_mismatch, timeout, pnio_error, "
+                                 "malformed)"),
+    ('pd.ref contains "1"', 8, "contains needs a text or bytes field, pd.ref holds integers"),
+    ('ip.src matches "168"', 8, "matches needs a text or bytes field, ip.src holds addresses"),
+    ("txn.verdict matches nak", 21, "matches needs a regular expression in double quotes, found 'nak'"),
+    ('finding.rule ~ "("', 16, "'(' is not a regular expression (missing ), unterminated subpattern"),
     ("pd.ref $ 1", 8, "unexpected character '$'"),
     ("pd.ref == 1 and", 16, "expected a field name, found the end"),
     ('finding.rule contains "x', 23, 'string not closed'),
@@ -255,6 +271,14 @@ def test_filter_errors_point_at_the_column(expression: str, column: int, message
     with pytest.raises(FilterError) as err:
         parse(expression)
     assert err.value.column == column and err.value.message.startswith(message)
+
+
+def test_contains_on_an_analysis_field_selects_as_tshark_would() -> None:
+    """`txn.verdict contains "out"` exited 2 ("'out' is not a verdict"): a part of a value is searched, not named."""
+    r = run("dump", TIMEOUTS, "-Y", 'txn.verdict contains "out"', "-T", "fields", "-e", "frame.number", "-e",
+            "txn.verdict")
+    assert r.returncode == 0
+    assert r.stdout.decode().splitlines()[:3] == ["9\ttimeout", "10\ttimeout", "15\ttimeout"]
 
 
 def test_filter_error_is_one_line_and_exit_2() -> None:
