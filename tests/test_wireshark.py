@@ -236,6 +236,8 @@ FILTERS = [  # (capture, expression, frames it selects among the PNIO RPC frames
     (FAULT, "txn.verdict matches \"(?-i)^NAK\"", []),  # (?-i): case-sensitive, as PCRE2's
     (FAULT, "finding.rule ~ \"t4\"", [291]),
     (FAULT, "finding.rule matches \"^T[0-9]$\" or finding.rule contains \"Q\"", [291]),
+    (SAMPLES / "pd_commissioning.pcap", "pd.val.string contains \"Pump\"", [16, 35]),  # the read, the write
+    (SAMPLES / "pd_commissioning.pcap", "pd.val.string matches \"^sinamics\"", [16]),
     (WORKED, "eth.src contains 02:00:00 and eth.src matches \"\\\\x02\\\\x01$\" and frame.number < 3", [2]),
 ]
 
@@ -365,9 +367,37 @@ def test_companion_pdus_share_their_calls_key() -> None:
 
 
 def test_value_str_names_only_the_string_values() -> None:
-    """pd.val[i].value (strings, octet strings) and pd.val[i].value[j] (numbers) share the indexless name
-    pd.val.value; tshark's value_str is only the first (tshark itself misreads frame 16: protocol.md 8.3 #1)."""
+    """The string values are pd.val[i].string, the numbers pd.val[i].value[j]: without their indexes the two names
+    are distinct (pd.val.value once collected the numbers and the strings, while `pd-analyze fields` called it
+    tshark's value_str); value_str is the first (tshark itself misreads frame 16: protocol.md 8.3 #1)."""
     r = run("dump", SAMPLES / "pd_commissioning.pcap", "-T", "fields", "-e", "pn_io.profidrive.parameter.value_str",
-            "-e", "pd.val.value", "--frames", "16")
-    assert r.stdout.decode().split("\t")[0] == "SINAMICS G120,deadbeef01,Pump 1"
-    assert r.stdout.decode().split("\t")[1].startswith("SINAMICS G120,deadbeef01,Pump 1,0x02b32c953bed,")
+            "-e", "pd.val.string", "-e", "pd.val.value", "--frames", "16")
+    strings, same, numbers = r.stdout.decode().rstrip("\n").split("\t")
+    assert strings == same == "SINAMICS G120,deadbeef01,Pump 1"
+    assert numbers and not {"SINAMICS G120", "deadbeef01", "Pump 1"} & set(numbers.split(","))
+    listed = {line.split()[0]: line for line in run("fields").stdout.decode().splitlines()}
+    assert "pd.val[i].value" not in listed
+    assert "pn_io.profidrive.parameter.value_str" in listed["pd.val[i].string"]
+    assert "value_str" not in listed["pd.val[i].value[j]"]
+    found = parse('pd.val.string contains "Pump"')
+    assert [ref.names for ref in found.refs] == [("pd.val[i].string",)]
+    assert [ref.names for ref in parse("pd.val.value").refs] == [("pd.val[i].value[j]",)]
+
+
+def test_the_readme_b5_example_selects_the_b5_answers() -> None:
+    """The README's `-Y` example for "the B5 answers" once was `not pd.ref and iod.index == 0xb02e`, which selects
+    read requests and write responses and never a B5 answer (a B5 answer has no IOD header)."""
+    import re
+
+    import pd_analyze
+
+    line = next(line for line in (ROOT / "README.md").read_text().splitlines() if line.endswith("# the B5 answers"))
+    expression = re.search(r"-Y '([^']+)'", line).group(1)
+    assert expression == "ndr.status.code1 == 0xb5"
+    r = run("dump", FAULT, "-Y", expression, "-T", "fields", "-e", "frame.number", "-e", "rpc.ptype", "-e",
+            "ndr.status.code", "-e", "iod.index")
+    rows = [line.split("\t") for line in r.stdout.decode().splitlines()]
+    assert {tuple(row[1:]) for row in rows} == {("2", "0xde", "")}  # read responses, no IOD header
+    assert len(rows) == pd_analyze.analyze(str(FAULT)).transactions.b5_retries.sum() == 82
+    old = run("dump", FAULT, "-Y", "not pd.ref and iod.index == 0xb02e", "-T", "fields", "-e", "frame.number")
+    assert not set(old.stdout.decode().split()) & {row[0] for row in rows}

@@ -45,7 +45,7 @@ def template_of(name: str) -> str:
 
 def _own_names() -> dict[str, tuple[str, ...]]:
     out: dict[str, list[str]] = {}
-    for name in registry.FIELDS:  # pd.val[i].value[j] and pd.val[i].value are both pd.val.value
+    for name in registry.FIELDS:  # pd.addr[i].pnu and pd.addr[2].pnu are both pd.addr.pnu
         out.setdefault(plain(name), []).append(name)
     return {name: tuple(names) for name, names in out.items()}
 
