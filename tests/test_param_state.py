@@ -302,6 +302,10 @@ def test_unconfirmed_write() -> None:
     (HEADER + "*,1,5,0\n", "x.csv:2: 4 fields, the header has 6"),
     (HEADER + "*,1,5,0,1,,9\n", "x.csv:2: 7 fields, the header has 6"),
     (HEADER + "*,1,5,0,1,\n*,1,5,0,2,\n", "x.csv:3: P5[0] of * DO 1 is already on line 2"),
+    (HEADER + "*,1,5,0,nan,\n", "x.csv:2: value 'nan' cannot be intended: NaN equals no value, not even NaN (give the "
+                                "number meant)"),
+    (HEADER + "*,1,5,0, -NaN ,0.5\n", "x.csv:2: value '-NaN' cannot be intended: NaN equals no value, not even NaN "
+                                      "(give the number meant)"),
 ])
 def test_bad_set_lines(text: str, error: str) -> None:
     with pytest.raises(intended.ExpectError) as exc:
@@ -314,9 +318,9 @@ def test_bad_set_is_a_one_line_error_exit_2(tmp_path: Path) -> None:
     path.write_text(HEADER + "*,1,5,0,1,\nnot-an-ip,1,5,0,1,\n")
     r = run("audit", A, "--expect", str(path))
     assert r.returncode == 2 and r.stdout == ""
-    assert r.stderr == f"Error: {path}:3: device 'not-an-ip' is neither an IPv4 address nor *\n"
+    assert r.stderr == f"pd-analyze: {path}:3: device 'not-an-ip' is neither an IPv4 address nor *\n"
     r = run("audit", A, "--expect", str(tmp_path / "absent.csv"))
-    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "cannot read it" in r.stderr
+    assert r.returncode == 2 and r.stderr == f"pd-analyze: {tmp_path / 'absent.csv'}: no such file\n"
     assert run("audit", A, "--expect-strict").returncode == 2
 
 
@@ -356,6 +360,24 @@ def test_diff_of_the_two_samples() -> None:
     assert same.returncode == 0 and same.stdout == "" and same.stderr.startswith("0 parameter elements differ")
     text = run("diff", A, B).stdout.splitlines()
     assert text[0].split() == ["device", "DO", "parameter", "difference", "A", "B"] and len(text) == 7
+
+
+def test_diff_with_a_damaged_b_compares_what_b_holds_before_the_damage(tmp_path: Path) -> None:
+    """`diff` with a truncated B printed nothing; every other command keeps the frames before the damage. Cut
+    inside B's read-back, its writes are there but not yet confirmed."""
+    cut = tmp_path / "cut.pcap"
+    cut.write_bytes((ROOT / B).read_bytes()[:700])
+    r = run("diff", A, str(cut))
+    assert r.returncode == 2
+    assert r.stdout.splitlines()[1:4] == [
+        "192.168.1.21  1   P730[0]    unconfirmed in B                1                1; unconfirmed",
+        "192.168.1.21  1   P730[1]    unconfirmed in B                0                1; unconfirmed",
+        "192.168.1.21  1   P730[2]    unconfirmed in B                1                1; unconfirmed"]
+    assert len(r.stdout.splitlines()) == 10
+    assert r.stderr.splitlines() == ["9 parameter elements differ (A: 9, B: 7)",
+                                     f"pd-analyze: {cut}: byte 530: record data truncated (154 of 206 bytes present)"]
+    r = run("diff", A, str(tmp_path / "absent.pcap"))  # nothing of B to read: no comparison, the reason
+    assert (r.returncode, r.stdout, r.stderr) == (2, "", f"pd-analyze: {tmp_path / 'absent.pcap'}: no such file\n")
 
 
 def test_diff_by_do_needs_one_drive_per_side() -> None:

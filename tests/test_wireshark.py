@@ -286,7 +286,7 @@ def test_contains_on_an_analysis_field_selects_as_tshark_would() -> None:
 def test_filter_error_is_one_line_and_exit_2() -> None:
     r = run("dump", WORKED, "-Y", "pd.ref == abc")
     assert r.returncode == 2 and r.stdout == b""
-    assert r.stderr.decode() == ("Error: -Y 'pd.ref == abc': column 11: 'abc' is not an integer "
+    assert r.stderr.decode() == ("pd-analyze: -Y 'pd.ref == abc': column 11: 'abc' is not an integer "
                                  "(pd.ref holds integers)\n")
 
 

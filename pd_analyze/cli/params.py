@@ -89,18 +89,17 @@ def diff_command(a: str, b: str, by: str, fmt: str, profile: str, timeout: float
                  chain: bool) -> None:
     """Parameter state of capture A against B: one row per parameter element that differs, is missing on one side,
     or was refused (or left unconfirmed) on one side. Exit 0 when the states agree, 1 when they differ, 2 on
-    trouble, as diff(1)."""
+    trouble, as diff(1). A capture damaged part way is compared as far as it reads (its error follows, exit 2),
+    as every command keeps the frames before the damage."""
     from pd_analyze.analysis.param_state import collect
     from pd_analyze.output import param_diff
 
     files = [capture_files((side,), None, profile) for side in (a, b)]
+    for side in files:
+        some_readable(side)  # a side with nothing to read: its reason, exit 2 (a diff against nothing says nothing)
     settings = Settings(profile, timeout, rpc_timeout)
     (state_a, res_a), (state_b, res_b) = (collect(f, settings, None, jobs, chain) for f in files)
     errors = [f"{c.path}: {c.error}" for c in res_a + res_b if c.error]
-    for error in errors:
-        click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
-    if errors:
-        sys.exit(EXIT_USAGE)
     try:
         rows = param_diff.diff_rows(state_a, state_b, by)
     except param_diff.DiffError as exc:
@@ -112,4 +111,6 @@ def diff_command(a: str, b: str, by: str, fmt: str, profile: str, timeout: float
         sys.stdout.write(param_diff.diff_formatted(rows, fmt))
     click.echo(f"{len(rows)} parameter element{'s' if len(rows) != 1 else ''} differ"
                f"{'s' if len(rows) == 1 else ''} (A: {len(state_a.elements)}, B: {len(state_b.elements)})", err=True)
-    sys.exit(EXIT_FINDINGS if rows else EXIT_OK)
+    for error in errors:
+        click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
+    sys.exit(EXIT_USAGE if errors else EXIT_FINDINGS if rows else EXIT_OK)
