@@ -81,6 +81,22 @@ def _text(value: object) -> str:
     return "<NA>" if _missing(value) else str(value)
 
 
+def _known(value: object) -> str:
+    """A slot or DO as the summary prints it: the number, or 'unknown' (a request not decoded), never <NA>."""
+    return "unknown" if _missing(value) else str(value)
+
+
+# What stands for the parameters where a row names none: a request that names no parameter (it was decoded:
+# No. of parameters 0), and an error that refused the whole request (counted once, not once per parameter)
+NO_PARAMETER, WHOLE_REQUEST = "(request of no parameter)", "(whole request)"
+
+
+def _params(params: object, n_params: object) -> str:
+    """`transactions.params`, or NO_PARAMETER for a request of no parameter (empty too, but decoded)."""
+    text = _text(params)
+    return NO_PARAMETER if text in ("", "<NA>") and not _missing(n_params) and n_params == 0 else text
+
+
 _FAILED = frozenset({"pnio_error", "timeout", "malformed", "reference_mismatch"})
 _UNANSWERED = {"deadline": "no answer within the transaction timeout",
                "superseded": "the controller wrote the next request before an answer came",
@@ -107,14 +123,14 @@ def _reason(verdict: object, status: object, closed_by: object, b5: object, last
 _REFUSED, _REFUSED_WHOLE = "refused: error ", "refused as a whole request: error "
 
 
-def _refused(errors: object, params: object) -> list[tuple[str, str]]:
+def _refused(errors: object, params: str) -> list[tuple[str, str]]:
     """(parameter, reason) of each error a NAK carries (`transactions.errors`: 'P1082[0]:0x02 *:0x22'); an error
     of the whole request (`*`) names the request's parameters. The error's text is added when the summary is
     written (`_in_words`), from the parameters table: the words the run's profile gives it."""
     out = []
     for item in str(errors).split() if not _missing(errors) else ():
         label, _, code = item.rpartition(":")
-        out.append((_text(params), _REFUSED_WHOLE + code) if label == "*" else (label, _REFUSED + code))
+        out.append((params, _REFUSED_WHOLE + code) if label == "*" else (label, _REFUSED + code))
     return out
 
 
@@ -122,19 +138,27 @@ def _in_words(why: str, error_texts: dict[str, str]) -> str:
     """A reason with its error number's text: 'refused: error 0x02 (low or high limit exceeded)'."""
     if not why.startswith((_REFUSED, _REFUSED_WHOLE)):
         return why
-    code = why.rpartition(" ")[2]
+    head, _, code = why.rpartition(" ")
+    return f"{head} {_error_words(code, error_texts)}"
+
+
+def _error_words(code: str, error_texts: dict[str, str]) -> str:
+    """An error number with its one text (the run's profile's words, else the PROFIdrive profile's): '0x02 (low
+    or high limit exceeded)'; the number alone when it is none."""
     text = error_texts.get(code)
     if text is None:
         try:
             text = pt.error_text(int(code, 16))
         except ValueError:
-            return why
-    return f"{why} ({text})"
+            return code
+    return f"{code} ({text})"
 
 
 def _few(params: str, names: dict[int, str], most: int = 4) -> str:
     """A transaction's parameter list, shortened when long: 'P2000[0] P2001[0] P2002[0] ... (39 parameters)'; one
     parameter with its name where the parameters table gives one: 'P964[0] (drive unit identification)'."""
+    if params == NO_PARAMETER:
+        return params
     labels = params.split()
     if not labels:
         return "(parameters not decoded)"
@@ -157,6 +181,7 @@ class Summary:
     # kept (for add_batch)
     FAILED = _FAILED | {"nak"}
     SLOWEST = TOP
+    WHOLE_REQUEST = WHOLE_REQUEST
 
     def __init__(self) -> None:
         self.transactions = 0
@@ -180,6 +205,7 @@ class Summary:
         self.refused: Counter[tuple] = Counter()
         self.unitemised: Counter[tuple] = Counter()
         self.naks_unitemised = 0
+        self.last_whole: object = None  # the transaction of the last whole-request error counted (once per request)
         self.slowest: list[tuple] = []  # (-t_total, place, device, slot, do, params, txn), the TOP slowest
         self.findings = 0
         self.severities: Counter[str] = Counter()
@@ -214,7 +240,7 @@ class Summary:
                 if self.b5_max is None or b5 > self.b5_max[0] or (b5 == self.b5_max[0] and place < self.b5_max[1]):
                     self.b5_max = (b5, place, r.txn)
             self.drive_row(r.txn, self.added["transactions"], verdict, device, r.slot, r.do, r.params,
-                           r.pnio_error_text, r.closed_by, r.b5_retries, r.t_total, r.t_last_read, r.errors)
+                           r.pnio_error_text, r.closed_by, r.b5_retries, r.t_total, r.t_last_read, r.errors, r.n_params)
             total = r.t_total
             if not _missing(total) and not _missing(device):
                 totals, rtts = self.latency.setdefault(device, (array("d"), array("d")))
@@ -224,17 +250,17 @@ class Summary:
 
     def drive_row(self, txn: object, number: int, verdict: object, device: object, slot: object, do: object,
                   params: object, status: object, closed_by: object, b5: object, total: object,
-                  last_read: object = None, errors: object = None) -> None:
+                  last_read: object = None, errors: object = None, n_params: object = None) -> None:
         """One transaction's part in the per-drive lists: a failure with its reason in words (a NAK: each
         parameter it refused, with the error), and its time among the slowest. `number`: its place among the
         rows added (ties in the order added)."""
         slot, do = (None if _missing(v) else v for v in (slot, do))
         place = (_LAST if _missing(txn) else txn, number)
+        label = _params(params, n_params)
         if verdict in _FAILED:
-            entries = [(_text(params), _reason(verdict, status, closed_by, b5, last_read))]
+            entries = [(label, _reason(verdict, status, closed_by, b5, last_read))]
         elif verdict == "nak":  # each parameter refused; a negative answer that names no error, as such (Q8)
-            entries = _refused(errors, params) or [(_text(params), "refused: negative response without an error "
-                                                                   "block")]
+            entries = _refused(errors, label) or [(label, "refused: negative response without an error block")]
         else:
             entries = []
         for label, why in entries:
@@ -246,7 +272,7 @@ class Summary:
             if place < self.first.get(("refused", key), (_LAST,)):
                 self.first[("refused", key)] = place
         if not _missing(total):
-            entry = (-total, (_LAST if _missing(txn) else txn, number), _text(device), slot, do, _text(params), txn)
+            entry = (-total, (_LAST if _missing(txn) else txn, number), _text(device), slot, do, label, txn)
             if len(self.slowest) < TOP:
                 self.slowest.append(entry)
                 self.slowest.sort(key=lambda e: (e[0], e[1]))
@@ -264,7 +290,12 @@ class Summary:
             if _missing(err) or err == "":
                 continue
             self.error_text(err, r.error_text)
-            self.count_nak((r.device, r.do, r.param, err, r.error_text), 1)
+            param = r.param
+            if r.whole_request is True:  # one error for the whole request: counted once, on its first row
+                if r.txn == self.last_whole:
+                    continue
+                self.last_whole, param = r.txn, WHOLE_REQUEST
+            self.count_nak((r.device, r.do, param, err), 1)
             place = (_PARAM_ORDER(r), self.added["parameters"])
             self.by_error[err] += 1
             if place < first.get(("error", err), (_LAST,)):
@@ -276,7 +307,8 @@ class Summary:
                     first[("do", do)] = place
 
     def count_nak(self, key: tuple, n: int) -> None:
-        """NAKs of one (device, DO, parameter, error, text); past ITEMISED distinct ones, counted only."""
+        """NAKs of one (device, DO, parameter, error): the error's text is added when written, one per number
+        (`error_text`); past ITEMISED distinct ones, counted only."""
         if key in self.naks or len(self.naks) < ITEMISED:
             self.naks[key] += n
         else:
@@ -330,9 +362,9 @@ class Summary:
                 if reasons:  # the invariant by reason: every frame is accounted for
                     lines.append(f"  {kind}: " + "; ".join(f"{n} {why}" for why, n in ranked(reasons)))
         lines.append("")
-        if not self.transactions:
+        if not self.transactions:  # the findings still count (a read without its write, a damaged record, ...)
             lines.append("No PROFIdrive transactions found.")
-            return "\n".join(lines)
+            return "\n".join(lines + self._findings_lines(top))
         lines.append(f"Transactions: {self.transactions}  "
                      + "  ".join(f"{v}={self.verdicts[v]}" for v in VERDICTS))
         if self.any_failed:
@@ -346,10 +378,9 @@ class Summary:
         if self.naks or self.naks_unitemised:
             lines.append("")
             lines.append("NAKs by PNU and error number (worst first):")
-            for (dev, do, param, err, text), n in _ranked(self.naks, top):  # type: ignore[misc]
-                lines.append(f"  {n:>6}  {label(dev)} DO {_text(do)} {_named(_text(param), self.pnu_names)} "
-                             f"error {_text(err)} "
-                             f"({_text(text)})")
+            for (dev, do, param, err), n in _ranked(self.naks, top):  # type: ignore[misc]
+                lines.append(f"  {n:>6}  {label(dev)} DO {_known(do)} {_named(_text(param), self.pnu_names)} "
+                             f"error {_error_words(_text(err), self.error_texts)}")
             if self.naks_unitemised:
                 lines.append(f"  ... and {self.naks_unitemised} more NAKs not itemised (the summary itemises "
                              f"{ITEMISED:,} distinct ones; the parameters table lists them all)")
@@ -366,7 +397,7 @@ class Summary:
                 drives.setdefault((dev, slot, do), {})[(params, why)] = n
             totals = {drive: sum(entries.values()) + self.unitemised[drive] for drive, entries in drives.items()}
             for (dev, slot, do), total in _ranked(totals, top):  # type: ignore[misc]
-                lines.append(f"  {label(dev)} slot {_text(slot)} DO {_text(do)}: {total}")
+                lines.append(f"  {label(dev)} slot {_known(slot)} DO {_known(do)}: {total}")
                 entries = drives[(dev, slot, do)]
                 first = {entry: self.first[("refused", (dev, slot, do, *entry))] for entry in entries}
                 for (params, why), n in _ranked_by_first(entries, first)[:top]:  # type: ignore[misc]
@@ -383,7 +414,7 @@ class Summary:
             lines.append("")
             lines.append("Slowest parameters, ms (write to final response):")
             for neg, _place, dev, slot, do, params, txn in self.slowest:
-                lines.append(f"  {_ms(-neg):>8}  {label(dev)} slot {_text(slot)} DO {_text(do)} "
+                lines.append(f"  {_ms(-neg):>8}  {label(dev)} slot {_known(slot)} DO {_known(do)} "
                              f"{_few(params, self.pnu_names)} (transaction {_text(txn)})")
         lines.append("")
         lines.append(f"B5 retries: {self.b5_total} in {self.b5_transactions} transactions"
@@ -402,10 +433,11 @@ class Summary:
             for dev, n, p50, p90, p99, most, w50 in sorted(stats, key=lambda s: -s[3])[:top]:
                 lines.append(f"  {label(dev):<{width}} {n:>6} {_ms(p50):>8} {_ms(p90):>8} {_ms(p99):>8} "
                              f"{_ms(most):>8}  {_ms(w50)}")
-        if self.findings:
-            lines.append("")
-            lines.append(f"Findings: {self.findings}  "
-                         + "  ".join(f"{s}={self.severities[s]}" for s in ("error", "warning", "info")))
-            for (rule, name), n in _ranked(self.rules, top):  # type: ignore[misc]
-                lines.append(f"  {n:>6}  {rule} {name}")
-        return "\n".join(lines)
+        return "\n".join(lines + self._findings_lines(top))
+
+    def _findings_lines(self, top: int) -> list[str]:
+        if not self.findings:
+            return []
+        return ["", f"Findings: {self.findings}  " + "  ".join(f"{s}={self.severities[s]}"
+                                                               for s in ("error", "warning", "info")),
+                *(f"  {n:>6}  {rule} {name}" for (rule, name), n in _ranked(self.rules, top))]

@@ -113,12 +113,27 @@ def parameters(acc: Summary, t: pa.Table) -> None:
     naks = _mask(error.is_valid()) & _mask(pc.not_equal(error, ""))
     if not naks.any():
         return
+    texts = t.filter(pa.array(naks)).select(["error", "error_text"]).group_by(["error", "error_text"],
+                                                                                use_threads=False).aggregate([])
+    for err, text in zip(texts.column("error").to_pylist(), texts.column("error_text").to_pylist(), strict=True):
+        acc.error_text(err, text)
+    # an error of the whole request counts once, on the request's first row (Summary._parameters)
+    whole = naks & _mask(t.column("whole_request"))
+    at = np.flatnonzero(whole)
+    if len(at):
+        txn = pc.fill_null(t.column("txn"), -1).to_numpy(zero_copy_only=False)[at]
+        before = np.concatenate(([-2 if acc.last_whole is None else acc.last_whole], txn[:-1]))
+        naks[at[txn == before]] = False
+        acc.last_whole = int(txn[-1])
     rows = np.flatnonzero(naks)
     sub = t.take(pa.array(rows))
     places = base + rows + 1
-    for key, count in _group_counts(sub, ["device", "do", "param", "error", "error_text"]):
+    whole_rows = pa.array(whole[rows])
+    sub = sub.set_column(sub.schema.get_field_index("param"), "param",
+                         pc.if_else(whole_rows, pa.scalar(acc.WHOLE_REQUEST, sub.schema.field("param").type),
+                                    sub.column("param")))
+    for key, count in _group_counts(sub, ["device", "do", "param", "error"]):
         acc.count_nak(key, count)
-        acc.error_text(key[3], key[4])
     _count_first(acc, "error", acc.by_error, sub.column("error"), sub.column("txn"), places)
     do = sub.column("do")
     known = _mask(do.is_valid())
@@ -153,7 +168,7 @@ def findings(acc: Summary, t: pa.Table) -> None:
 
 
 _DRIVE_COLS = ["txn", "verdict", "device", "slot", "do", "params", "pnio_error_text", "closed_by", "b5_retries",
-               "t_total", "t_last_read", "errors"]
+               "t_total", "t_last_read", "errors", "n_params"]
 
 
 def _drives(acc: Summary, t: pa.Table, base: int) -> None:
@@ -174,7 +189,8 @@ def _drives(acc: Summary, t: pa.Table, base: int) -> None:
         total = row["t_total"]
         acc.drive_row(row["txn"], base + i + 1, row["verdict"], row["device"], row["slot"], row["do"], row["params"],
                       row["pnio_error_text"], row["closed_by"], row["b5_retries"],
-                      None if total is None or total != total else total, _number(row["t_last_read"]), row["errors"])
+                      None if total is None or total != total else total, _number(row["t_last_read"]), row["errors"],
+                      row["n_params"])
 
 
 def _number(value: object) -> object:
