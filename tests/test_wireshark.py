@@ -401,3 +401,42 @@ def test_the_readme_b5_example_selects_the_b5_answers() -> None:
     assert len(rows) == pd_analyze.analyze(str(FAULT)).transactions.b5_retries.sum() == 82
     old = run("dump", FAULT, "-Y", "not pd.ref and iod.index == 0xb02e", "-T", "fields", "-e", "frame.number")
     assert not set(old.stdout.decode().split()) & {row[0] for row in rows}
+
+
+NOT_PNIO_FIELDS = ["frame.number", "dcerpc.pkt_type", "dcerpc.opnum", "dcerpc.dg_act_id", "ip.src", "udp.srcport",
+                   "udp.dstport", "ip.flags.mf", "dcerpc.dg_seqnum", "dcerpc.drep", "dcerpc.dg_flags1", "ip.id"]
+
+
+def test_fields_of_frames_that_are_not_pnio_as_tshark_fills_them() -> None:
+    """`-T fields` left every cell of a DCE/RPC frame that is not PNIO (an endpoint-mapper call) empty, and those
+    of a plain UDP frame, where tshark fills the layers it decodes; an IP fragment shows its IPv4 header alone."""
+    args = [a for f in NOT_PNIO_FIELDS for a in ("-e", f)]
+    rows = {name: [line.split("\t") for line in run("dump", SAMPLES / name, "-T", "fields", *args).stdout.decode()
+                   .splitlines()] for name in ("record_rw_le.pcap", "ip_fragments.pcap")}
+    epm = rows["record_rw_le.pcap"]
+    assert epm[2][:8] == ["3", "0", "2", "000000e9-0000-1000-8000-000000000001", "192.168.1.11", "49160", "34964",
+                          "0"]  # an endpoint-mapper request (opnum 2: map)
+    assert epm[16][:8] == ["17", "", "", "", "192.168.1.11", "50010", "50020", "0"]  # UDP, not DCE/RPC
+    assert epm[0] == ["1"] + [""] * (len(NOT_PNIO_FIELDS) - 1)  # not IPv4, no field of these
+    assert rows["ip_fragments.pcap"][0][:8] == ["1", "", "", "", "192.168.1.11", "", "", "1"]  # a first fragment
+    for name, ours in rows.items():
+        assert ours == tshark(SAMPLES / name, "-T", "fields", *args), name
+
+
+def test_the_fields_of_a_frame_cut_anywhere_never_raise() -> None:
+    """Bad input never crashes: every frame of the samples cut at every length, and with bytes flipped."""
+    import random
+
+    from pd_analyze import capture
+    from pd_analyze.output.frame_layers import fields_of
+
+    rng = random.Random(26)
+    for name in ("record_rw_le.pcap", "ip_fragments.pcap", "vlan_stacked.pcap", "linux_sll.pcap"):
+        for frame in capture.frames(str(SAMPLES / name)):
+            data = bytes(frame.data)
+            for n in range(len(data) + 1):
+                fields_of(frame.linktype, data[:n])
+            for _ in range(50):
+                flipped = bytearray(data)
+                flipped[rng.randrange(len(data))] ^= 1 << rng.randrange(8)
+                fields_of(frame.linktype, bytes(flipped))
