@@ -380,12 +380,51 @@ def test_diff_with_a_damaged_b_compares_what_b_holds_before_the_damage(tmp_path:
     assert (r.returncode, r.stdout, r.stderr) == (2, "", f"pd-analyze: {tmp_path / 'absent.pcap'}: no such file\n")
 
 
-def test_diff_by_do_needs_one_drive_per_side() -> None:
-    r = run("diff", A, B, "--by", "do")
-    assert r.returncode == 2
-    assert "A holds 2 drives (192.168.1.21, 192.168.1.22); use --by device" in r.stderr
-    a = collect([B], Settings())[0]
-    assert param_diff.diff_rows(a, a, "do") == []
+def _two_drives(path: Path, net: str, names: tuple[str, str], p1120: tuple[float, float]) -> str:
+    """A capture of two drives (.21, .22 of `net`), each announcing its station name and changing P1120."""
+    from devtools.synth import fixtures
+    from devtools.synth.audit_samples import dcp_identify_response
+    from devtools.synth.net_encode import ETH_PNRT
+    from devtools.synth.pd_encode import ParamAddress, change_ok, change_request, value_block
+    from devtools.synth.sim_capture import Capture
+
+    cap = Capture()
+    for n, (name, value) in enumerate(zip(names, p1120, strict=True), start=1):
+        s = fixtures.session(cap, n, net=net)
+        s.parameter_access(change_request(n, 1, [(ParamAddress(1120), value_block(0x08, [value]))]),
+                           change_ok(n, 1, 1))
+        ctrl, dev = fixtures.plant(n, net=net)
+        cap.send_ether(dev, ctrl.mac, ETH_PNRT, dcp_identify_response(dev.ip, name, n))
+    path.write_bytes(fixtures.pcap_of(cap))
+    return str(path)
+
+
+def test_diff_by_do_pairs_several_drives_by_station_name_or_as_told(tmp_path: Path) -> None:
+    """`diff --by do` refused captures of several drives; the drives are paired by the station name each announced
+    (pump-1 is .21 in A and .22 in B), or as --pair names them."""
+    a = _two_drives(tmp_path / "line1.pcap", "192.168.1", ("pump-1", "fan-1"), (10.0, 5.0))
+    b = _two_drives(tmp_path / "line2.pcap", "192.168.2", ("fan-1", "pump-1"), (5.0, 12.0))
+    r = run("diff", a, b, "--by", "do")
+    assert (r.returncode, r.stdout.splitlines()) == (1, [
+        "device A / B                 DO  parameter  difference  A   B",
+        "192.168.1.21 / 192.168.2.22  1   P1120[0]   differs     10  12"])
+    r = run("diff", a, b, "--by", "do", "--pair", "pump-1=192.168.2.21", "--format", "csv")  # as told
+    assert (r.returncode, r.stdout.splitlines()[1:]) == (1, [
+        "192.168.1.21,192.168.2.21,1,1120,0,P1120[0],,differs,ok,FloatingPoint32,10,,ok,FloatingPoint32,5,"])
+    assert run("diff", a, b, "--by", "do", "--pair", "fan-1=fan-1").returncode == 0
+    r = run("diff", A, B, "--by", "do")  # .22 of A announced no name: which pairs to compare must be said
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr == ("pd-analyze: --by do pairs the drives of A and B by the station name each announced, but A's "
+                        "192.168.1.21, A's 192.168.1.22, B's 192.168.1.21 have no partner of that name (A: "
+                        "192.168.1.21 (pump-1), 192.168.1.22; B: 192.168.1.21); name the pairs with --pair "
+                        "A_DRIVE=B_DRIVE (address or station name), or use --by device (see 'pd-analyze diff "
+                        "--help')\n")
+    r = run("diff", A, B, "--by", "do", "--pair", "pump-9=192.168.1.21")
+    assert r.returncode == 2 and "--pair: A holds no drive 'pump-9' (its drives: 192.168.1.21 (pump-1), " \
+                                 "192.168.1.22)" in r.stderr
+    assert run("diff", A, B, "--pair", "pump-1=192.168.1.21").returncode == 2  # --pair is for --by do
+    single = collect([B], Settings())[0]
+    assert param_diff.diff_rows(single, single, "do") == []
 
 
 @pytest.mark.parametrize("path", sorted(p for p in SAMPLES.glob("*") if p.suffix in (".pcap", ".pcapng", ".gz")),
