@@ -165,3 +165,42 @@ def test_one_text_per_error_number_whatever_the_order_of_rows(captures):
     assert [line for line in naks if "error 0x00" in line] == [
         "       2  192.168.1.21 DO 1 P964[0] (drive unit identification) error 0x00 (impermissible parameter number "
         "(PNU does not exist))"]  # the first text in sort order, whatever came first
+
+
+def _one_drive(path: Path, name: str) -> Path:
+    """Drive .21 changes P1120 twice; it announces `name` in a PN-DCP Identify response ("" announces none)."""
+    from devtools.synth.audit_samples import dcp_identify_response
+    from devtools.synth.net_encode import ETH_PNRT
+    from devtools.synth.pd_encode import change_ok, change_request, value_block
+
+    cap = Capture()
+    s = fixtures.session(cap, 1)
+    for ref in (1, 2):
+        s.parameter_access(change_request(ref, 1, [(P(1120), value_block(0x08, [10.0]))]), change_ok(ref, 1, 1))
+    if name:
+        ctrl, dev = fixtures.plant(1)
+        cap.send_ether(dev, ctrl.mac, ETH_PNRT, dcp_identify_response(dev.ip, name, 1))
+    path.write_bytes(fixtures.pcap_of(cap))
+    return path
+
+
+def _latency_devices(paths: list[Path]) -> list[str]:
+    analysis = pd_analyze.analyze([str(p) for p in paths])
+    text = report.summary(analysis)
+    for batch in (1, 4096):
+        assert both_feeds(analysis, batch) == (text, text)
+    return [line[2:].split("  ")[0].rstrip() for line in
+            section(text, "Latency per device, ms (write to final response; slowest first):")[1:]]
+
+
+def test_station_names_are_kept_per_capture(tmp_path):
+    """Point 6 of issue 26: names were merged by address across captures (the later capture's name for every
+    capture's drive at that address). Two plants' drives at one address are two devices; a capture without a name
+    takes the one name the others agree on; the parameter state, folded by address, shows each name."""
+    pump, fan, plain = (_one_drive(tmp_path / f"{n or 'none'}.pcap", n) for n in ("pump-1", "fan-3", ""))
+    assert _latency_devices([pump, fan, plain]) == ["192.168.1.21", "192.168.1.21 (fan-3)", "192.168.1.21 (pump-1)"]
+    assert _latency_devices([plain, pump]) == ["192.168.1.21 (pump-1)"]  # one name: the same drive
+    r = subprocess.run([sys.executable, "-m", "pd_analyze.cli", "params", str(pump), str(fan)], capture_output=True,
+                       text=True, timeout=120, cwd=ROOT)
+    assert r.stdout.splitlines()[1].startswith("192.168.1.21 (pump-1 / fan-3)  1   P1120[0]")
+    assert pd_analyze.analyze([str(fan), str(pump)]).parameter_state.station.tolist() == ["fan-3 / pump-1"]
