@@ -97,7 +97,7 @@ def test_no_internal_value_is_printed(captures):
     """Point 6: `DO <NA>` for a request whose DO is unknown, and "(parameters not decoded)" with an empty PNU for a
     request of no parameter."""
     text = summary_of(captures["mix"])
-    assert "<NA>" not in text and "-1" not in text
+    assert "<NA>" not in text and "DO -1" not in text
     drives = section(text, "Failed, timed-out and refused parameters per drive (device, slot, DO; worst first):")
     assert drives == [
         "  192.168.1.21 slot 1 DO 1: 24",
