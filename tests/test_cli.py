@@ -272,7 +272,8 @@ def test_report_to_an_unwritable_place_is_a_usage_error(tmp_path):
     proc = run("report", "sample_pcaps/worked_example.pcap", "--out", str(blocker / "out"))
     assert proc.returncode == 2
     err = proc.stderr.decode().strip().splitlines()
-    assert err[-1] == f"Error: --out {blocker / 'out'}: cannot write there (Not a directory)"
+    assert err == [f"pd-analyze: --out {blocker / 'out'}: cannot write there (Not a directory) (see 'pd-analyze report "
+                   "--help')"]
     assert "Traceback" not in proc.stderr.decode() and not (blocker.parent / "out").exists()
 
 
@@ -281,3 +282,71 @@ def test_report_from_standard_input_with_jobs(tmp_path):
     proc = run("report", "-r", "-", "--jobs", "2", "--out", str(tmp_path), stdin=Path(SAMPLE).read_bytes())
     assert proc.returncode == 0, proc.stderr.decode()
     assert (tmp_path / "transactions.csv").read_text().count("\n") == 2  # header and the one transaction
+
+
+# --- one form for every error; the small edges of issue 26 (point 9) -----------------------------------------
+
+def test_an_unreadable_dump_ends_with_its_error_alone(tmp_path):
+    """`dump` of an input that cannot be read at all printed "0 frames read, ..." after its error."""
+    junk = tmp_path / "junk.pcap"
+    junk.write_bytes(b"junk\n")
+    reason = f"pd-analyze: {junk}: byte 0: not a pcap or pcapng file (magic 6a756e6b; convert other formats with " \
+             "editcap first)\n"
+    for extra in ((), ("-T", "fields", "-e", "frame.number"), ("-Y", "pd.ref")):
+        r = run("dump", str(junk), *extra)
+        assert (r.returncode, r.stdout, r.stderr.decode()) == (2, b"", reason), extra
+    r = run("dump", "-", stdin=b"")
+    assert r.returncode == 2 and r.stderr.decode() == "pd-analyze: -: byte 0: empty file: no capture header\n"
+    cut = tmp_path / "cut.pcap"  # damaged after its first frame: that frame, the error, then the count
+    cut.write_bytes(Path(SAMPLE).read_bytes()[:300])
+    r = run("dump", str(cut))
+    assert r.stderr.decode().splitlines() == [f"pd-analyze: {cut}: byte 262: record data truncated (22 of 206 bytes "
+                                              "present)", f"{cut}: 1 frames read, 1 PNIO RPC decoded, 0 skipped"]
+
+
+def test_every_error_is_one_line_that_starts_the_same_and_a_missing_file_reads_the_same(tmp_path):
+    """Error lines began `pd-analyze:` for captures and `Error:` elsewhere, and a missing file read `no such file` or
+    `cannot read it (No such file or directory)` depending on the option."""
+    absent = str(tmp_path / "absent")
+    for args in (("dump", absent), ("dump", "-r", absent), ("report", absent), ("audit", absent),
+                 ("params", absent), ("diff", absent, SAMPLE), ("diff", SAMPLE, absent),
+                 ("annotate", absent, "-w", str(tmp_path / "o.pcapng")), ("extract", absent, "-w", str(tmp_path / "o")),
+                 ("audit", SAMPLE, "--expect", absent)):
+        r = run(*args)
+        assert (r.returncode, r.stderr.decode()) == (2, f"pd-analyze: {absent}: no such file\n"), args
+    for command in ("dump", "audit"):
+        r = run(command, SAMPLE, "--profile", absent + ".toml")
+        assert (r.returncode, r.stderr.decode()) == (2, f"pd-analyze: Invalid value for --profile: {absent}.toml: no "
+                                                        f"such file (see 'pd-analyze {command} --help')\n")
+    for args, line in ((("frobnicate",), "No such command 'frobnicate' (see 'pd-analyze --help')"),
+                       (("dump", SAMPLE, "--bogus"), "No such option '--bogus' (see 'pd-analyze dump --help')"),
+                       (("dump", SAMPLE, "-Y", "pd.ref =="), "-Y 'pd.ref ==': column 10: expected a value after ==, "
+                                                             "found the end")):
+        r = run(*args)
+        assert (r.returncode, r.stderr.decode()) == (2, f"pd-analyze: {line}\n"), args
+
+
+def test_a_frame_range_partly_beyond_the_capture_is_said(tmp_path):
+    """`--frames 5-9` of a capture of 6 frames said nothing of 7-9; a range wholly beyond it was said."""
+    for extra in ((), ("-T", "fields", "-e", "frame.number")):
+        r = run("dump", SAMPLE, "--frames", "2,5-9", *extra)
+        assert r.returncode == 0
+        assert r.stderr.decode().splitlines() == [
+            f"pd-analyze: {SAMPLE}: --frames 7-9 (of 5-9) lies beyond the capture's 6 frames",
+            f"{SAMPLE}: 6 frames read, 6 PNIO RPC decoded, 0 skipped"]
+    r = run("dump", SAMPLE, "--frames", "5-7,9-12,20-")
+    assert r.stderr.decode().splitlines()[0] == (f"pd-analyze: {SAMPLE}: --frames 7 (of 5-7), 9-12, 20- lie beyond "
+                                                 "the capture's 6 frames")
+    r = run("dump", SAMPLE, "--frames", "3-,4-6")  # an open end runs to the capture's end: nothing to say
+    assert r.stderr.decode().splitlines() == [f"{SAMPLE}: 6 frames read, 6 PNIO RPC decoded, 0 skipped"]
+
+
+def test_decode_dash_reads_standard_input():
+    hex_text = "01 01 01 02 10 01 03 C4 00 00 10 03 07 D0 00 00"
+    given = run("decode", hex_text, "--request")
+    r = run("decode", "-", "--request", stdin=(hex_text[:23] + "\n" + hex_text[24:] + "\n").encode())
+    assert r.returncode == given.returncode == 0 and r.stdout == given.stdout
+    assert r.stdout.decode().startswith("PROFIdrive parameter request, 16 bytes, profile generic\n")
+    r = run("decode", "-", "--request", stdin=b"")
+    assert (r.returncode, r.stderr.decode()) == (2, "pd-analyze: Invalid value for HEX: no bytes given (see "
+                                                    "'pd-analyze decode --help')\n")

@@ -30,11 +30,11 @@ from pd_analyze.analysis.rows import Rows
 from pd_analyze.capture import RawFrame
 from pd_analyze.capture.batches import batches
 from pd_analyze.output.report import summary
+from tests.support import shared_captures
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED = ROOT.parent / "shared" / "captures"
-CAPTURES = sorted(p for d in (ROOT / "sample_pcaps", SHARED) if d.is_dir()
-                  for p in d.glob("*") if p.suffix in (".pcap", ".pcapng", ".gz"))
+CAPTURES = sorted(p for p in (ROOT / "sample_pcaps").glob("*") if p.suffix in (".pcap", ".pcapng", ".gz")) \
+    + shared_captures()
 TABLES = ("transactions", "parameters", "findings", "changes")
 SIZES = (1, 7, 1000)
 

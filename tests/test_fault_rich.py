@@ -38,7 +38,7 @@ from pd_analyze.analysis.rows import Rows
 from pd_analyze.model.rules import RULES
 
 FRAMES, SMALL, SEED = 3000, 800, 5  # the small capture is the one read in batches of 1 and 7 frames (slow today)
-RUNS = ("analyze", 1, 7, 1000, 0)  # analyze(); the columnar path's batch sizes (0: the default)
+RUNS = ("analyze", 1, 7, 1000, 0)  # analyze(); the engine in batches of these sizes (0: the default)
 TABLES = ("transactions", "parameters", "findings", "changes", "accounting")
 NEW_RULES = ("txn_failed", "txn_refused")  # T8, T9: protocol.md 6.5, being added to the analyser
 
@@ -73,7 +73,7 @@ def analyses(captures: dict) -> dict:
             if how == "analyze":
                 cache[name, how] = pd_analyze.analyze(path)
             else:
-                settings = Settings(columns=True, batch_frames=int(how))  # type: ignore[call-overload]
+                settings = Settings(batch_frames=int(how))  # type: ignore[call-overload]
                 rows = Rows()
                 results = run_files([path], rows, settings)
                 cache[name, how] = Analysis(rows, results, settings.profile, settings.txn_timeout,

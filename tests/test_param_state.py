@@ -24,6 +24,7 @@ from pd_analyze.analysis.param_state import (
 )
 from pd_analyze.analysis.schema import TIME
 from pd_analyze.output import param_diff
+from tests.support import shared_capture
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "sample_pcaps"
@@ -81,19 +82,21 @@ def test_api_frame_is_typed_and_matches_the_streamed_state() -> None:
 
 
 def test_station_names_from_pn_dcp() -> None:
+    """The promise on a sample: the name frame 25 of audit_commissioning announces is found by the columnar
+    batches and by the per-frame path's own pass alike, per capture, in a set and in a chain."""
     from pd_analyze.analysis.jobs import run
     from pd_analyze.analysis.rows import Rows
     from pd_analyze.analysis.stations import names_in_file
     from pd_analyze.protocol.dcp import station
 
-    real = ROOT.parent / "shared" / "captures" / "cisagov_icsnpp-profinet-io-cm__profinet_io_cm_mixed_1.pcap"
-    for columns in (False, True):  # found by the columnar batches and by the per-frame path's own pass alike
-        for size in (1, 100, 0):
-            results = run([str(real), A], Rows(), Settings(columns=columns, batch_frames=size))
-            assert [r.stations for r in results] == [{"192.168.1.2": "versamax-pns11"},  # frame 466, as tshark
-                                                     {"192.168.1.21": "pump-1"}], (columns, size)
-        chain = run([A, str(real)], Rows(), Settings(columns=columns), chain=True)
-        assert [r.stations for r in chain] == [{"192.168.1.21": "pump-1"}, {"192.168.1.2": "versamax-pns11"}]
+    for columns in (False, True):
+        for size in (1, 7, 100, 0):
+            results = run([B, A, "sample_pcaps/worked_example.pcap"], Rows(), Settings(columns=columns,
+                                                                                        batch_frames=size))
+            assert [r.stations for r in results] == [{}, {"192.168.1.21": "pump-1"}, {}], (columns, size)
+        chain = run([B, A], Rows(), Settings(columns=columns), chain=True)
+        assert [r.stations for r in chain] == [{}, {"192.168.1.21": "pump-1"}]
+    assert names_in_file(A) == {"192.168.1.21": "pump-1"}
     assert names_in_file("-") == {} and names_in_file(str(ROOT / "sample_pcaps" / "absent.pcap")) == {}
     eth = bytes(12) + b"\x88\x92"
     ident = bytes.fromhex("feff0501000010010000") + (28).to_bytes(2, "big")
@@ -105,6 +108,22 @@ def test_station_names_from_pn_dcp() -> None:
     assert station(eth + ident + ip) is None and station(eth + ident[:5]) is None and station(bytes(10)) is None
     cut = eth + ident[:-2] + (40).to_bytes(2, "big") + ip + name  # DCPDataLength beyond the frame
     assert station(cut) == ("10.0.0.7", "abc")
+
+
+def test_station_names_of_a_real_capture() -> None:
+    """The same on a real capture (../shared; skipped in a clone of the project alone): frame 466 of
+    profinet_io_cm_mixed_1 names .2, as tshark shows it."""
+    from pd_analyze.analysis.jobs import run
+    from pd_analyze.analysis.rows import Rows
+
+    real = shared_capture("cisagov_icsnpp-profinet-io-cm__profinet_io_cm_mixed_1.pcap")
+    for columns in (False, True):
+        for size in (1, 100, 0):
+            results = run([str(real), A], Rows(), Settings(columns=columns, batch_frames=size))
+            assert [r.stations for r in results] == [{"192.168.1.2": "versamax-pns11"},
+                                                     {"192.168.1.21": "pump-1"}], (columns, size)
+        chain = run([A, str(real)], Rows(), Settings(columns=columns), chain=True)
+        assert [r.stations for r in chain] == [{"192.168.1.21": "pump-1"}, {"192.168.1.2": "versamax-pns11"}]
 
 
 def test_station_names_behind_vlan_tags_are_found_on_both_paths(tmp_path: Path) -> None:
@@ -283,6 +302,10 @@ def test_unconfirmed_write() -> None:
     (HEADER + "*,1,5,0\n", "x.csv:2: 4 fields, the header has 6"),
     (HEADER + "*,1,5,0,1,,9\n", "x.csv:2: 7 fields, the header has 6"),
     (HEADER + "*,1,5,0,1,\n*,1,5,0,2,\n", "x.csv:3: P5[0] of * DO 1 is already on line 2"),
+    (HEADER + "*,1,5,0,nan,\n", "x.csv:2: value 'nan' cannot be intended: NaN equals no value, not even NaN (give the "
+                                "number meant)"),
+    (HEADER + "*,1,5,0, -NaN ,0.5\n", "x.csv:2: value '-NaN' cannot be intended: NaN equals no value, not even NaN "
+                                      "(give the number meant)"),
 ])
 def test_bad_set_lines(text: str, error: str) -> None:
     with pytest.raises(intended.ExpectError) as exc:
@@ -295,9 +318,9 @@ def test_bad_set_is_a_one_line_error_exit_2(tmp_path: Path) -> None:
     path.write_text(HEADER + "*,1,5,0,1,\nnot-an-ip,1,5,0,1,\n")
     r = run("audit", A, "--expect", str(path))
     assert r.returncode == 2 and r.stdout == ""
-    assert r.stderr == f"Error: {path}:3: device 'not-an-ip' is neither an IPv4 address nor *\n"
+    assert r.stderr == f"pd-analyze: {path}:3: device 'not-an-ip' is neither an IPv4 address nor *\n"
     r = run("audit", A, "--expect", str(tmp_path / "absent.csv"))
-    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "cannot read it" in r.stderr
+    assert r.returncode == 2 and r.stderr == f"pd-analyze: {tmp_path / 'absent.csv'}: no such file\n"
     assert run("audit", A, "--expect-strict").returncode == 2
 
 
@@ -339,12 +362,69 @@ def test_diff_of_the_two_samples() -> None:
     assert text[0].split() == ["device", "DO", "parameter", "difference", "A", "B"] and len(text) == 7
 
 
-def test_diff_by_do_needs_one_drive_per_side() -> None:
-    r = run("diff", A, B, "--by", "do")
+def test_diff_with_a_damaged_b_compares_what_b_holds_before_the_damage(tmp_path: Path) -> None:
+    """`diff` with a truncated B printed nothing; every other command keeps the frames before the damage. Cut
+    inside B's read-back, its writes are there but not yet confirmed."""
+    cut = tmp_path / "cut.pcap"
+    cut.write_bytes((ROOT / B).read_bytes()[:700])
+    r = run("diff", A, str(cut))
     assert r.returncode == 2
-    assert "A holds 2 drives (192.168.1.21, 192.168.1.22); use --by device" in r.stderr
-    a = collect([B], Settings())[0]
-    assert param_diff.diff_rows(a, a, "do") == []
+    assert r.stdout.splitlines()[1:4] == [
+        "192.168.1.21  1   P730[0]    unconfirmed in B                1                1; unconfirmed",
+        "192.168.1.21  1   P730[1]    unconfirmed in B                0                1; unconfirmed",
+        "192.168.1.21  1   P730[2]    unconfirmed in B                1                1; unconfirmed"]
+    assert len(r.stdout.splitlines()) == 10
+    assert r.stderr.splitlines() == ["9 parameter elements differ (A: 9, B: 7)",
+                                     f"pd-analyze: {cut}: byte 530: record data truncated (154 of 206 bytes present)"]
+    r = run("diff", A, str(tmp_path / "absent.pcap"))  # nothing of B to read: no comparison, the reason
+    assert (r.returncode, r.stdout, r.stderr) == (2, "", f"pd-analyze: {tmp_path / 'absent.pcap'}: no such file\n")
+
+
+def _two_drives(path: Path, net: str, names: tuple[str, str], p1120: tuple[float, float]) -> str:
+    """A capture of two drives (.21, .22 of `net`), each announcing its station name and changing P1120."""
+    from devtools.synth import fixtures
+    from devtools.synth.audit_samples import dcp_identify_response
+    from devtools.synth.net_encode import ETH_PNRT
+    from devtools.synth.pd_encode import ParamAddress, change_ok, change_request, value_block
+    from devtools.synth.sim_capture import Capture
+
+    cap = Capture()
+    for n, (name, value) in enumerate(zip(names, p1120, strict=True), start=1):
+        s = fixtures.session(cap, n, net=net)
+        s.parameter_access(change_request(n, 1, [(ParamAddress(1120), value_block(0x08, [value]))]),
+                           change_ok(n, 1, 1))
+        ctrl, dev = fixtures.plant(n, net=net)
+        cap.send_ether(dev, ctrl.mac, ETH_PNRT, dcp_identify_response(dev.ip, name, n))
+    path.write_bytes(fixtures.pcap_of(cap))
+    return str(path)
+
+
+def test_diff_by_do_pairs_several_drives_by_station_name_or_as_told(tmp_path: Path) -> None:
+    """`diff --by do` refused captures of several drives; the drives are paired by the station name each announced
+    (pump-1 is .21 in A and .22 in B), or as --pair names them."""
+    a = _two_drives(tmp_path / "line1.pcap", "192.168.1", ("pump-1", "fan-1"), (10.0, 5.0))
+    b = _two_drives(tmp_path / "line2.pcap", "192.168.2", ("fan-1", "pump-1"), (5.0, 12.0))
+    r = run("diff", a, b, "--by", "do")
+    assert (r.returncode, r.stdout.splitlines()) == (1, [
+        "device A / B                 DO  parameter  difference  A   B",
+        "192.168.1.21 / 192.168.2.22  1   P1120[0]   differs     10  12"])
+    r = run("diff", a, b, "--by", "do", "--pair", "pump-1=192.168.2.21", "--format", "csv")  # as told
+    assert (r.returncode, r.stdout.splitlines()[1:]) == (1, [
+        "192.168.1.21,192.168.2.21,1,1120,0,P1120[0],,differs,ok,FloatingPoint32,10,,ok,FloatingPoint32,5,"])
+    assert run("diff", a, b, "--by", "do", "--pair", "fan-1=fan-1").returncode == 0
+    r = run("diff", A, B, "--by", "do")  # .22 of A announced no name: which pairs to compare must be said
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr == ("pd-analyze: --by do pairs the drives of A and B by the station name each announced, but A's "
+                        "192.168.1.21, A's 192.168.1.22, B's 192.168.1.21 have no partner of that name (A: "
+                        "192.168.1.21 (pump-1), 192.168.1.22; B: 192.168.1.21); name the pairs with --pair "
+                        "A_DRIVE=B_DRIVE (address or station name), or use --by device (see 'pd-analyze diff "
+                        "--help')\n")
+    r = run("diff", A, B, "--by", "do", "--pair", "pump-9=192.168.1.21")
+    assert r.returncode == 2 and "--pair: A holds no drive 'pump-9' (its drives: 192.168.1.21 (pump-1), " \
+                                 "192.168.1.22)" in r.stderr
+    assert run("diff", A, B, "--pair", "pump-1=192.168.1.21").returncode == 2  # --pair is for --by do
+    single = collect([B], Settings())[0]
+    assert param_diff.diff_rows(single, single, "do") == []
 
 
 @pytest.mark.parametrize("path", sorted(p for p in SAMPLES.glob("*") if p.suffix in (".pcap", ".pcapng", ".gz")),

@@ -41,9 +41,10 @@ from pd_analyze.protocol import pnio_checks as checks
 from pd_analyze.protocol.dissector import Dissector
 from pd_analyze.protocol.pnio_batch import ROUTE_DECIDE, ROUTE_FRAMES, ROUTE_PNIO, ROUTE_SKIP, SKIP_REASONS
 from pd_analyze.protocol.profidrive_checks import Checker
+from tests.support import SHARED_CAPTURES
 
 ROOT = Path(__file__).resolve().parents[1]
-CAPTURE_DIRS = (ROOT / "sample_pcaps", ROOT.parent / "shared" / "captures")
+CAPTURE_DIRS = (ROOT / "sample_pcaps", SHARED_CAPTURES)
 PROFILES = ("generic", "sinamics", "yaskawa", "akd")
 MUTATED = 3000  # frames from the fuzzer's mutations
 TARGETED = 5000  # PNIO frames with one header field set to a chosen value

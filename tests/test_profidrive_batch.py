@@ -41,9 +41,10 @@ from pd_analyze.protocol import profidrive_batch_checks as batch_checks
 from pd_analyze.protocol.dissector import dissect
 from pd_analyze.protocol.profidrive_checks import Checker
 from pd_analyze.protocol.profiles import LIMIT_KEYS
+from tests.support import SHARED_CAPTURES
 
 REPO = Path(__file__).resolve().parents[1]
-FOLDERS = (REPO / "sample_pcaps", REPO.parent / "shared" / "captures")
+FOLDERS = (REPO / "sample_pcaps", SHARED_CAPTURES)
 PATTERNS = ("*.pcap", "*.pcapng", "*.gz")
 PROFILES = ("generic", "sinamics", "yaskawa", "akd")
 MUTANTS = 5000

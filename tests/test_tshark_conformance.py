@@ -41,11 +41,11 @@ from pd_analyze.protocol import profidrive
 from pd_analyze.protocol.pnio_view import cut_record
 from pd_analyze.protocol.profidrive_checks import Checker
 from tests import tshark_fields as tf
-from tests.support import unavailable
+from tests.support import SHARED_CAPTURES, unavailable
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "sample_pcaps"
-SHARED = REPO.parent / "shared" / "captures"
+SHARED = SHARED_CAPTURES
 PATTERNS = ("*.pcap", "*.pcapng", "*.gz")
 
 # Layers compared (protocol.md 8.2, every row). pd.* fields are found in scope "pd", concrete names

@@ -23,6 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "sample_pcaps"
 FAULT = SAMPLES / "fault_trace.pcap"
 WORKED = SAMPLES / "worked_example.pcap"
+TIMEOUTS = SAMPLES / "pd_timeouts.pcap"
 
 
 def run(*args: str) -> subprocess.CompletedProcess:
@@ -227,6 +228,17 @@ FILTERS = [  # (capture, expression, frames it selects among the PNIO RPC frames
     (FAULT, "pd.val.error == 0x11", [52, 396]),  # txns 12 and 59
     (FAULT, "pn_io.profidrive.parameter.error_num in {0x02 0x03} and ip.src == 192.168.1.21", [56]),
     (SAMPLES / "pd_negative.pcap", "txn.verdict == \"nak\" and pd.val.error_subindex", [10, 14, 18]),
+    # contains and matches on every text field, the analysis fields included (== keeps to the value names)
+    (TIMEOUTS, "txn.verdict contains \"out\"", [9, 10, 15, 73, 75, 77, 79, 80, 85, 90, 127, 128, 129, 130, 135, 136]),
+    (TIMEOUTS, "finding.severity contains \"arn\"", [15, 80]),
+    (FAULT, "txn.verdict matches \"^(NAK|pnio)\" and frame.number < 60", [19, 20, 21, 22, 27, 28, 45, 46, 47, 48,
+                                                                          49, 50, 51, 52, 53, 54, 55, 56]),
+    (FAULT, "txn.verdict matches \"(?-i)^NAK\"", []),  # (?-i): case-sensitive, as PCRE2's
+    (FAULT, "finding.rule ~ \"t4\"", [291]),
+    (FAULT, "finding.rule matches \"^T[0-9]$\" or finding.rule contains \"Q\"", [291]),
+    (SAMPLES / "pd_commissioning.pcap", "pd.val.string contains \"Pump\"", [16, 35]),  # the read, the write
+    (SAMPLES / "pd_commissioning.pcap", "pd.val.string matches \"^sinamics\"", [16]),
+    (WORKED, "eth.src contains 02:00:00 and eth.src matches \"\\\\x02\\\\x01$\" and frame.number < 3", [2]),
 ]
 
 
@@ -246,6 +258,12 @@ def test_filter_selects(capture: Path, expression: str, frames: list[int]) -> No
     ("pd.ref == abc", 11, "'abc' is not an integer (pd.ref holds integers)"),
     ("pd.addr.pnu in {964", 20, "expected a set element or }, found the end"),
     ('txn.verdict == "late"', 16, "'late' is not a verdict"),
+    ('txn.verdict == "out"', 16, "'out' is not a verdict (ok, nak, reference_mismatch, timeout, pnio_error, "
+                                 "malformed)"),
+    ('pd.ref contains "1"', 8, "contains needs a text or bytes field, pd.ref holds integers"),
+    ('ip.src matches "168"', 8, "matches needs a text or bytes field, ip.src holds addresses"),
+    ("txn.verdict matches nak", 21, "matches needs a regular expression in double quotes, found 'nak'"),
+    ('finding.rule ~ "("', 16, "'(' is not a regular expression (missing ), unterminated subpattern"),
     ("pd.ref $ 1", 8, "unexpected character '$'"),
     ("pd.ref == 1 and", 16, "expected a field name, found the end"),
     ('finding.rule contains "x', 23, 'string not closed'),
@@ -257,10 +275,18 @@ def test_filter_errors_point_at_the_column(expression: str, column: int, message
     assert err.value.column == column and err.value.message.startswith(message)
 
 
+def test_contains_on_an_analysis_field_selects_as_tshark_would() -> None:
+    """`txn.verdict contains "out"` exited 2 ("'out' is not a verdict"): a part of a value is searched, not named."""
+    r = run("dump", TIMEOUTS, "-Y", 'txn.verdict contains "out"', "-T", "fields", "-e", "frame.number", "-e",
+            "txn.verdict")
+    assert r.returncode == 0
+    assert r.stdout.decode().splitlines()[:3] == ["9\ttimeout", "10\ttimeout", "15\ttimeout"]
+
+
 def test_filter_error_is_one_line_and_exit_2() -> None:
     r = run("dump", WORKED, "-Y", "pd.ref == abc")
     assert r.returncode == 2 and r.stdout == b""
-    assert r.stderr.decode() == ("Error: -Y 'pd.ref == abc': column 11: 'abc' is not an integer "
+    assert r.stderr.decode() == ("pd-analyze: -Y 'pd.ref == abc': column 11: 'abc' is not an integer "
                                  "(pd.ref holds integers)\n")
 
 
@@ -341,9 +367,76 @@ def test_companion_pdus_share_their_calls_key() -> None:
 
 
 def test_value_str_names_only_the_string_values() -> None:
-    """pd.val[i].value (strings, octet strings) and pd.val[i].value[j] (numbers) share the indexless name
-    pd.val.value; tshark's value_str is only the first (tshark itself misreads frame 16: protocol.md 8.3 #1)."""
+    """The string values are pd.val[i].string, the numbers pd.val[i].value[j]: without their indexes the two names
+    are distinct (pd.val.value once collected the numbers and the strings, while `pd-analyze fields` called it
+    tshark's value_str); value_str is the first (tshark itself misreads frame 16: protocol.md 8.3 #1)."""
     r = run("dump", SAMPLES / "pd_commissioning.pcap", "-T", "fields", "-e", "pn_io.profidrive.parameter.value_str",
-            "-e", "pd.val.value", "--frames", "16")
-    assert r.stdout.decode().split("\t")[0] == "SINAMICS G120,deadbeef01,Pump 1"
-    assert r.stdout.decode().split("\t")[1].startswith("SINAMICS G120,deadbeef01,Pump 1,0x02b32c953bed,")
+            "-e", "pd.val.string", "-e", "pd.val.value", "--frames", "16")
+    strings, same, numbers = r.stdout.decode().rstrip("\n").split("\t")
+    assert strings == same == "SINAMICS G120,deadbeef01,Pump 1"
+    assert numbers and not {"SINAMICS G120", "deadbeef01", "Pump 1"} & set(numbers.split(","))
+    listed = {line.split()[0]: line for line in run("fields").stdout.decode().splitlines()}
+    assert "pd.val[i].value" not in listed
+    assert "pn_io.profidrive.parameter.value_str" in listed["pd.val[i].string"]
+    assert "value_str" not in listed["pd.val[i].value[j]"]
+    found = parse('pd.val.string contains "Pump"')
+    assert [ref.names for ref in found.refs] == [("pd.val[i].string",)]
+    assert [ref.names for ref in parse("pd.val.value").refs] == [("pd.val[i].value[j]",)]
+
+
+def test_the_readme_b5_example_selects_the_b5_answers() -> None:
+    """The README's `-Y` example for "the B5 answers" once was `not pd.ref and iod.index == 0xb02e`, which selects
+    read requests and write responses and never a B5 answer (a B5 answer has no IOD header)."""
+    import re
+
+    import pd_analyze
+
+    line = next(line for line in (ROOT / "README.md").read_text().splitlines() if line.endswith("# the B5 answers"))
+    expression = re.search(r"-Y '([^']+)'", line).group(1)
+    assert expression == "ndr.status.code1 == 0xb5"
+    r = run("dump", FAULT, "-Y", expression, "-T", "fields", "-e", "frame.number", "-e", "rpc.ptype", "-e",
+            "ndr.status.code", "-e", "iod.index")
+    rows = [line.split("\t") for line in r.stdout.decode().splitlines()]
+    assert {tuple(row[1:]) for row in rows} == {("2", "0xde", "")}  # read responses, no IOD header
+    assert len(rows) == pd_analyze.analyze(str(FAULT)).transactions.b5_retries.sum() == 82
+    old = run("dump", FAULT, "-Y", "not pd.ref and iod.index == 0xb02e", "-T", "fields", "-e", "frame.number")
+    assert not set(old.stdout.decode().split()) & {row[0] for row in rows}
+
+
+NOT_PNIO_FIELDS = ["frame.number", "dcerpc.pkt_type", "dcerpc.opnum", "dcerpc.dg_act_id", "ip.src", "udp.srcport",
+                   "udp.dstport", "ip.flags.mf", "dcerpc.dg_seqnum", "dcerpc.drep", "dcerpc.dg_flags1", "ip.id"]
+
+
+def test_fields_of_frames_that_are_not_pnio_as_tshark_fills_them() -> None:
+    """`-T fields` left every cell of a DCE/RPC frame that is not PNIO (an endpoint-mapper call) empty, and those
+    of a plain UDP frame, where tshark fills the layers it decodes; an IP fragment shows its IPv4 header alone."""
+    args = [a for f in NOT_PNIO_FIELDS for a in ("-e", f)]
+    rows = {name: [line.split("\t") for line in run("dump", SAMPLES / name, "-T", "fields", *args).stdout.decode()
+                   .splitlines()] for name in ("record_rw_le.pcap", "ip_fragments.pcap")}
+    epm = rows["record_rw_le.pcap"]
+    assert epm[2][:8] == ["3", "0", "2", "000000e9-0000-1000-8000-000000000001", "192.168.1.11", "49160", "34964",
+                          "0"]  # an endpoint-mapper request (opnum 2: map)
+    assert epm[16][:8] == ["17", "", "", "", "192.168.1.11", "50010", "50020", "0"]  # UDP, not DCE/RPC
+    assert epm[0] == ["1"] + [""] * (len(NOT_PNIO_FIELDS) - 1)  # not IPv4, no field of these
+    assert rows["ip_fragments.pcap"][0][:8] == ["1", "", "", "", "192.168.1.11", "", "", "1"]  # a first fragment
+    for name, ours in rows.items():
+        assert ours == tshark(SAMPLES / name, "-T", "fields", *args), name
+
+
+def test_the_fields_of_a_frame_cut_anywhere_never_raise() -> None:
+    """Bad input never crashes: every frame of the samples cut at every length, and with bytes flipped."""
+    import random
+
+    from pd_analyze import capture
+    from pd_analyze.output.frame_layers import fields_of
+
+    rng = random.Random(26)
+    for name in ("record_rw_le.pcap", "ip_fragments.pcap", "vlan_stacked.pcap", "linux_sll.pcap"):
+        for frame in capture.frames(str(SAMPLES / name)):
+            data = bytes(frame.data)
+            for n in range(len(data) + 1):
+                fields_of(frame.linktype, data[:n])
+            for _ in range(50):
+                flipped = bytearray(data)
+                flipped[rng.randrange(len(data))] ^= 1 << rng.randrange(8)
+                fields_of(frame.linktype, bytes(flipped))

@@ -324,10 +324,10 @@ def values_equal(name: str, a: object, b: object) -> bool:
 # --- PROFIdrive values (protocol.md 8.1, 8.2) ---------------------------------------------------
 #
 # tshark has one value field per size class; the analyser has one value field per value
-# (`pd.val[i].value[j]`), one per string (`pd.val[i].value`) and the elements of a complete
+# (`pd.val[i].value[j]`), one per string (`pd.val[i].string`) and the elements of a complete
 # description (`pd.val[i].desc.*`, attribute 0x20 subindex 0: OctetString x 46). Both sides become
 # PdValue(kind, raw unsigned value) items in wire order: `pd.val[i].value[j]` is compared with the
-# value_b/value_w/value_dw/value_float occurrences, `pd.val[i].value` with value_str. The analyser
+# value_b/value_w/value_dw/value_float occurrences, `pd.val[i].string` with value_str. The analyser
 # item is made from the field's raw bytes and its block's Format (8.1: "compare the analyser's raw
 # value, not its signed/scaled presentation"); formats tshark has no field for give no item (8.2,
 # 8.3 #2). A one-byte OctetString (0x0A) is a 1-byte format: one value_b per octet.
@@ -341,7 +341,7 @@ VALUE_FIELD_OF_FORMAT = {
 FMT_ERROR = 0x44  # its third and later words (analyser pd.val[i].value[k]) are words: value_w
 PD_VALUE_KIND = {f"{_PD}.{kind}": kind for kind in ("value_b", "value_w", "value_dw", "value_float", "value_str")}
 VALUE_SIZE = {"value_b": 1, "value_w": 2, "value_dw": 4, "value_float": 4}
-PD_VALUES, PD_STRING = "pd.val[i].value[j]", "pd.val[i].value"
+PD_VALUES, PD_STRING = "pd.val[i].value[j]", "pd.val[i].string"
 _PD_VALUE_SOURCES = (PD_VALUES, PD_STRING)
 _PD_DESC = "pd.val[i].desc."
 

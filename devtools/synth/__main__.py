@@ -4,6 +4,7 @@ the intended parameter sets of the audit samples (OUTDIR/sets/*.csv)."""
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -11,7 +12,10 @@ from .build import build_all, build_expected, build_sets
 
 
 def main(argv: list[str]) -> int:
-    outdir = Path(argv[1] if len(argv) > 1 else "sample_pcaps")
+    # argparse, not a bare argv[1]: `--help` once became a directory named "--help" holding every sample
+    parser = argparse.ArgumentParser(prog="python -m devtools.synth", description=__doc__.split(":", 1)[1].strip())
+    parser.add_argument("outdir", nargs="?", default="sample_pcaps", help="where to write (default: sample_pcaps)")
+    outdir = Path(parser.parse_args(argv[1:]).outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     for name, data in build_all().items():
         (outdir / name).write_bytes(data)

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 from pd_analyze.analysis.param_state import ElementState, Key, Seen, StateTable
 from pd_analyze.analysis.param_values import NotAValueError, parse_int, same, wire
+from pd_analyze.model.files import open_problem
 from pd_analyze.model.rules import Finding, finding
 
 if TYPE_CHECKING:
@@ -73,7 +74,7 @@ def load(path: str) -> ExpectedSet:
         with open(path, "rb") as f:
             data = f.read()
     except OSError as exc:
-        raise ExpectError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+        raise ExpectError(f"{path}: {open_problem(exc)}") from None
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -149,6 +150,9 @@ def _line(cells: list[str], header: list[str], name: str, line: int) -> Expected
     value = cell["value"]
     if not value.strip():
         raise ExpectError(f"{where}: value is empty")
+    if _is_nan(value):  # a NaN equals no value, itself included: every check of it would be a mismatch
+        raise ExpectError(f"{where}: value {value.strip()!r} cannot be intended: NaN equals no value, not even NaN "
+                          "(give the number meant)")
     tolerance = 0.0
     text = cell.get("tolerance", "").strip()
     if text:
@@ -159,6 +163,13 @@ def _line(cells: list[str], header: list[str], name: str, line: int) -> Expected
         if not math.isfinite(tolerance) or tolerance < 0:
             raise ExpectError(f"{where}: tolerance {text!r} is not a number >= 0")
     return Expected(line, device, numbers["do"], numbers["pnu"], numbers["subindex"], value, tolerance)
+
+
+def _is_nan(text: str) -> bool:
+    try:
+        return math.isnan(float(text))
+    except ValueError:
+        return False
 
 
 # --- the check ----------------------------------------------------------------------------------------------

@@ -106,8 +106,8 @@ class Rows:
         append = self.parameters.append
         whole = whole_request_error(request, response)
         if whole is not None and not addresses:  # a request of no parameter: one row, no PNU
-            append(ParameterRow._make((number, capture, device, txn.do, "", None, "", None, None, "", "", "",
-                                       "", _hex(whole.error), error_meaning(whole.error, response, self.names),
+            append(ParameterRow._make((number, capture, device, _int(txn.do), "", None, "", None, None, "", "", "", "",
+                                       _hex(whole.error), error_meaning(whole.error, response, self.names),
                                        whole.error_subindex if whole.error_subindex >= 0 else None, True)))
         changes = writes_values(request)
         for i, addr in enumerate(addresses):

@@ -149,6 +149,15 @@ def sort_key(name: str, by_capture: bool = False) -> Callable[[tuple], object]:
     return lambda r: _LAST if r[col] is None else r[col]
 
 
+def arrow_text(text: str) -> bool:
+    """Whether Arrow can hold the text (not a lone surrogate, as an undecodable file name gives)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
 def micros(seconds: object) -> int | None:
     """A capture time as the tables hold it: whole microseconds (None beyond datetime64[ns])."""
     if seconds is None:

@@ -5,14 +5,17 @@ shown beside the address wherever a drive is named (summary, parameter state).
 The report paths skip non-IP frames without dissecting them (most of a PROFINET capture is cyclic PN-RT), so
 the names are found beside them: the columnar path picks the DCP responses out of each batch by its columns
 (`names_in_batch`); the per-frame path, read for small captures, looks at every frame in a pass of its own
-(`names_in_file`), so that its frame loop keeps skipping cheaply. When a device announces several names, the
-last one counts (a name set during commissioning), across the captures in the order given.
+(`names_in_file`), so that its frame loop keeps skipping cheaply. When a device announces several names in one
+capture, the last one counts (a name set during commissioning). Across captures the names are kept per capture,
+never one capture's name for another's drive: a drive is named by its own capture's announcement, or, where its
+capture has none, by the one name the other captures agree on (`per_capture`); tables folded over captures by
+address (the parameter state) show every name an address was given, in capture order (`merged`).
 """
 
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import TYPE_CHECKING
 
 from pd_analyze import capture
@@ -60,10 +63,32 @@ def names_in_frames(frames: Iterable[RawFrame], names: dict[str, str]) -> None:
 
 
 def merged(captures: Iterable[CaptureResult]) -> dict[str, str]:
-    """The names of several captures, the later capture's where a device has two."""
-    names: dict[str, str] = {}
-    for result in captures:
-        names.update(result.stations)
+    """IP address -> name over several captures: the one name they agree on; where two captures name one address
+    differently (two plants' drives at one address, or a drive renamed), every name in capture order, joined by
+    ' / ' (the later capture's name once replaced the earlier's)."""
+    return {device: " / ".join(given) for device, given in _given(r.stations for r in captures).items()}
+
+
+def per_capture(captures: Iterable[CaptureResult]) -> Callable[[str, str], str]:
+    """label(capture, device): the device as people name it in that capture: its address, and the name that capture
+    announced for it, or, where that capture holds none, the one name every capture that names it agrees on."""
+    own = {result.path: result.stations for result in captures}
+    agreed = {device: given[0] for device, given in _given(own.values()).items() if len(given) == 1}
+
+    def label(capture: str, device: str) -> str:
+        name = own.get(capture, {}).get(device) or agreed.get(device, "")
+        return f"{device} ({name})" if name else device
+    return label
+
+
+def _given(stations: Iterable[Mapping[str, str]]) -> dict[str, list[str]]:
+    """IP address -> the distinct names the captures give it, in capture order."""
+    names: dict[str, list[str]] = {}
+    for found in stations:
+        for device, name in found.items():
+            given = names.setdefault(device, [])
+            if name not in given:
+                given.append(name)
     return names
 
 

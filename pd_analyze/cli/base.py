@@ -17,6 +17,7 @@ from pd_analyze.capture.reader import unreadable_reason
 from pd_analyze.output import dump
 from pd_analyze.protocol import profiles
 from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT
+from pd_analyze.protocol.frames import Accounting
 from pd_analyze.protocol.profidrive_checks import Checker
 
 EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
@@ -71,7 +72,7 @@ class _Group(click.Group):
             click.echo("pd-analyze: aborted", err=True)
             sys.exit(EXIT_USAGE)
         except click.ClickException as exc:
-            exc.show()
+            error_line(exc)
             sys.exit(EXIT_USAGE)
         except BrokenPipeError:
             _closed_pipe()
@@ -82,6 +83,20 @@ class _Group(click.Group):
             click.echo(dump.safe(f"pd-analyze: internal error: {exc.__class__.__name__}: {exc} "
                                  "(please report it with the capture)"), err=True)
             sys.exit(EXIT_USAGE)
+
+
+def error_line(exc: click.ClickException) -> None:
+    """Every error as one line that starts `pd-analyze:`, as a capture's errors do (click's own form, `Error:`
+    after a usage block, differed from them); a usage error says where the help is."""
+    message = exc.format_message()
+    if isinstance(exc, click.UsageError):
+        commands = []  # the subcommands, under the name users type (not `python -m pd_analyze.cli`)
+        ctx = exc.ctx
+        while ctx is not None and ctx.parent is not None:
+            commands.insert(0, ctx.info_name or "")
+            ctx = ctx.parent
+        message = message.rstrip(".") + f" (see '{' '.join(['pd-analyze', *commands])} --help')"
+    click.echo(dump.safe(f"pd-analyze: {message}"), err=True)
 
 
 def _closed_pipe() -> NoReturn:
@@ -111,6 +126,29 @@ def some_readable(paths: list[str]) -> None:
         for error in unreadable:
             click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
         sys.exit(EXIT_USAGE)
+
+
+def frames_read(path: str, accounting: Accounting, failed: bool) -> None:
+    """A dumped capture's accounting line on stderr; none after an input that could not be read at all (its
+    error said so: "0 frames read" after it told nothing)."""
+    if not failed or accounting.read:
+        click.echo(dump.safe(f"{path}: {accounting.line()}"), err=True)
+
+
+def frames_beyond(path: str, ranges: list[tuple[int, int]], read: int, failed: bool) -> None:
+    """Say which part of --frames the capture of `read` frames does not hold: a range wholly beyond it, or the end
+    of one that runs past it (`5-9` of 6 frames: 7-9). Not after a read error, which says why it stopped."""
+    if failed:
+        return
+    parts = []
+    for lo, hi in ranges:
+        if lo > read:
+            parts.append(f"{lo}-" if hi >= dump.OPEN_END else f"{lo}-{hi}" if hi != lo else str(lo))
+        elif read < hi < dump.OPEN_END:
+            parts.append(f"{read + 1}-{hi} (of {lo}-{hi})" if hi != read + 1 else f"{hi} (of {lo}-{hi})")
+    if parts:
+        click.echo(dump.safe(f"pd-analyze: {path}: --frames {', '.join(parts)} lie{'s' if len(parts) == 1 else ''} "
+                             f"beyond the capture's {read} frames"), err=True)
 
 
 def inputs(captures: tuple[str, ...], read: str | None) -> list[str]:

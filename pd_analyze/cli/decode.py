@@ -19,6 +19,7 @@ Examples:
   pd-analyze decode 0101010142011234 --response --for-request 01010101100103c40000
   pd-analyze decode "5F 00 2F 0A 01 01 01 01 10 00 00 2F 00 00" --dpv1
   pd-analyze decode "..." --request --profile sinamics --format json
+  xxd -p record.bin | pd-analyze decode - --response
 """
 
 
@@ -34,10 +35,13 @@ Examples:
 @profile_option
 def decode_command(hex_text: tuple[str, ...], side: str | None, dpv1: bool, for_request: str | None,
                    fmt: str, profile: str) -> None:
-    """Decode a raw PROFIdrive parameter block given as hex (spaces or not)."""
+    """Decode a raw PROFIdrive parameter block given as hex (spaces or not); - reads the hex from standard input."""
     checker = checker_for(profile)
+    text = " ".join(hex_text)
+    if hex_text == ("-",):  # as every command's -: the hex from standard input (line breaks are spaces)
+        text = sys.stdin.buffer.read().decode("ascii", "replace")  # bytes that are no hex: said by parse_hex
     try:
-        data = parse_hex(" ".join(hex_text))
+        data = parse_hex(text)
         request = parse_hex(for_request) if for_request else None
         result = decode(data, None if side is None else side == "response", checker, dpv1, request)
     except ValueError as exc:

@@ -17,6 +17,8 @@ from pd_analyze.cli.base import (
     SECONDS,
     capture_files,
     checker_for,
+    frames_beyond,
+    frames_read,
     main,
     profile_option,
     text_style,
@@ -89,7 +91,7 @@ def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None
     if flt is not None or fmt == "fields" or field_names:  # the frames a filter selects, or -T fields
         out = lines_out(colour and fmt == "text")
         sys.exit(wireshark.fields_dump(paths, Settings(profile, rpc_timeout=rpc_timeout), checker, flt, fmt,
-                 field_names, field_options, wanted, lambda found: dump.render(found, fmt, out, style, findings_only)))
+                 field_names, field_options, ranges, lambda found: dump.render(found, fmt, out, style, findings_only)))
     status = EXIT_OK
     for path in paths:
         if len(paths) > 1 and fmt == "text":
@@ -102,18 +104,16 @@ def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None
             notes = frame_notes.collect(path, Settings(profile, rpc_timeout=rpc_timeout))
             results = with_transaction_findings(results, notes)
         results = (r for r in results if wanted(r.frame))
+        failed = False
         try:
             dump.render(results, fmt, lines_out(colour and fmt == "text"), style, findings_only, clock)
         except CaptureError as exc:
             click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
-            status = EXIT_USAGE
+            status, failed = EXIT_USAGE, True
         finally:
             if notes is not None:
                 notes.close()
-        outside = dump.beyond(ranges, d.accounting.read)
-        if outside and status == EXIT_OK:
-            click.echo(dump.safe(f"pd-analyze: {path}: --frames {','.join(outside)} lies beyond the capture's "
-                                 f"{d.accounting.read} frames"), err=True)
+        frames_beyond(path, ranges, d.accounting.read, failed)
         loose = [f for f in d.loose_findings if wanted(f.frame)]
         if loose and fmt == "text":
             click.echo("Findings on frames that are not PNIO RPC:")
@@ -124,5 +124,5 @@ def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None
         elif loose:
             click.echo(f"pd-analyze: {len(loose)} findings on frames that are not PNIO RPC "
                        "(see --format text)", err=True)
-        click.echo(dump.safe(f"{path}: {d.accounting.line()}"), err=True)
+        frames_read(path, d.accounting, failed)
     sys.exit(status)

@@ -14,7 +14,15 @@ import click
 
 from pd_analyze.analysis.capture_run import Settings
 from pd_analyze.capture import CaptureError
-from pd_analyze.cli.base import EXIT_OK, EXIT_USAGE, checker_for, profile_option, timeout_options
+from pd_analyze.cli.base import (
+    EXIT_OK,
+    EXIT_USAGE,
+    checker_for,
+    frames_beyond,
+    frames_read,
+    profile_option,
+    timeout_options,
+)
 from pd_analyze.model.verdicts import VERDICTS
 from pd_analyze.output import dump
 from pd_analyze.output.capture_copy import Copied, UsageError
@@ -137,10 +145,10 @@ def extract_command(capture: str, out: str, flt: str | None, profile: str, timeo
 
 
 def fields_dump(paths: list[str], settings: Settings, checker: Checker, flt: str | None, out_type: str,
-                names: tuple[str, ...], options: tuple[str, ...], wanted: Callable[[int], bool],
+                names: tuple[str, ...], options: tuple[str, ...], ranges: list[tuple[int, int]],
                 render: Callable[[Iterator[FrameResult]], object]) -> int:
-    """`dump -Y` and `dump -T fields` (of the frames `wanted`, --frames): the exit code. `render(results)`
-    writes the text or JSON dump of the frames kept."""
+    """`dump -Y` and `dump -T fields` (of the frames in `ranges`, --frames; all when empty): the exit code.
+    `render(results)` writes the text or JSON dump of the frames kept."""
     from pd_analyze.output import frame_select
 
     parsed = display_filter(flt)
@@ -153,6 +161,9 @@ def fields_dump(paths: list[str], settings: Settings, checker: Checker, flt: str
         raise click.UsageError(dump.safe(str(exc))) from None
     if out_type == "fields" and not refs:
         raise click.UsageError("-T fields needs at least one -e FIELD, e.g. -e frame.number -e pd.ref")
+    def wanted(number: int) -> bool:
+        return not ranges or any(lo <= number <= hi for lo, hi in ranges)
+
     status = 0
     if out_type == "fields" and fmt.header:
         click.echo(frame_select.header_line(names, fmt))
@@ -171,6 +182,7 @@ def fields_dump(paths: list[str], settings: Settings, checker: Checker, flt: str
             raise click.UsageError(dump.safe(str(exc))) from None
         except CaptureError as exc:
             click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
-            status = 2
-        click.echo(dump.safe(f"{path}: {d.accounting.line()}"), err=True)
+            status = EXIT_USAGE
+        frames_beyond(path, ranges, d.accounting.read, status == EXIT_USAGE)
+        frames_read(path, d.accounting, status == EXIT_USAGE)
     return status

@@ -168,10 +168,11 @@ _FIELDS = _defs(
     F("pd.addr[i].subindex", UINT, "Subindex (first array element)", tshark=f"{_PD}.index"),
     F("pd.val[i].format", HEX, "Format (data type)", pt.FORMAT_NAME, tshark=f"{_PD}.format"),
     F("pd.val[i].n_values", UINT, "No. of values (strings: characters)", tshark=f"{_PD}.no_of_values"),
-    F("pd.val[i].value[j]", TEXT, "One value, decoded by its format",
+    F("pd.val[i].value[j]", TEXT, "One value of a numeric format, decoded by its format",
       tshark=f"{_PD}.value_b|{_PD}.value_w|{_PD}.value_dw|{_PD}.value_float", tshark_shown=SHOWN_HEX),
-    F("pd.val[i].value", TEXT, "String/octet-string value of No.-of-values characters or bytes",
-      tshark=f"{_PD}.value_str"),
+    # a name of its own, not pd.val[i].value: without its indexes that name collected the numbers too
+    F("pd.val[i].string", TEXT, "A VisibleString, OctetString or UnicodeString value: No. of values characters "
+      "or bytes as one value", tshark=f"{_PD}.value_str"),
     F("pd.val[i].pad", HEX, "Word-alignment pad byte after an odd value list"),
     F("pd.val[i].error", HEX, "Error number", MappingProxyType({k: v.text for k, v in pt.ERRORS.items()}),
       tshark=f"{_PD}.error_num"),

@@ -196,12 +196,14 @@ def status_text(status: str) -> str:
 ETHERTYPE = _frozen({0x0800: "IPv4", 0x0806: "ARP", 0x8100: "802.1Q", 0x88A8: "802.1ad",
                      0x9100: "802.1Q (legacy QinQ)", 0x8892: "PROFINET RT", 0x86DD: "IPv6"})
 ETHERTYPE_IPV4 = 0x0800
+ETHERTYPE_IPV6 = 0x86DD  # not analysed; `dump -T fields` fills the UDP cells of a frame over it, as tshark
 VLAN_TPIDS = frozenset({0x8100, 0x88A8, 0x9100})  # 802.1Q C-tag, 802.1ad S-tag, legacy QinQ
 # The same as the two bytes on the wire, for byte comparisons where every frame passes
 VLAN_TPID_BYTES = frozenset(tpid.to_bytes(2, "big") for tpid in VLAN_TPIDS)
 IPV4_ETHERTYPE_BYTES = ETHERTYPE_IPV4.to_bytes(2, "big")
 IP_ETHERTYPES = VLAN_TPID_BYTES | {IPV4_ETHERTYPE_BYTES}  # an Ethernet frame that may carry IPv4
-IP_PROTO = _frozen({1: "ICMP", 6: "TCP", 17: "UDP"})
+IP_PROTO_UDP = 17
+IP_PROTO = _frozen({1: "ICMP", 6: "TCP", IP_PROTO_UDP: "UDP"})
 LINKTYPE = _frozen({1: "Ethernet", 101: "raw IP", 228: "raw IPv4", 113: "Linux SLL", 276: "Linux SLL2"})
 LINKTYPE_ETHERNET, LINKTYPE_RAW, LINKTYPE_IPV4, LINKTYPE_SLL, LINKTYPE_SLL2 = 1, 101, 228, 113, 276
 PNIO_CM_PORT = 34964

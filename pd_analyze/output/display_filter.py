@@ -7,19 +7,24 @@ recursive-descent parser into closures (never Python's eval).
     test    := FIELD                                     the field is present
              | FIELD relation value                      == != ~= === < <= > >= (or eq ne any_ne all_eq lt le gt ge)
              | FIELD "in" "{" member ([","] member)* "}"  member: value, or value..value (a range)
-             | FIELD "contains" value
+             | FIELD "contains" value                      a text field: a substring (case-sensitive); bytes: a run
+             | FIELD ("matches" | "~") "string"            a text or bytes field: a regular expression, case-
+                                                           insensitive unless it starts with (?-i), as tshark's PCRE2
     value   := number (decimal, 0x hex, float) | "string" | word (an address, a UUID, a name)
 
 On a repeated field (pd.addr.pnu of a multi-parameter request) the semantics of tshark 4: `==`, `<`, `in`,
 `contains`... match when any occurrence does; `!=` when the field is present and no occurrence equals;
 `~=` when any occurrence differs; `===` when it is present and every occurrence equals. A test on an absent
-field is false. A literal is checked against the field's type when the filter is parsed. Sets take
-elements separated by commas (tshark 4.0 requires them) or by spaces.
+field is false. A literal is checked against the field's type when the filter is parsed: `==` and `in` against
+the field's value names too (`txn.verdict == "late"` is an error, "late" being no verdict), `contains` and
+`matches` search the text of any text field, the analysis fields included (`txn.verdict contains "out"`). Sets
+take elements separated by commas (tshark 4.0 requires them) or by spaces.
 """
 
 from __future__ import annotations
 
 import ipaddress
+import re
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -33,9 +38,9 @@ from pd_analyze.output.frame_view import ANALYSIS, FieldRef, FrameView, resolve
 RELATIONS = {"==": "eq", "eq": "eq", "any_eq": "eq", "!=": "all_ne", "ne": "all_ne", "all_ne": "all_ne",
              "~=": "any_ne", "any_ne": "any_ne", "===": "all_eq", "all_eq": "all_eq", "<": "lt", "lt": "lt",
              "<=": "le", "le": "le", ">": "gt", "gt": "gt", ">=": "ge", "ge": "ge"}
-_SYMBOLS = ("===", "==", "!=", "~=", "<=", ">=", "&&", "||", "<", ">", "!", "(", ")", "{", "}", ",")
+_SYMBOLS = ("===", "==", "!=", "~=", "<=", ">=", "&&", "||", "<", ">", "!", "(", ")", "{", "}", ",", "~")
 _KEYWORDS = {"and": "and", "&&": "and", "or": "or", "||": "or", "not": "not", "!": "not", "in": "in",
-             "contains": "contains"}
+             "contains": "contains", "matches": "matches", "~": "matches"}
 _WORD = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.:-/[]")
 _INTEGER = frozenset({registry.UINT, registry.HEX, registry.INT, registry.FLAGS, registry.FRAMEREF, registry.LIST})
 _NUMBER = frozenset({registry.FLOAT, registry.TIME})
@@ -55,7 +60,7 @@ class FilterError(ValueError):
 
 
 class Token(NamedTuple):
-    kind: str  # "word", "string", "rel", "and", "or", "not", "in", "contains", a bracket or comma, "end"
+    kind: str  # "word", "string", "rel", "and", "or", "not", "in", "contains", "matches", a bracket or comma, "end"
     text: str
     column: int
 
@@ -213,11 +218,34 @@ class _Parser:
         if tok.kind == "contains":
             self.take()
             value_tok = self.value(tok)
-            literal = self.literal(ref, value_tok)
-            if not isinstance(literal, str | bytes):
-                raise FilterError(f"contains needs a text or bytes field, {ref.text} holds numbers", tok.column)
+            if ref.fdef.type not in (registry.TEXT, registry.BYTES):
+                raise FilterError(f"contains needs a text or bytes field, {ref.text} holds {_holds(ref)}", tok.column)
+            # the text as written, whatever value names the field has: a part of a name is no name
+            literal = value_tok.text if ref.fdef.type == registry.TEXT else self.literal(ref, value_tok)
             return lambda v: any(_contains(x, literal) for x in values(v, ref))
+        if tok.kind == "matches":
+            self.take()
+            pattern = self.pattern(ref, tok)
+            return lambda v: any(_matches(x, pattern) for x in values(v, ref))
         return lambda v: bool(values(v, ref))
+
+    def pattern(self, ref: FieldRef, tok: Token) -> re.Pattern[str]:
+        """The regular expression after `matches`: a double-quoted string, case-insensitive as tshark's (PCRE2)
+        unless it starts with (?-i)."""
+        if ref.fdef.type not in (registry.TEXT, registry.BYTES):
+            raise FilterError(f"{tok.text} needs a text or bytes field, {ref.text} holds {_holds(ref)}", tok.column)
+        value_tok = self.take()
+        if value_tok.kind != "string":
+            raise FilterError(f"{tok.text} needs a regular expression in double quotes, found {_found(value_tok)}",
+                              value_tok.column)
+        text, flags = value_tok.text, re.IGNORECASE
+        if text.startswith("(?-i)"):
+            text, flags = text[len("(?-i)"):], 0
+        try:
+            return re.compile(text, flags)
+        except re.error as exc:
+            raise FilterError(f"{value_tok.text!r} is not a regular expression ({exc.msg})", value_tok.column) \
+                from None
 
     def value(self, after: Token) -> Token:
         tok = self.take()
@@ -279,6 +307,12 @@ class _Parser:
             number = _number(text)
             return text if number is None else number
         return text
+
+
+def _holds(ref: FieldRef) -> str:
+    kind = ref.fdef.type
+    return "integers" if kind in _INTEGER else "numbers" if kind in _NUMBER else "addresses" \
+        if kind == registry.IPV4 else "UUIDs" if kind == registry.UUID else kind
 
 
 def _found(tok: Token) -> str:
@@ -353,6 +387,12 @@ def _contains(value: object, literal: str | bytes) -> bool:
     if isinstance(literal, bytes):
         return isinstance(value, bytes | bytearray) and literal in value
     return isinstance(value, str) and literal in value
+
+
+def _matches(value: object, pattern: re.Pattern[str]) -> bool:
+    if isinstance(value, bytes | bytearray):  # bytes as the regular expression sees them, one character each
+        value = bytes(value).decode("latin-1")
+    return isinstance(value, str) and pattern.search(value) is not None
 
 
 def _relation(ref: FieldRef, relation: str, literal: object) -> Predicate:

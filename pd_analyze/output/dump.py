@@ -239,8 +239,11 @@ def parse_frames(spec: str) -> Callable[[int], bool]:
     return lambda n: any(lo <= n <= hi for lo, hi in ranges)
 
 
+OPEN_END = 10**12  # the last frame of an open range (20-)
+
+
 def frame_ranges(spec: str) -> list[tuple[int, int]]:
-    """'1,5-9,20-' as (first, last) pairs, an open end as 10**12; ValueError if malformed."""
+    """'1,5-9,20-' as (first, last) pairs, an open end as OPEN_END; ValueError if malformed."""
     ranges: list[tuple[int, int]] = []
     for part in spec.split(","):
         part = part.strip()
@@ -249,7 +252,7 @@ def frame_ranges(spec: str) -> list[tuple[int, int]]:
         lo, sep, hi = part.partition("-")
         try:
             start = int(lo) if lo else 1
-            end = int(hi) if hi else (10**12 if sep else start)
+            end = int(hi) if hi else (OPEN_END if sep else start)
         except ValueError:
             raise ValueError(f"bad frame range {part!r}: use numbers like 1,5-9,20-") from None
         if start < 1 or end < start:
@@ -258,12 +261,6 @@ def frame_ranges(spec: str) -> list[tuple[int, int]]:
     if not ranges:
         raise ValueError("empty frame selection: use numbers like 1,5-9,20-")
     return ranges
-
-
-def beyond(ranges: list[tuple[int, int]], frames: int) -> list[str]:
-    """The parts of a --frames selection that lie wholly beyond a capture of `frames` frames."""
-    return [f"{lo}-" if hi >= 10**12 else f"{lo}-{hi}" if hi != lo else str(lo)
-            for lo, hi in ranges if lo > frames]
 
 
 def render(results: Iterable[FrameResult], fmt: str, write: Callable[[str], None], style: Style,

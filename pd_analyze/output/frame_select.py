@@ -2,8 +2,9 @@
 frame of chosen fields as `tshark -T fields` prints them (its -E options: header, separator, quote,
 occurrence, aggregator), so a script moves over with its field names unchanged.
 
-A capture file is read record by record beside the dissector, so `-T fields` has a line for every frame
-(empty fields for a frame that is not PNIO RPC, as tshark's for a frame without the protocol); standard
+A capture file is read record by record beside the dissector, so `-T fields` has a line for every frame (for a
+frame that is not PNIO RPC, the cells of its link, IPv4, UDP and DCE/RPC headers as tshark fills them, by
+output.frame_layers, and empty cells for the rest, as tshark's for a frame without the protocol); standard
 input is read by the dissector alone: only PNIO RPC frames, and no analysis fields (they need the
 capture read twice).
 """

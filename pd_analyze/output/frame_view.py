@@ -22,6 +22,7 @@ from pd_analyze.capture.pcapng import Block
 from pd_analyze.capture.pcapng_write import BT_SPB
 from pd_analyze.model import fields as registry
 from pd_analyze.model.layout import Field
+from pd_analyze.output.frame_layers import fields_of
 from pd_analyze.output.frame_notes import FrameNote
 from pd_analyze.protocol.frames import FrameResult
 
@@ -45,7 +46,7 @@ def template_of(name: str) -> str:
 
 def _own_names() -> dict[str, tuple[str, ...]]:
     out: dict[str, list[str]] = {}
-    for name in registry.FIELDS:  # pd.val[i].value[j] and pd.val[i].value are both pd.val.value
+    for name in registry.FIELDS:  # pd.addr[i].pnu and pd.addr[2].pnu are both pd.addr.pnu
         out.setdefault(plain(name), []).append(name)
     return {name: tuple(names) for name, names in out.items()}
 
@@ -113,11 +114,12 @@ class FrameView:
         self._index: dict[str, list[Field]] | None = None
 
     def fields(self, ref: FieldRef) -> list[Field]:
-        """The dissector's fields a LAYERS reference names, in frame order."""
-        if self.result is None:
+        """The dissector's fields a LAYERS reference names, in frame order; of a frame it passed by (not PNIO RPC),
+        the headers it holds (output.frame_layers), when its record was read."""
+        if self.result is None and self.block is None:
             return []
         if ref.exact:
-            found = [f for f in self.result.fields() if f.name == ref.exact]
+            found = [f for f in self._all() if f.name == ref.exact]
         elif len(ref.names) == 1:
             found = self._by_name().get(ref.names[0], [])
         else:
@@ -127,10 +129,16 @@ class FrameView:
             found = [f for f in found if _width_of(f) == ref.width]
         return found
 
+    def _all(self) -> list[Field]:
+        if self.result is not None:
+            return self.result.fields()
+        block = self.block
+        return fields_of(block.linktype, block.raw[block.data_at:block.data_at + block.caplen])  # type: ignore[union-attr]
+
     def _by_name(self) -> dict[str, list[Field]]:
         if self._index is None:
             self._index = {}
-            for f in self.result.fields():  # type: ignore[union-attr]
+            for f in self._all():
                 self._index.setdefault(template_of(f.name), []).append(f)
         return self._index
 

@@ -1,9 +1,11 @@
 """`pd-analyze diff A B`: the parameter state of one capture against another's.
 
 `by="device"` compares each drive with the same drive (device IP, DO, PNU, subindex: before and after);
-`by="do"` compares two drives that should be alike (DO, PNU, subindex), one drive on each side. One row per
-element whose value differs (in the wire format, analysis.param_values), that one side lacks, or whose last
-write was refused, or left unconfirmed, on one side only.
+`by="do"` compares drives that should be alike (DO, PNU, subindex), a drive of A with a drive of B: the one drive
+of each side, or, where a side holds several, the drives that announced the same PN-DCP station name, or the
+pairs given (`pairs`: each drive by its address or station name). One row per element whose value differs (in the
+wire format, analysis.param_values), that one side lacks, or whose last write was refused, or left unconfirmed, on
+one side only.
 """
 
 from __future__ import annotations
@@ -69,21 +71,70 @@ def _kind(a: Side, b: Side) -> str:
     return ""
 
 
-def _keyed(state: StateTable, by: str, name: str) -> tuple[dict[tuple, Key], str]:
-    """The state's elements by the comparison key, and the one device (--by do)."""
+def _devices(state: StateTable) -> list[str]:
+    return sorted({k[0] for k in state.elements}, key=device_order)
+
+
+def _drive(state: StateTable, given: str, side: str) -> str:
+    """The drive of a side a --pair names: its address, or the station name it announced."""
+    devices = _devices(state)
+    if given in devices:
+        return given
+    named = [d for d in devices if state.stations.get(d) == given]
+    if len(named) != 1:
+        raise DiffError(f"--pair: {side} holds no drive {given!r} (its drives: {_listed(state)})" if not named else
+                        f"--pair: {given!r} names {len(named)} drives of {side} ({', '.join(named)}); give the address")
+    return named[0]
+
+
+def _listed(state: StateTable) -> str:
+    return ", ".join(f"{d} ({state.stations[d]})" if state.stations.get(d) else d for d in _devices(state)) or "none"
+
+
+def drive_pairs(a: StateTable, b: StateTable, pairs: Sequence[tuple[str, str]] = ()) -> list[tuple[str, str]]:
+    """The drives --by do compares, (A's, B's): the pairs given; else the one drive of each side; else the drives of
+    A and B that announced the same station name, every drive of both sides paired. DiffError says which drives
+    are left without a partner and how to name the pairs."""
+    if pairs:
+        return [(_drive(a, pa, "A"), _drive(b, pb, "B")) for pa, pb in pairs]
+    devs_a, devs_b = _devices(a), _devices(b)
+    if len(devs_a) <= 1 and len(devs_b) <= 1:
+        return [(devs_a[0] if devs_a else "", devs_b[0] if devs_b else "")]
+    by_name_b = {}
+    for d in devs_b:
+        by_name_b.setdefault(b.stations.get(d, ""), []).append(d)
+    found, alone = [], []
+    for d in devs_a:
+        partners = by_name_b.get(a.stations.get(d, ""), []) if a.stations.get(d) else []
+        if len(partners) == 1 and [x for x in devs_a if a.stations.get(x) == a.stations[d]] == [d]:
+            found.append((d, partners[0]))
+        else:
+            alone.append(f"A's {d}")
+    alone += [f"B's {d}" for d in devs_b if d not in {pb for _, pb in found}]
+    if alone:
+        raise DiffError(f"--by do pairs the drives of A and B by the station name each announced, but "
+                        f"{', '.join(alone)} {'has' if len(alone) == 1 else 'have'} no partner of that name "
+                        f"(A: {_listed(a)}; B: {_listed(b)}); name the pairs with --pair A_DRIVE=B_DRIVE (address "
+                        "or station name), or use --by device")
+    return found
+
+
+def _keyed(state: StateTable, by: str, drives: Sequence[str]) -> dict[tuple, Key]:
+    """The state's elements by the comparison key: the element itself (--by device), or the pair's number, DO,
+    PNU and subindex of the paired drives' elements (--by do)."""
     if by == "device":
-        return {k: k for k in state.elements}, ""
-    devices = sorted({k[0] for k in state.elements})
-    if len(devices) > 1:
-        raise DiffError(f"--by do compares one drive with another, but {name} holds {len(devices)} drives "
-                        f"({', '.join(devices)}); use --by device")
-    return {k[1:]: k for k in state.elements}, devices[0] if devices else ""
+        return {k: k for k in state.elements}
+    pair = {d: i for i, d in enumerate(drives)}
+    return {(pair[k[0]], *k[1:]): k for k in state.elements if k[0] in pair}
 
 
-def diff_rows(a: StateTable, b: StateTable, by: str = "device") -> list[tuple]:
+def diff_rows(a: StateTable, b: StateTable, by: str = "device", pairs: Sequence[tuple[str, str]] = ()) -> list[tuple]:
     """The rows of DIFF_COLUMNS, ordered by device (A's, else B's), DO, PNU, subindex."""
-    ka, dev_a = _keyed(a, by, "A")
-    kb, dev_b = _keyed(b, by, "B")
+    if by == "device" and pairs:
+        raise DiffError("--pair names the drives --by do compares; --by device compares each drive with itself")
+    paired = drive_pairs(a, b, pairs) if by == "do" else []
+    ka = _keyed(a, by, [pa for pa, _ in paired])
+    kb = _keyed(b, by, [pb for _, pb in paired])
     rows = []
     for key in set(ka) | set(kb):
         sa = side_of(a.elements.get(ka[key])) if key in ka else MISSING
@@ -96,7 +147,7 @@ def diff_rows(a: StateTable, b: StateTable, by: str = "device") -> list[tuple]:
         if by == "device":
             device_a = device_b = full[0]
         else:
-            device_a, device_b = (dev_a if key in ka else ""), (dev_b if key in kb else "")
+            device_a, device_b = paired[key[0]]
         rows.append((device_a, device_b, do, pnu, sub, f"P{pnu}[{sub}]", a.names.pnu(pnu), kind, *sa, *sb))
     return sorted(rows, key=lambda r: (device_order(r[0] or r[1]), r[2], r[3], r[4]))
 

@@ -12,7 +12,6 @@ summary is counted from the batches as they come.
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import shutil
 import tempfile
@@ -21,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from pd_analyze.analysis.rows import Rows
-from pd_analyze.analysis.schema import COLUMNS, sort_key
+from pd_analyze.analysis.schema import COLUMNS, arrow_text, sort_key
 from pd_analyze.output.spool import Spool
 from pd_analyze.output.summary import TOP, Summary
 from pd_analyze.output.writers import neutralise, open_table
@@ -231,17 +230,16 @@ def stream(files: list[str], out_dir: str, fmt: str, settings: Settings,
     the files equal `write_tables(analyze(files))`, and the summary equals `summary(analyze(files))`.
     `chunk_rows`: the rows of a table held in memory before they spill to disk (None: the defaults,
     table_sink.MAX_HELD, or CHUNK_ROWS for the rows' spools)."""
-    from pd_analyze.analysis.jobs import run, uses_columns
+    from pd_analyze.analysis.jobs import run
 
-    if uses_columns(files, settings) and all(_arrow_text(path) for path in files):
+    if all(arrow_text(path) for path in files):
         with BatchReport(out_dir, fmt, max_held=chunk_rows, chunk_rows=chunk_rows) as out:
             rows = _ReportRows(out, chunk_rows or _ReportRows.ROWS_PER_BATCH)
             captures = run(files, rows, settings, progress, jobs, chain)
             rows.batch_done()
             return out.close(captures)
-    # Small captures, read frame by frame (no numpy, pyarrow or pandas to import), or a capture name Arrow
-    # cannot hold (a lone surrogate from an undecodable file name): the rows through spools
-    settings = dataclasses.replace(settings, columns=False)
+    # A capture name Arrow cannot hold (a lone surrogate from an undecodable file name): the engine gives
+    # rows (EngineRun.as_rows), through spools
     chunk_rows = chunk_rows or CHUNK_ROWS
     os.makedirs(out_dir, exist_ok=True)
     spill = tempfile.mkdtemp(prefix=".pd-analyze-", dir=out_dir)  # beside the output: room for big files
@@ -266,14 +264,6 @@ def stream(files: list[str], out_dir: str, fmt: str, settings: Settings,
         for writer in writers.values():  # only after a failure: close what is open
             writer.close()
         shutil.rmtree(spill, ignore_errors=True)
-
-
-def _arrow_text(text: str) -> bool:
-    try:
-        text.encode("utf-8")
-    except UnicodeEncodeError:
-        return False
-    return True
 
 
 class _ReportRows(Rows):

@@ -14,14 +14,29 @@ from __future__ import annotations
 import math
 from array import array
 from collections import Counter
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any
 
 from pd_analyze.analysis.schema import sort_key
-from pd_analyze.analysis.stations import device_label, merged
-from pd_analyze.model import pd_values as pt
+from pd_analyze.analysis.stations import per_capture
 from pd_analyze.model.rules import SEVERITIES
 from pd_analyze.model.verdicts import VERDICTS
+from pd_analyze.output.summary_words import (
+    FAILED,
+    WHOLE_REQUEST,
+    device_key,
+    error_words,
+    few,
+    in_words,
+    known,
+    missing,
+    ms,
+    na_text,
+    named,
+    params_label,
+    reason,
+    refused_entries,
+)
 from pd_analyze.protocol.frames import ranked
 
 if TYPE_CHECKING:
@@ -39,13 +54,9 @@ _TXN_ORDER = sort_key("transactions")
 _PARAM_ORDER = sort_key("parameters")
 
 
-def _missing(value: object) -> bool:
-    return value is None or (isinstance(value, float) and value != value)
-
-
 def _order(key: tuple) -> tuple:
     """Sort key of a group key with missing parts last (as pandas sorts group keys)."""
-    return tuple((_missing(v), 0 if _missing(v) else v) for v in key)
+    return tuple((missing(v), 0 if missing(v) else v) for v in key)
 
 
 def _ranked(counts: dict, top: int) -> list[tuple[object, int]]:
@@ -73,90 +84,14 @@ def quantile(values: Sequence[float], q: float) -> float:
     return b - diff * (1 - t) if t >= 0.5 else a + diff * t
 
 
-def _ms(seconds: float) -> str:
-    return "-" if seconds != seconds else f"{seconds * 1000:.1f}"
-
-
-def _text(value: object) -> str:
-    return "<NA>" if _missing(value) else str(value)
-
-
-_FAILED = frozenset({"pnio_error", "timeout", "malformed", "reference_mismatch"})
-_UNANSWERED = {"deadline": "no answer within the transaction timeout",
-               "superseded": "the controller wrote the next request before an answer came",
-               "capture_end": "the capture ended before an answer came",
-               "evicted": "dropped by the analyser's limits (too many open transactions or frames)"}
-
-
-def _reason(verdict: object, status: object, closed_by: object, b5: object, last_read: object = None) -> str:
-    """Why a transaction failed, in words; for a timeout, how long the controller kept reading."""
-    if verdict == "pnio_error":
-        return str(status) if status and not _missing(status) else "record service refused"
-    if verdict == "timeout":
-        why = _UNANSWERED.get(str(closed_by), "no answer")
-        stopped = "its last read" if closed_by == "capture_end" else "the controller gave up: last read"
-        asked = [] if _missing(last_read) else [f"{stopped} {_ms(last_read)} ms after the write"]
-        if not _missing(b5) and b5:
-            asked.append(f"{b5} B5 answer{'s' if b5 != 1 else ''}")
-        return f"timeout: {why}" + (f" ({', '.join(asked)})" if asked else "")
-    if verdict == "malformed":
-        return "malformed: a PDU could not be decoded (see the findings)"
-    return "reference mismatch: the response does not answer the request"
-
-
-_REFUSED, _REFUSED_WHOLE = "refused: error ", "refused as a whole request: error "
-
-
-def _refused(errors: object, params: object) -> list[tuple[str, str]]:
-    """(parameter, reason) of each error a NAK carries (`transactions.errors`: 'P1082[0]:0x02 *:0x22'); an error
-    of the whole request (`*`) names the request's parameters. The error's text is added when the summary is
-    written (`_in_words`), from the parameters table: the words the run's profile gives it."""
-    out = []
-    for item in str(errors).split() if not _missing(errors) else ():
-        label, _, code = item.rpartition(":")
-        out.append((_text(params), _REFUSED_WHOLE + code) if label == "*" else (label, _REFUSED + code))
-    return out
-
-
-def _in_words(why: str, error_texts: dict[str, str]) -> str:
-    """A reason with its error number's text: 'refused: error 0x02 (low or high limit exceeded)'."""
-    if not why.startswith((_REFUSED, _REFUSED_WHOLE)):
-        return why
-    code = why.rpartition(" ")[2]
-    text = error_texts.get(code)
-    if text is None:
-        try:
-            text = pt.error_text(int(code, 16))
-        except ValueError:
-            return why
-    return f"{why} ({text})"
-
-
-def _few(params: str, names: dict[int, str], most: int = 4) -> str:
-    """A transaction's parameter list, shortened when long: 'P2000[0] P2001[0] P2002[0] ... (39 parameters)'; one
-    parameter with its name where the parameters table gives one: 'P964[0] (drive unit identification)'."""
-    labels = params.split()
-    if not labels:
-        return "(parameters not decoded)"
-    if len(labels) == 1:
-        return _named(labels[0], names)
-    return params if len(labels) <= most else " ".join(labels[:most - 1]) + f" ... ({len(labels)} parameters)"
-
-
-def _named(label: str, names: dict[int, str]) -> str:
-    """'P964[0]' as 'P964[0] (drive unit identification)' where the parameters table names its PNU."""
-    pnu = label[1:].partition("[")[0]
-    name = names.get(int(pnu), "") if label.startswith("P") and pnu.isdigit() else ""
-    return f"{label} ({name})" if name else label
-
-
 class Summary:
     """Accumulates the summary from table rows; `text()` renders it."""
 
     # the verdicts listed per drive (a NAK by its refused parameters), and how many slowest transactions are
     # kept (for add_batch)
-    FAILED = _FAILED | {"nak"}
+    FAILED = FAILED | {"nak"}
     SLOWEST = TOP
+    WHOLE_REQUEST = WHOLE_REQUEST
 
     def __init__(self) -> None:
         self.transactions = 0
@@ -174,12 +109,14 @@ class Summary:
         # the names the parameters table gave parameters and error numbers (the run's profile's words)
         self.pnu_names: dict[int, str] = {}
         self.error_texts: dict[str, str] = {}
-        self.latency: dict[str, tuple[array, array]] = {}  # device: t_total, t_write_rtt (seconds)
+        # a device is (capture, address) until the text is written: station names are per capture (analysis.stations)
+        self.latency: dict[tuple, tuple[array, array]] = {}  # device: t_total, t_write_rtt (seconds)
         # per drive (device, slot, DO): parameters that failed, timed out or were refused, by reason; past
         # ITEMISED distinct entries, their count per drive
         self.refused: Counter[tuple] = Counter()
         self.unitemised: Counter[tuple] = Counter()
         self.naks_unitemised = 0
+        self.last_whole: object = None  # the transaction of the last whole-request error counted (once per request)
         self.slowest: list[tuple] = []  # (-t_total, place, device, slot, do, params, txn), the TOP slowest
         self.findings = 0
         self.severities: Counter[str] = Counter()
@@ -198,15 +135,15 @@ class Summary:
         for r in rows:
             self.transactions += 1
             self.added["transactions"] += 1
-            verdict, device = r.verdict, r.device
+            verdict, device = r.verdict, (r.capture, r.device)
             if verdict in VERDICTS:
                 self.verdicts[verdict] += 1
             if verdict != "ok":
                 self.any_failed = True
-                if verdict in VERDICTS and not _missing(device):
+                if verdict in VERDICTS and not missing(r.device):
                     self.failed.setdefault(device, Counter())[verdict] += 1
             b5 = r.b5_retries
-            if not _missing(b5):
+            if not missing(b5):
                 self.b5_total += b5
                 if b5 > 0:
                     self.b5_transactions += 1
@@ -214,39 +151,39 @@ class Summary:
                 if self.b5_max is None or b5 > self.b5_max[0] or (b5 == self.b5_max[0] and place < self.b5_max[1]):
                     self.b5_max = (b5, place, r.txn)
             self.drive_row(r.txn, self.added["transactions"], verdict, device, r.slot, r.do, r.params,
-                           r.pnio_error_text, r.closed_by, r.b5_retries, r.t_total, r.t_last_read, r.errors)
+                           r.pnio_error_text, r.closed_by, r.b5_retries, r.t_total, r.t_last_read, r.errors, r.n_params)
             total = r.t_total
-            if not _missing(total) and not _missing(device):
+            if not missing(total) and not missing(r.device):
                 totals, rtts = self.latency.setdefault(device, (array("d"), array("d")))
                 totals.append(total)
-                if not _missing(r.t_write_rtt):
+                if not missing(r.t_write_rtt):
                     rtts.append(r.t_write_rtt)
 
     def drive_row(self, txn: object, number: int, verdict: object, device: object, slot: object, do: object,
                   params: object, status: object, closed_by: object, b5: object, total: object,
-                  last_read: object = None, errors: object = None) -> None:
+                  last_read: object = None, errors: object = None, n_params: object = None) -> None:
         """One transaction's part in the per-drive lists: a failure with its reason in words (a NAK: each
         parameter it refused, with the error), and its time among the slowest. `number`: its place among the
         rows added (ties in the order added)."""
-        slot, do = (None if _missing(v) else v for v in (slot, do))
-        place = (_LAST if _missing(txn) else txn, number)
-        if verdict in _FAILED:
-            entries = [(_text(params), _reason(verdict, status, closed_by, b5, last_read))]
+        slot, do = (None if missing(v) else v for v in (slot, do))
+        place = (_LAST if missing(txn) else txn, number)
+        label = params_label(params, n_params)
+        if verdict in FAILED:
+            entries = [(label, reason(verdict, status, closed_by, b5, last_read))]
         elif verdict == "nak":  # each parameter refused; a negative answer that names no error, as such (Q8)
-            entries = _refused(errors, params) or [(_text(params), "refused: negative response without an error "
-                                                                   "block")]
+            entries = refused_entries(errors, label) or [(label, "refused: negative response without an error block")]
         else:
             entries = []
         for label, why in entries:
-            key = (_text(device), slot, do, label, why)
+            key = (device_key(device), slot, do, label, why)
             if key not in self.refused and len(self.refused) >= ITEMISED:
                 self.unitemised[key[:3]] += 1
                 continue
             self.refused[key] += 1
             if place < self.first.get(("refused", key), (_LAST,)):
                 self.first[("refused", key)] = place
-        if not _missing(total):
-            entry = (-total, (_LAST if _missing(txn) else txn, number), _text(device), slot, do, _text(params), txn)
+        if not missing(total):
+            entry = (-total, (_LAST if missing(txn) else txn, number), device_key(device), slot, do, label, txn)
             if len(self.slowest) < TOP:
                 self.slowest.append(entry)
                 self.slowest.sort(key=lambda e: (e[0], e[1]))
@@ -258,25 +195,31 @@ class Summary:
         first = self.first
         for r in rows:
             self.added["parameters"] += 1
-            if r.pnu_name and not _missing(r.pnu):
+            if r.pnu_name and not missing(r.pnu):
                 self.pnu_names[r.pnu] = r.pnu_name
             err = r.error
-            if _missing(err) or err == "":
+            if missing(err) or err == "":
                 continue
             self.error_text(err, r.error_text)
-            self.count_nak((r.device, r.do, r.param, err, r.error_text), 1)
+            param = r.param
+            if r.whole_request is True:  # one error for the whole request: counted once, on its first row
+                if r.txn == self.last_whole:
+                    continue
+                self.last_whole, param = r.txn, WHOLE_REQUEST
+            self.count_nak(((r.capture, r.device), r.do, param, err), 1)
             place = (_PARAM_ORDER(r), self.added["parameters"])
             self.by_error[err] += 1
             if place < first.get(("error", err), (_LAST,)):
                 first[("error", err)] = place
             do = r.do
-            if not _missing(do):
+            if not missing(do):
                 self.by_do[do] += 1
                 if place < first.get(("do", do), (_LAST,)):
                     first[("do", do)] = place
 
     def count_nak(self, key: tuple, n: int) -> None:
-        """NAKs of one (device, DO, parameter, error, text); past ITEMISED distinct ones, counted only."""
+        """NAKs of one (device, DO, parameter, error): the error's text is added when written, one per number
+        (`error_text`); past ITEMISED distinct ones, counted only."""
         if key in self.naks or len(self.naks) < ITEMISED:
             self.naks[key] += n
         else:
@@ -287,8 +230,8 @@ class Summary:
         word and the profile's number under one profile), the first in sort order: the same whatever order
         the rows come in."""
         if isinstance(text, str) and text:
-            known = self.error_texts.get(error)
-            self.error_texts[error] = text if known is None else min(known, text)
+            had = self.error_texts.get(error)
+            self.error_texts[error] = text if had is None else min(had, text)
 
     def add_batch(self, table: str, batch: Any) -> None:
         """A pyarrow Table of batch_schema(table): the same as `add` of the same rows in the same order,
@@ -309,16 +252,19 @@ class Summary:
             self.findings += 1
             if r.severity in SEVERITIES:
                 self.severities[r.severity] += 1
-            if not _missing(r.rule) and not _missing(r.name):
+            if not missing(r.rule) and not missing(r.name):
                 self.rules[(r.rule, r.name)] += 1
 
     def text(self, captures: Sequence[CaptureResult], top: int = TOP) -> str:
         """Accounting per capture; verdicts; failures by device; NAKs; B5 retries; latency; findings. A device
-        is named by its address and, where the captures have it, its PN-DCP station name."""
-        names = merged(captures)
+        is named by its address and, where its capture has it, its PN-DCP station name (analysis.stations: two
+        captures' drives at one address with different names are two devices)."""
+        label_of = per_capture(captures)
 
-        def label(device: object) -> str:
-            return device_label(_text(device), names)
+        def label(device: tuple) -> str:
+            return label_of(*device)
+
+        failed, naks, refused, unitemised, latency = self._by_label(label)
 
         lines = []
         for c in captures:
@@ -330,26 +276,25 @@ class Summary:
                 if reasons:  # the invariant by reason: every frame is accounted for
                     lines.append(f"  {kind}: " + "; ".join(f"{n} {why}" for why, n in ranked(reasons)))
         lines.append("")
-        if not self.transactions:
+        if not self.transactions:  # the findings still count (a read without its write, a damaged record, ...)
             lines.append("No PROFIdrive transactions found.")
-            return "\n".join(lines)
+            return "\n".join(lines + self._findings_lines(top))
         lines.append(f"Transactions: {self.transactions}  "
                      + "  ".join(f"{v}={self.verdicts[v]}" for v in VERDICTS))
         if self.any_failed:
             lines.append("")
             lines.append("Failures by device (worst first):")
-            totals = {dev: sum(c.values()) for dev, c in self.failed.items()}
+            totals = {dev: sum(c.values()) for dev, c in failed.items()}
             for dev, total in _ranked(totals, top):
-                counts = self.failed[dev]  # type: ignore[index]
+                counts = failed[dev]  # type: ignore[index]
                 detail = ", ".join(f"{v}={counts[v]}" for v in VERDICTS if counts[v])
-                lines.append(f"  {label(dev):<16} {total:>6}  ({detail})")
+                lines.append(f"  {dev:<16} {total:>6}  ({detail})")
         if self.naks or self.naks_unitemised:
             lines.append("")
             lines.append("NAKs by PNU and error number (worst first):")
-            for (dev, do, param, err, text), n in _ranked(self.naks, top):  # type: ignore[misc]
-                lines.append(f"  {n:>6}  {label(dev)} DO {_text(do)} {_named(_text(param), self.pnu_names)} "
-                             f"error {_text(err)} "
-                             f"({_text(text)})")
+            for (dev, do, param, err), n in _ranked(naks, top):  # type: ignore[misc]
+                lines.append(f"  {n:>6}  {dev} DO {known(do)} {named(na_text(param), self.pnu_names)} "
+                             f"error {error_words(na_text(err), self.error_texts)}")
             if self.naks_unitemised:
                 lines.append(f"  ... and {self.naks_unitemised} more NAKs not itemised (the summary itemises "
                              f"{ITEMISED:,} distinct ones; the parameters table lists them all)")
@@ -361,21 +306,23 @@ class Summary:
         if self.refused or self.unitemised:
             lines.append("")
             lines.append("Failed, timed-out and refused parameters per drive (device, slot, DO; worst first):")
-            drives: dict[tuple, dict[tuple, int]] = {drive: {} for drive in self.unitemised}
-            for (dev, slot, do, params, why), n in self.refused.items():
+            drives: dict[tuple, dict[tuple, int]] = {drive: {} for drive in unitemised}
+            firsts: dict[tuple, tuple] = {}
+            for (dev, slot, do, params, why), (n, place) in refused.items():
                 drives.setdefault((dev, slot, do), {})[(params, why)] = n
-            totals = {drive: sum(entries.values()) + self.unitemised[drive] for drive, entries in drives.items()}
+                firsts[(dev, slot, do, params, why)] = place
+            totals = {drive: sum(entries.values()) + unitemised[drive] for drive, entries in drives.items()}
             for (dev, slot, do), total in _ranked(totals, top):  # type: ignore[misc]
-                lines.append(f"  {label(dev)} slot {_text(slot)} DO {_text(do)}: {total}")
+                lines.append(f"  {dev} slot {known(slot)} DO {known(do)}: {total}")
                 entries = drives[(dev, slot, do)]
-                first = {entry: self.first[("refused", (dev, slot, do, *entry))] for entry in entries}
+                first = {entry: firsts[(dev, slot, do, *entry)] for entry in entries}
                 for (params, why), n in _ranked_by_first(entries, first)[:top]:  # type: ignore[misc]
-                    lines.append(f"    {n:>6}  {_few(params, self.pnu_names)}: {_in_words(why, self.error_texts)}")
+                    lines.append(f"    {n:>6}  {few(params, self.pnu_names)}: {in_words(why, self.error_texts)}")
                 if len(entries) > top:
                     lines.append(f"    ... {len(entries) - top} more (the transactions and parameters tables list "
                                  "them all)")
-                if self.unitemised[(dev, slot, do)]:
-                    lines.append(f"    ... and {self.unitemised[(dev, slot, do)]} more failures not itemised (the "
+                if unitemised[(dev, slot, do)]:
+                    lines.append(f"    ... and {unitemised[(dev, slot, do)]} more failures not itemised (the "
                                  f"summary itemises {ITEMISED:,} distinct ones)")
             if len(totals) > top:
                 lines.append(f"  ... {len(totals) - top} more drives")
@@ -383,29 +330,55 @@ class Summary:
             lines.append("")
             lines.append("Slowest parameters, ms (write to final response):")
             for neg, _place, dev, slot, do, params, txn in self.slowest:
-                lines.append(f"  {_ms(-neg):>8}  {label(dev)} slot {_text(slot)} DO {_text(do)} "
-                             f"{_few(params, self.pnu_names)} (transaction {_text(txn)})")
+                lines.append(f"  {ms(-neg):>8}  {label(dev)} slot {known(slot)} DO {known(do)} "
+                             f"{few(params, self.pnu_names)} (transaction {na_text(txn)})")
         lines.append("")
         lines.append(f"B5 retries: {self.b5_total} in {self.b5_transactions} transactions"
                      + (f" (max {self.b5_max[0]} in transaction {self.b5_max[2]})"
                         if self.b5_transactions and self.b5_max is not None else ""))
-        if self.latency:
+        if latency:
             lines.append("")
             lines.append("Latency per device, ms (write to final response; slowest first):")
-            width = max(16, *(len(label(dev)) for dev in self.latency))
+            width = max(16, *(len(dev) for dev in latency))
             lines.append(f"  {'device':<{width}} {'n':>6} {'p50':>8} {'p90':>8} {'p99':>8} {'max':>8}  write rtt p50")
             stats = []
-            for dev in sorted(self.latency):
-                totals, rtts = (sorted(a) for a in self.latency[dev])
+            for dev in sorted(latency):
+                totals, rtts = (sorted(a) for a in latency[dev])
                 stats.append((dev, len(totals), quantile(totals, 0.5), quantile(totals, 0.9),
                               quantile(totals, 0.99), totals[-1], quantile(rtts, 0.5)))
             for dev, n, p50, p90, p99, most, w50 in sorted(stats, key=lambda s: -s[3])[:top]:
-                lines.append(f"  {label(dev):<{width}} {n:>6} {_ms(p50):>8} {_ms(p90):>8} {_ms(p99):>8} "
-                             f"{_ms(most):>8}  {_ms(w50)}")
-        if self.findings:
-            lines.append("")
-            lines.append(f"Findings: {self.findings}  "
-                         + "  ".join(f"{s}={self.severities[s]}" for s in ("error", "warning", "info")))
-            for (rule, name), n in _ranked(self.rules, top):  # type: ignore[misc]
-                lines.append(f"  {n:>6}  {rule} {name}")
-        return "\n".join(lines)
+                lines.append(f"  {dev:<{width}} {n:>6} {ms(p50):>8} {ms(p90):>8} {ms(p99):>8} "
+                             f"{ms(most):>8}  {ms(w50)}")
+        return "\n".join(lines + self._findings_lines(top))
+
+    def _by_label(self, label: Callable[[tuple], str]) -> tuple[dict, Counter, dict, Counter, dict]:
+        """The counters keyed by device, keyed by its label instead (devices of one name and address in several
+        captures are one): failures by verdict, NAKs, the per-drive entries with their first place, the drives'
+        counts not itemised, the latencies."""
+        failed: dict[str, Counter[str]] = {}
+        for dev, counts in self.failed.items():
+            failed.setdefault(label(dev), Counter()).update(counts)
+        naks: Counter[tuple] = Counter()
+        for (dev, *rest), n in self.naks.items():
+            naks[(label(dev), *rest)] += n
+        refused: dict[tuple, tuple[int, tuple]] = {}
+        for key, n in self.refused.items():
+            merged_key = (label(key[0]), *key[1:])
+            had, first = refused.get(merged_key, (0, (_LAST,)))
+            refused[merged_key] = (had + n, min(first, self.first[("refused", key)]))
+        unitemised: Counter[tuple] = Counter()
+        for (dev, *rest), n in self.unitemised.items():
+            unitemised[(label(dev), *rest)] += n
+        latency: dict[str, tuple[array, array]] = {}
+        for dev, (totals, rtts) in self.latency.items():
+            got_totals, got_rtts = latency.setdefault(label(dev), (array("d"), array("d")))
+            got_totals.extend(totals)
+            got_rtts.extend(rtts)
+        return failed, naks, refused, unitemised, latency
+
+    def _findings_lines(self, top: int) -> list[str]:
+        if not self.findings:
+            return []
+        return ["", f"Findings: {self.findings}  " + "  ".join(f"{s}={self.severities[s]}"
+                                                               for s in ("error", "warning", "info")),
+                *(f"  {n:>6}  {rule} {name}" for (rule, name), n in _ranked(self.rules, top))]

@@ -67,8 +67,9 @@ def transactions(acc: Summary, t: pa.Table) -> None:
     if not ok.all():  # a missing verdict is not ok either
         acc.any_failed = True
         failed = _mask(known) & ~ok & _mask(device.is_valid())
-        for (dev, v), count in _group_counts(t.filter(pa.array(failed)), ["device", "verdict"]):
-            acc.failed.setdefault(dev, Counter())[v] += count
+        keys = ["capture", "device", "verdict"]
+        for (capture, dev, v), count in _group_counts(t.filter(pa.array(failed)), keys):
+            acc.failed.setdefault((capture, dev), Counter())[v] += count
     b5 = t.column("b5_retries")
     valid = _mask(b5.is_valid())
     if valid.any():
@@ -88,7 +89,10 @@ def transactions(acc: Summary, t: pa.Table) -> None:
     timed = _mask(total.is_valid()) & ~np.isnan(total.to_numpy()) & _mask(device.is_valid())
     if timed.any():
         rows = pa.array(np.flatnonzero(timed))
-        devices = pc.dictionary_encode(device.take(rows)).combine_chunks()
+        # a device is (capture, address) (Summary.latency): the two joined by a NUL, which neither holds
+        joined = pc.binary_join_element_wise(t.column("capture").take(rows), device.take(rows),
+                                             pa.scalar("\x00", pa.large_string()))
+        devices = pc.dictionary_encode(joined).combine_chunks()
         codes = devices.indices.to_numpy()
         totals = total.take(rows).to_numpy()
         rtts = t.column("t_write_rtt").take(rows).to_numpy()  # missing as NaN, which is missing too
@@ -96,7 +100,7 @@ def transactions(acc: Summary, t: pa.Table) -> None:
         bounds = np.searchsorted(codes[order], np.arange(len(devices.dictionary) + 1))
         for code, dev in enumerate(devices.dictionary.to_pylist()):
             at = order[bounds[code]:bounds[code + 1]]
-            got_totals, got_rtts = acc.latency.setdefault(dev, (array("d"), array("d")))
+            got_totals, got_rtts = acc.latency.setdefault(tuple(dev.split("\x00", 1)), (array("d"), array("d")))
             got_totals.frombytes(totals[at].tobytes())
             rtt = rtts[at]
             got_rtts.frombytes(rtt[~np.isnan(rtt)].tobytes())
@@ -113,12 +117,27 @@ def parameters(acc: Summary, t: pa.Table) -> None:
     naks = _mask(error.is_valid()) & _mask(pc.not_equal(error, ""))
     if not naks.any():
         return
+    texts = t.filter(pa.array(naks)).select(["error", "error_text"]).group_by(["error", "error_text"],
+                                                                                use_threads=False).aggregate([])
+    for err, text in zip(texts.column("error").to_pylist(), texts.column("error_text").to_pylist(), strict=True):
+        acc.error_text(err, text)
+    # an error of the whole request counts once, on the request's first row (Summary._parameters)
+    whole = naks & _mask(t.column("whole_request"))
+    at = np.flatnonzero(whole)
+    if len(at):
+        txn = pc.fill_null(t.column("txn"), -1).to_numpy(zero_copy_only=False)[at]
+        before = np.concatenate(([-2 if acc.last_whole is None else acc.last_whole], txn[:-1]))
+        naks[at[txn == before]] = False
+        acc.last_whole = int(txn[-1])
     rows = np.flatnonzero(naks)
     sub = t.take(pa.array(rows))
     places = base + rows + 1
-    for key, count in _group_counts(sub, ["device", "do", "param", "error", "error_text"]):
-        acc.count_nak(key, count)
-        acc.error_text(key[3], key[4])
+    whole_rows = pa.array(whole[rows])
+    sub = sub.set_column(sub.schema.get_field_index("param"), "param",
+                         pc.if_else(whole_rows, pa.scalar(acc.WHOLE_REQUEST, sub.schema.field("param").type),
+                                    sub.column("param")))
+    for (capture, dev, *rest), count in _group_counts(sub, ["capture", "device", "do", "param", "error"]):
+        acc.count_nak(((capture, dev), *rest), count)
     _count_first(acc, "error", acc.by_error, sub.column("error"), sub.column("txn"), places)
     do = sub.column("do")
     known = _mask(do.is_valid())
@@ -152,8 +171,8 @@ def findings(acc: Summary, t: pa.Table) -> None:
         acc.rules[key] += count
 
 
-_DRIVE_COLS = ["txn", "verdict", "device", "slot", "do", "params", "pnio_error_text", "closed_by", "b5_retries",
-               "t_total", "t_last_read", "errors"]
+_DRIVE_COLS = ["txn", "verdict", "capture", "device", "slot", "do", "params", "pnio_error_text", "closed_by",
+               "b5_retries", "t_total", "t_last_read", "errors", "n_params"]
 
 
 def _drives(acc: Summary, t: pa.Table, base: int) -> None:
@@ -172,9 +191,10 @@ def _drives(acc: Summary, t: pa.Table, base: int) -> None:
     picked = t.take(pa.array(rows)).select(_DRIVE_COLS).to_pylist()
     for i, row in zip(rows.tolist(), picked, strict=True):
         total = row["t_total"]
-        acc.drive_row(row["txn"], base + i + 1, row["verdict"], row["device"], row["slot"], row["do"], row["params"],
-                      row["pnio_error_text"], row["closed_by"], row["b5_retries"],
-                      None if total is None or total != total else total, _number(row["t_last_read"]), row["errors"])
+        acc.drive_row(row["txn"], base + i + 1, row["verdict"], (row["capture"], row["device"]), row["slot"],
+                      row["do"], row["params"], row["pnio_error_text"], row["closed_by"], row["b5_retries"],
+                      None if total is None or total != total else total, _number(row["t_last_read"]), row["errors"],
+                      row["n_params"])
 
 
 def _number(value: object) -> object:

@@ -155,7 +155,7 @@ class Checker:
                                f"0x{block.format:02x} Date, 8 bytes per value", "7 bytes per value",
                                "Date values padded to 8 bytes (decoded as such)"))
         if block.format == pt.FMT_VISIBLE_STRING and not block.data.decode("latin-1").isprintable():
-            out.append(finding("string_nonprintable", frame, f"pd.val[{i}].value", block.data.hex(),
+            out.append(finding("string_nonprintable", frame, f"pd.val[{i}].string", block.data.hex(),
                                "printable ISO 646 characters", "VisibleString with non-printable characters"))
         if block.format == 0x01:
             bad = [b for b in block.data if b not in (0, 1)]

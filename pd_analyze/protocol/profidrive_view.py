@@ -338,7 +338,7 @@ def _block_fields(i: int, block: Block, data: bytes, base: int, side: str, check
         fields += description_fields(block, i, base)
     else:
         for j, (off, size, value, shown) in enumerate(values_of(block)):
-            name = f"pd.val[{i}].value" if _is_text(block) else f"pd.val[{i}].value[{j}]"
+            name = f"pd.val[{i}].string" if _is_text(block) else f"pd.val[{i}].value[{j}]"
             fields.append(Field(name, base + off, size, bytes(data[off:off + size]), value, shown))
     if block.pad >= 0:
         fields.append(Field(f"pd.val[{i}].pad", base + block.pad_offset, 1, bytes([block.pad]), block.pad,

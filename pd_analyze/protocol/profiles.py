@@ -18,6 +18,7 @@ from types import MappingProxyType
 from typing import Any
 
 from pd_analyze.model.fields import value_text
+from pd_analyze.model.files import open_problem
 from pd_analyze.model.pd_values import Names
 from pd_analyze.model.rules import AKD, RULES, YASKAWA_EP3
 
@@ -230,7 +231,7 @@ def load_file(path: str | Path, default_rule: str = "vendor_limit") -> Profile:
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:
-        raise ProfileError(f"{path}: cannot read profile ({exc.strerror})") from None
+        raise ProfileError(f"{path}: {open_problem(exc)}") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ProfileError(f"{path}: not valid TOML ({exc})") from None
     return _profile(data, str(path), default_rule)

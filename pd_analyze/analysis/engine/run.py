@@ -29,6 +29,7 @@ from pd_analyze.analysis.engine.txn import Txn
 from pd_analyze.analysis.engine.txncols import TxnCols, of_episodes
 from pd_analyze.analysis.engine.vector import Calls, Episodes, episodes, key_hash, pair, pair_key
 from pd_analyze.analysis.rows import Rows
+from pd_analyze.analysis.schema import arrow_text
 from pd_analyze.analysis.stations import names_in_batch
 from pd_analyze.capture import CaptureError
 from pd_analyze.capture.batches import BATCH_FRAMES, FrameBatch, frame_batches
@@ -48,7 +49,8 @@ class EngineRun:
     """One capture (or a chain of files read as one) analysed a batch at a time."""
 
     def __init__(self, settings: Settings, rows: Rows, capture_of: Callable[[int], str],
-                 results: list[CaptureResult], progress: Progress | None = None, offset: int = 0) -> None:
+                 results: list[CaptureResult], progress: Progress | None = None, offset: int = 0,
+                 as_rows: bool = False) -> None:
         self.settings = settings
         checker = settings.checker()
         self.decoder = Decoder(Dissector(annotate=False, rpc_timeout=settings.rpc_timeout, checker=checker,
@@ -64,7 +66,10 @@ class EngineRun:
         self.results = results
         self.progress = progress
         self.offset = offset
-        self.vector = settings.vector
+        # as_rows: a capture name Arrow cannot hold (schema.arrow_text): the loop alone, its transactions as
+        # rows (Rows.add) rather than Arrow tables
+        self.as_rows = as_rows
+        self.vector = settings.vector and not as_rows
         self.accounting = Accounting()  # the frames the columns took; the dissector counts its own
         self.next_number = 1
         self.now_all = _NEVER  # the latest capture time of any frame (ns)
@@ -412,6 +417,12 @@ class EngineRun:
     def _emit(self, view: object, done: list[Txn], cols: TxnCols | None = None) -> None:
         if not done and cols is None:
             return
+        if self.as_rows:
+            records = Records(view)  # type: ignore[arg-type]
+            for t in done:
+                self.rows.add(self.capture_of(t.write_frame), t, records, self.offset)
+                self._count(self.capture_of(t.write_frame))
+            return
         for name, tables in self.tables.tables(view, done, self.capture_of, self.offset, cols).items():  # type: ignore[arg-type]
             for table in tables:
                 self.rows.add_table(name, table)
@@ -554,7 +565,8 @@ def run_batches(source: Iterable[FrameBatch], settings: Settings, rows: Rows, ca
                 results: list[CaptureResult], progress: Progress | None, offset: int = 0) -> Accounting:
     """The loop over batches; the frames' accounting when done (also after a CaptureError, which is
     recorded in the last result)."""
-    run = EngineRun(settings, rows, capture_of, results, progress, offset)
+    as_rows = not all(arrow_text(r.path) for r in results)
+    run = EngineRun(settings, rows, capture_of, results, progress, offset, as_rows)
     try:
         for batch in source:
             run.feed(batch)
