@@ -30,6 +30,9 @@ from pd_analyze.capture.raw import MAX_CAPLEN, CaptureError, CaptureInfo, RawFra
 from pd_analyze.capture.reader import opened
 
 BATCH_FRAMES = 65_536  # frames per batch by default (a batch of full-size frames: about 100 MB)
+# Bytes of frames given one by one gathered into one batch: the frames and the batch's copy of them are held
+# at once, so a flood of full-size frames is batched by this rather than by the count.
+FRAME_BATCH_BYTES = 4 << 20
 
 
 @dataclass(slots=True)
@@ -65,16 +68,21 @@ class FrameBatch:
 
 
 def frame_batches(frames: Iterable[RawFrame], size: int = BATCH_FRAMES) -> Iterator[FrameBatch]:
-    """Frames given one by one (a generator's, a fuzzer's) as batches of at most `size` frames. Their float
-    times are taken to the microsecond (what a float of seconds since the epoch holds exactly)."""
+    """Frames given one by one (a generator's, a fuzzer's) as batches of at most `size` frames and about
+    FRAME_BATCH_BYTES. Their float times are taken to the microsecond (what a float of seconds since the epoch
+    holds exactly)."""
     part: list[RawFrame] = []
+    held = 0
     for frame in frames:
         if frame.run:  # a run of skipped frames: its frames as empty Ethernet frames would count the same
             raise ValueError("frame_batches takes frames, not runs of skipped frames (capture.frames ip_only)")
         part.append(frame)
-        if len(part) >= size:
-            yield _of_frames(part)
-            part = []
+        held += len(frame.data)
+        if len(part) >= size or held >= FRAME_BATCH_BYTES:
+            batch = _of_frames(part)
+            part, held = [], 0
+            yield batch
+            del batch  # not held while the next batch gathers
     if part:
         yield _of_frames(part)
 

@@ -19,7 +19,7 @@ from pd_analyze.model.values import (
     PROFIDRIVE_INDICES,
 )
 from pd_analyze.protocol import pnio_batch, profidrive_batch
-from pd_analyze.protocol.pnio_batch import ROUTE_PNIO, DecodedBatch
+from pd_analyze.protocol.pnio_batch import ROUTE_DECIDE, ROUTE_FRAMES, ROUTE_PNIO, DecodedBatch
 from pd_analyze.protocol.profidrive import Parsed
 from pd_analyze.protocol.profidrive_checks import Checker
 
@@ -29,6 +29,9 @@ _PD_INDICES = np.array(sorted(PROFIDRIVE_INDICES))
 # parts: the parameter and block columns take some 160 bytes a parameter, so this bounds them near 20 MB,
 # where 8 MiB of 39-parameter change requests would explode into 600,000 parameters.
 PARAMETERS_PER_DECODE = 131_072
+# Frames of one part the per-frame dissector decodes: each keeps its result (some kilobytes) until the part
+# is through, so a batch of IP fragments or odd calls is taken in parts of this many.
+ODD_FRAMES_PER_DECODE = 4_096
 _IP_ETHERTYPES = np.array(sorted(int.from_bytes(t, "big") for t in IP_ETHERTYPES))
 
 
@@ -87,21 +90,25 @@ class BatchView:
     @staticmethod
     def parts(batch: FrameBatch, checker: Checker) -> Iterator[tuple[FrameBatch, BatchView]]:
         """The batch decoded (pnio_batch, profidrive_batch: what needs no state across batches), in
-        consecutive parts when its records declare more than PARAMETERS_PER_DECODE parameters (memory stays
-        flat whatever the records hold)."""
+        consecutive parts when its records declare more than PARAMETERS_PER_DECODE parameters or more than
+        ODD_FRAMES_PER_DECODE of its frames go to the per-frame dissector (memory stays flat whatever the
+        records hold and however few frames the columns decode)."""
         decoded = pnio_batch.decode(batch, checker)
         p = decoded.pdus
         has_record = p.has_block & (p.rec_len >= 4)
         declared = np.zeros(len(batch), np.int64)
         at = p.rec_start[has_record] + 3  # No. of parameters, in requests and responses alike
         np.add.at(declared, p.pos[has_record], np.frombuffer(batch.buf, np.uint8)[at])
-        if len(batch) == 1 or int(declared.sum()) <= PARAMETERS_PER_DECODE:
+        route = decoded.frames.route
+        odd = (route == ROUTE_FRAMES) | (route == ROUTE_DECIDE)
+        # each part's share of both budgets at most one: a frame weighs its parameters and, when odd, a frame
+        weight = declared / PARAMETERS_PER_DECODE + odd / ODD_FRAMES_PER_DECODE
+        total = np.cumsum(weight)
+        if len(batch) == 1 or float(total[-1]) <= 1.0:
             yield batch, BatchView._of(batch, decoded, checker)
             return
         del decoded, p  # the parts decode again, each its own frames
-        total = np.cumsum(declared)
-        cuts = np.searchsorted(total, np.arange(PARAMETERS_PER_DECODE, int(total[-1]), PARAMETERS_PER_DECODE),
-                               "right")
+        cuts = np.searchsorted(total, np.arange(1, int(np.ceil(total[-1]))), "right")
         edges = [0, *sorted({min(max(int(c), 1), len(batch) - 1) for c in cuts.tolist()}), len(batch)]
         for start, stop in itertools.pairwise(edges):
             yield from BatchView.parts(batch.part(start, stop), checker)
