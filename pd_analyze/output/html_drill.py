@@ -28,7 +28,7 @@ from pd_analyze.analysis.stations import device_label, merged
 from pd_analyze.model.rules import SEVERITY_RANK, Finding
 from pd_analyze.output.frame_view import template_of
 from pd_analyze.output.html_tables import column
-from pd_analyze.output.summary import _few, _reason
+from pd_analyze.output.summary_words import few, reason
 from pd_analyze.protocol.frames import FrameResult
 
 MAX_FAILED = 50
@@ -275,7 +275,7 @@ def heading(r: Any, names: Mapping[str, str], pnu_names: dict[int, str]) -> list
     what = _what(r)
     params = _text(r.params)
     if params and not (verdict == "nak" and all(p in what for p in params.split())):
-        short = _few(params, pnu_names)  # (a NAK's errors name its parameters already)
+        short = few(params, pnu_names)  # (a NAK's errors name its parameters already)
         parts.append(("", short, params if len(short.split()) < len(params.split()) else ""))
     if what:
         parts.append(("what", what, ""))
@@ -291,7 +291,7 @@ def _what(r: Any) -> str:
         return ""
     if verdict == "nak":
         return _text(r.errors)
-    return _reason(verdict, _text(r.pnio_error_text), _text(r.closed_by), _value(r.b5_retries), _value(r.t_last_read))
+    return reason(verdict, _text(r.pnio_error_text), _text(r.closed_by), _value(r.b5_retries), _value(r.t_last_read))
 
 
 def _value(value: object) -> object:
