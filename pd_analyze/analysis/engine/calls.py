@@ -143,6 +143,7 @@ class Pairing:
                 call = self.open.get(row.key)
                 if call is not None:
                     call.copies += 1
+                    row.call, row.copy = call, True  # (its frame is the call's transactions')
             return
         ptype = row.ptype
         if ptype == PTYPE_REQUEST:

@@ -22,7 +22,9 @@ from pd_analyze.analysis.engine.decode import Decoded, Decoder, merge_accounting
 from pd_analyze.analysis.engine.facts import Pdu
 from pd_analyze.analysis.engine.finals import Finals
 from pd_analyze.analysis.engine.findings import Findings, response_channel, write_names
-from pd_analyze.analysis.engine.machine import Machine
+from pd_analyze.analysis.engine.late import LateCopies
+from pd_analyze.analysis.engine.machine import FsmCall, Machine
+from pd_analyze.analysis.engine.numbering import Numbering
 from pd_analyze.analysis.engine.records import Records
 from pd_analyze.analysis.engine.tables import TableBuilder
 from pd_analyze.analysis.engine.txn import Txn
@@ -71,7 +73,8 @@ class EngineRun:
         self.as_rows = as_rows
         self.vector = settings.vector and not as_rows
         self.accounting = Accounting()  # the frames the columns took; the dissector counts its own
-        self.next_number = 1
+        self.numbering = Numbering()
+        self.late = LateCopies(self.pairing.timeout)
         self.now_all = _NEVER  # the latest capture time of any frame (ns)
         self.now_pnio = _NEVER  # the latest capture time of a PNIO RPC frame but those whose PNIO-ness the
         # loop decides (ns); with them: machine.now
@@ -133,6 +136,14 @@ class EngineRun:
             if row.col >= 0 and row.col in dec.dropped:
                 row.findings += dec.dropped[row.col]
         accepted, rejected, marked = self._loop(dec, stream, calls, ep, runmax_all, runmax_pnio)
+        self.numbering.note_cuts(accepted)
+        for row in accepted:  # a copy of a call whose transaction's rows were made already
+            if row.copy and row.owner is None and row.call is not None:
+                number = self.late.copy(row.call.frame, row.frames or (row.frame,), row.ptype == PTYPE_REQUEST)
+                if number is not None:  # its findings are its transaction's, as those of a copy met before
+                    for f in row.findings:
+                        self.rows.add_finding(self.capture_of(f.frame), f, number)
+                    row.findings = []
         self.now_all = max(self.now_all, int(runmax_all[-1]))
         self.now_pnio = max(self.now_pnio, int(runmax_pnio[-1]))
         self.pairing.tick(self.now_all)
@@ -169,7 +180,7 @@ class EngineRun:
         empty = np.empty(0, np.int64)
         none = Calls(empty, empty, np.empty(0, bool)), Episodes(empty, empty, empty, empty, empty, empty, empty,
                                                               empty, [])
-        if not self.vector or not len(dec.rows):
+        if not self.vector or not len(dec.rows) or self.numbering.waits(self.pairing, dec.odd_rows):
             return none
         # rows the loop has, or might have, a share in: their keys and activities stay the loop's
         excluded = np.zeros(len(dec.rows), bool)
@@ -386,14 +397,7 @@ class EngineRun:
             for k in [k for k, v in cols.findings.items() if not v]:
                 del cols.findings[k]
         # numbers in the order the transactions opened, whichever way they went
-        order = sorted([(t.opened_at, t.position, 0, i) for i, t in enumerate(machine.opened)]
-                       + ([(int(f), 0, 1, k) for k, f in enumerate(cols.write_frame.tolist())] if cols else []))
-        for _at, _pos, kind, i in order:
-            if kind == 0:
-                machine.opened[i].number = self.next_number
-            else:
-                cols.number[i] = self.next_number  # type: ignore[union-attr]
-            self.next_number += 1
+        self.numbering.number(machine.opened, cols, self.numbering.barrier(self.pairing))
         machine.opened.clear()
         self._episodes = cols
 
@@ -401,7 +405,7 @@ class EngineRun:
         """Hand on what closed, carry what stays open past the part."""
         machine = self.machine
         done, machine.closed = machine.closed, []
-        self._emit(view, done, self._episodes)
+        self._emit(view, self.numbering.ready(done, records), self._episodes)
         self._episodes = None
         for txn in machine.pending.values():
             if isinstance(txn.request, int):
@@ -417,20 +421,29 @@ class EngineRun:
     def _emit(self, view: object, done: list[Txn], cols: TxnCols | None = None) -> None:
         if not done and cols is None:
             return
-        if self.as_rows:
+        done.sort(key=lambda t: t.number)  # (in number order, whichever way and batch they closed in)
+        for t in done:
+            _handed_on(t)
+        if self.as_rows:  # (rows made one by one: a copy after them is not added to them)
             records = Records(view)  # type: ignore[arg-type]
             for t in done:
                 self.rows.add(self.capture_of(t.write_frame), t, records, self.offset)
                 self._count(self.capture_of(t.write_frame))
             return
-        for name, tables in self.tables.tables(view, done, self.capture_of, self.offset, cols).items():  # type: ignore[arg-type]
-            for table in tables:
-                self.rows.add_table(name, table)
+        made = self.tables.tables(view, done, self.capture_of, self.offset, cols)  # type: ignore[arg-type]
+        self.late.hold(made, done, cols, self.offset, self.now_all)
+        self._hand_on(self.late.release(self.now_all))
         for t in done:
             self._count(self.capture_of(t.write_frame))
         if cols is not None:
             for frame in cols.write_frame.tolist():
                 self._count(self.capture_of(int(frame)))
+
+    def _hand_on(self, released: list[dict]) -> None:
+        for made in released:
+            for name, tables in made.items():
+                for table in tables:
+                    self.rows.add_table(name, table)
 
     def finish(self) -> None:
         """End of capture: what the dissector held, the calls never answered, every pending transaction."""
@@ -442,8 +455,10 @@ class EngineRun:
         loose += self.pairing.loose + self.machine.loose
         for f in loose:
             self.rows.add_finding(self.capture_of(f.frame), f)
+        self.numbering.number([], None, None)  # (no call is open any more: every number is known)
         done, self.machine.closed = self.machine.closed, []
-        self._emit(None, done)
+        self._emit(None, self.numbering.ready(done, Records(None)))
+        self._hand_on(self.late.release(self.now_all, everything=True))
         self.rows.batch_done()
 
     def totals(self) -> Accounting:
@@ -455,6 +470,16 @@ class EngineRun:
 
     def _count(self, path: str) -> None:
         next(r for r in self.results if r.path == path).transactions += 1
+
+
+def _handed_on(txn: Txn) -> None:
+    """A transaction whose rows are made: its retransmissions counted, its calls no longer lead to it (a later
+    copy is engine.late's)."""
+    txn.retransmissions = sum(c.copies for c in txn.calls if c is not None)
+    for c in txn.calls:
+        fsm = c.fsm if c is not None else None
+        if isinstance(fsm, FsmCall) and all(t is None or t.closed_by for t in fsm.txns):
+            c.fsm = None
 
 
 def _most_at_once(begin: np.ndarray, end: np.ndarray) -> int:
