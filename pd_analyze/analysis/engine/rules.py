@@ -95,7 +95,8 @@ def failed_finding(txn: Txn, timeout: float) -> list[Finding]:
         return [failed_at(verdict, at, txn.write_frame, f"the {_role(txn, at)} of frame {at} cannot be decoded")]
     if txn.closed_by == "pnio_error":
         at = txn.read_res_frame or txn.write_res_frame
-        return [failed_at(verdict, at, txn.write_frame, answered_with(txn.pnio_status, _role(txn, at)))]
+        return [failed_at(verdict, at, txn.write_frame,
+                          answered_with(txn.pnio_status, "read" if at == txn.read_res_frame else "write"))]
     at = txn.ended_at if txn.closed_by in ("superseded", "evicted") else txn.admitted
     if txn.closed_by == "superseded":
         end = f"superseded by the write of frame {at}"
@@ -112,9 +113,10 @@ def failed_finding(txn: Txn, timeout: float) -> list[Finding]:
     return [failed_at(verdict, at, txn.write_frame, cause)]
 
 
-def answered_with(status: str, role: str) -> str:
-    """The cause of a pnio_error closed by an answer: its status in words and which answer it was."""
-    return f"{status_text(status)} (the {role})"
+def answered_with(status: str, service: str) -> str:
+    """The cause of a pnio_error closed by an answer (a response, fault or reject) to a "write" or "read": its
+    status in words."""
+    return f"{status_text(status)} (in the answer to the {service})"
 
 
 def failed_at(verdict: str, frame: int, write_frame: int, cause: str) -> Finding:

@@ -157,8 +157,9 @@ def of_episodes(view: BatchView, calls: Calls, ep: Episodes) -> TxnCols:
     closing = np.where(has_read, frame[ls], frame[ws])
     for i in np.flatnonzero(failed).tolist():
         chosen[i] = "pnio_error"  # T8 at the answer that refused it, as the machine's (rules.failed_finding)
-        role = "read response" if has_read[i] else "write response"
-        findings[i] = [failed_at("pnio_error", int(closing[i]), int(frame[wq[i]]), answered_with(pnio_status[i], role))]
+        service = "read" if has_read[i] else "write"
+        findings[i] = [failed_at("pnio_error", int(closing[i]), int(frame[wq[i]]),
+                                 answered_with(pnio_status[i], service))]
     head = (rc.ref[w_rec].astype(np.int64), rc.ident[w_rec].astype(np.int64), rc.do[w_rec].astype(np.int64),
             rc.n[w_rec].astype(np.int64))
     return TxnCols(
