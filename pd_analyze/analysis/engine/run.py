@@ -30,13 +30,21 @@ from pd_analyze.analysis.engine.tables import TableBuilder
 from pd_analyze.analysis.engine.txn import Txn
 from pd_analyze.analysis.engine.txncols import TxnCols, of_episodes
 from pd_analyze.analysis.engine.vector import Calls, Episodes, episodes, key_hash, pair, pair_key
+from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.schema import arrow_text
 from pd_analyze.analysis.stations import names_in_batch
 from pd_analyze.capture import CaptureError
 from pd_analyze.capture.batches import BATCH_FRAMES, FrameBatch, frame_batches
 from pd_analyze.capture.raw import RawFrame
-from pd_analyze.model.capped import CHANNEL_REQUESTS, OPEN_CALLS, PENDING_TRANSACTIONS, TXN_CALLS, CappedTable
+from pd_analyze.model.capped import (
+    CHANNEL_REQUESTS,
+    KNOWN_ACTIVITIES,
+    OPEN_CALLS,
+    PENDING_TRANSACTIONS,
+    TXN_CALLS,
+    CappedTable,
+)
 from pd_analyze.model.values import PTYPE_REQUEST, PTYPE_RESPONSE
 from pd_analyze.protocol import rpc
 from pd_analyze.protocol.dissector import Dissector, truncated_elsewhere
@@ -82,6 +90,7 @@ class EngineRun:
         self.last_frame = 0
         # each channel's last parameter request's addresses, as Q7 compares a read response with them (6.4)
         self.last_request: CappedTable[tuple, tuple] = CappedTable(CHANNEL_REQUESTS)
+        self._first: dict[tuple[int, int], int] = {}  # the part's activities first seen in column rows (_first_seen)
         self.taken = 0  # PNIO rows the vector path took whole
         self.pnio_rows = 0  # PNIO rows in all
 
@@ -155,6 +164,8 @@ class EngineRun:
         self.taken += 2 * len(done_calls.q)
         self.pnio_rows += len(dec.rows) + sum(1 for r in dec.odd_rows if not r.decide)
         self._remember_calls(view, done_calls)
+        self.pairing.order_activities(self._first)
+        self._first = {}
         loose = self.findings.vector(dec, done_calls, ep, cols, records)
         loose += self.findings.loop(dec, accepted, self.part)
         for row in accepted:
@@ -182,27 +193,23 @@ class EngineRun:
                                                               empty, [])
         if not self.vector or not len(dec.rows) or self.numbering.waits(self.pairing, dec.odd_rows):
             return none
-        # rows the loop has, or might have, a share in: their keys and activities stay the loop's
+        # rows the loop has, or might have, a share in: their keys stay the loop's (an activity does not:
+        # what the loop decides by activity, a PDU of another interface, it decides by the activities first
+        # seen before it in frame order, `_first_seen`)
         excluded = np.zeros(len(dec.rows), bool)
-        keys, acts = set(), set()
-        for row in dec.odd_rows:
-            hi, lo, seq = row.key
-            if hi or lo:
-                keys.add((hi, lo, seq))
-                if row.decide or not row.whole:
-                    acts.add((hi, lo))
+        keys = {row.key for row in dec.odd_rows if row.key[0] or row.key[1]}
         rows = dec.rows
         if keys:
             hashes = key_hash(np.array([k[0] for k in keys], np.uint64), np.array([k[1] for k in keys], np.uint64),
                               np.array([k[2] for k in keys], np.uint32))
             excluded |= np.isin(key_hash(p.act_hi[rows], p.act_lo[rows], p.seq[rows]), hashes)
-        if acts:
-            hashes = key_hash(np.array([a[0] for a in acts], np.uint64), np.array([a[1] for a in acts], np.uint64),
-                              np.zeros(len(acts), np.uint32))
-            excluded |= np.isin(key_hash(p.act_hi[rows], p.act_lo[rows], np.zeros(len(rows), np.uint32)), hashes)
         if dec.dropped:
             excluded |= np.isin(rows, np.fromiter(dec.dropped, np.int64, len(dec.dropped)))
         pairing = self.pairing
+        self._first = self._first_seen(view, rows)
+        if len(pairing.activities) + len(self._first) >= KNOWN_ACTIVITIES.count:
+            self._first = {}
+            return none  # (the loop's order of evictions decides)
         known = _Known(pairing)
         runmax_pdu = runmax_all[p.pos]
         calls = pair(view, rows, runmax_pdu, pairing.timeout, excluded, known)
@@ -239,6 +246,19 @@ class EngineRun:
         return out, Episodes(index[ep.w], index[ep.reads], ep.first_read, ep.n_reads, ep.channel, ep.group, ep.start,
                              ep.end, ep.channels)
 
+    def _first_seen(self, view: BatchView, rows: np.ndarray) -> dict[tuple[int, int], int]:
+        """The activities of the column `rows` (frame order) not known when the part begins: activity -> the
+        frame of its first row."""
+        p = view.p
+        acts = np.stack([p.act_hi[rows], p.act_lo[rows]], axis=1)
+        if not len(acts):
+            return {}
+        distinct, first = np.unique(acts, axis=0, return_index=True)
+        known = self.pairing.activities
+        frames = view.frame_no[rows[first]].tolist()
+        return {act: frame for act, frame in zip(map(tuple, distinct.tolist()), frames, strict=True)
+                if act not in known}
+
     def _near_caps(self, calls: int, transactions: int) -> bool:
         """Whether the loop's tables could reach a cap with the calls and transactions the vector path takes
         (at most `calls` and `transactions` of them open at once), where the order the loop meets rows in
@@ -258,6 +278,7 @@ class EngineRun:
         batch, view = dec.batch, dec.view
         pairing, machine, records = self.pairing, self.machine, self.machine.records
         last_request = self.last_request
+        first = self._first  # activities the vector path's rows make known, at their first frames
         marks = self._marks(view, calls, ep, stream)
         marked = np.zeros(len(ep.w), bool)
         marked[marks] = True
@@ -298,7 +319,7 @@ class EngineRun:
             row = item
             pairing.tick(row_now_all)
             if row.decide:
-                if not pairing.pnio(row):
+                if not pairing.pnio(row, first):
                     skipped_decide(self.decoder.accounting, row.raw, rpc.SKIP_NOT_PNIO)
                     if row.raw.truncated:
                         self.rows.add_finding(self.capture_of(row.frame), truncated_elsewhere(row.frame))
@@ -387,7 +408,7 @@ class EngineRun:
                    "if_hi": p.if_hi[q].tolist(), "if_lo": p.if_lo[q].tolist(), "opnum": p.opnum[q].tolist(),
                    "digest": [zlib.crc32(buf[a:a + n]) for a, n in zip(start, length, strict=True)], "size": length,
                    "response_frame": view.frame_no[s].tolist()}  # type: ignore[attr-defined]
-        self.pairing.remember_log(keys, columns, set(zip(hi, lo, strict=True)))
+        self.pairing.remember_log(keys, columns)
 
     def _settle(self, view: object, records: Records, cols: TxnCols | None) -> None:
         """T1/T4 and the values read and replaced, over the transactions of both ways, then the numbers."""
