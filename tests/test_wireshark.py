@@ -348,7 +348,7 @@ def test_comments_are_the_same_whichever_path_reads_the_capture(name: str) -> No
 
     said = []
     for columns in (False, True):
-        notes = frame_notes.collect(str(SAMPLES / name), Settings(columns=columns))
+        notes = frame_notes.collect(str(SAMPLES / name), Settings(vector=columns))
         said.append([(note.frame, note.comment()) for note in notes])
         notes.close()
     assert said[0] == said[1] and said[0]
