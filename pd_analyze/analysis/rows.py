@@ -153,8 +153,7 @@ class Rows:
     def _change(self, capture: str, txn: Any, number: int, i: int, addr: Address, label: str,
                        written: Block, res_block: Block | None, response: Parsed | None, device: str) -> None:
         """The change trail of an engine transaction: what was written, how it ended, the values it replaced."""
-        count = max(addr.n_elems, 1)
-        before = txn.values_before[i] if i < len(txn.values_before) else [None] * count
+        before = txn.values_before[i] if i < len(txn.values_before) else ""
         if res_block is not None and res_block.is_error:
             result = f"error {_hex(res_block.error)}: {error_meaning(res_block.error, response, self.names)}"
         else:
@@ -162,7 +161,7 @@ class Rows:
         self.changes.append(ChangeRow._make((
             capture, device, txn.do, number, txn.write_frame, txn.t_start / 1e9, label, addr.pnu,
             self.names.pnu(addr.pnu), addr.subindex,
-            block_values(written), result, " ".join(b for b in before if b is not None) if all(before) else "")))
+            block_values(written), result, before)))
 
     def add_finding(self, capture: str, f: Finding, txn: int | None = None) -> None:
         self.findings.append(finding_row(capture, f, txn))

@@ -9,7 +9,7 @@ from collections.abc import Callable
 
 import click
 
-from pd_analyze.analysis.capture_run import Settings
+from pd_analyze.analysis.capture_run import CaptureResult, Settings
 from pd_analyze.cli.base import (
     EXIT_FINDINGS,
     EXIT_OK,
@@ -55,10 +55,12 @@ Examples:
 @click.option("--expect", "expect_path", metavar="EXPECTED.csv",
               help="With --format html: show each drive's parameter state against this intended set (as audit "
                    "--expect).")
+@click.option("-v", "--verbose", is_flag=True, help="Also say on stderr how each capture was read: how many of its "
+                                                      "PNIO RPC frames the column decode and the vector path took.")
 @profile_option
 @run_options
 def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fmt: str, expect_path: str | None,
-                   profile: str, timeout: float, rpc_timeout: float, jobs: int, chain: bool) -> None:
+                   verbose: bool, profile: str, timeout: float, rpc_timeout: float, jobs: int, chain: bool) -> None:
     """Pair requests with responses; write the tables and print a summary (worst offenders first)."""
     if expect_path and fmt != "html":
         raise click.UsageError("--expect belongs to --format html (the page's parameter state); for findings use "
@@ -69,13 +71,16 @@ def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fm
     writable_dir(out_dir)
     progress = progress_bar() if jobs == 1 else None
     try:
-        written, text, errors = _report(paths, out_dir, fmt, profile, timeout, rpc_timeout, progress, jobs, chain,
-                                        expected)
+        written, text, errors, results = _report(paths, out_dir, fmt, profile, timeout, rpc_timeout, progress, jobs,
+                                                 chain, expected)
     except OSError as exc:  # the disk filled up, the directory went away...
         if exc.filename is not None and not os.path.abspath(exc.filename).startswith(os.path.abspath(out_dir)):
             raise  # not the report's files: a fault to report
         raise click.ClickException(dump.safe(f"cannot write the report to {out_dir}: {exc}")) from None
     click.echo("\n".join(dump.safe(line) for line in text.split("\n")))
+    if verbose:
+        for result in results:
+            click.echo(dump.safe(result.work_text()), err=True)
     for error in errors:  # before "Wrote": what could not be read is said first
         click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
     click.echo("\nWrote " + ", ".join(written), err=True)
@@ -84,8 +89,8 @@ def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fm
 
 def _report(paths: list[str], out_dir: str, fmt: str, profile: str, timeout: float, rpc_timeout: float,
             progress: Callable[[str, int], None] | None, jobs: int, chain: bool,
-            expected: object = None) -> tuple[list[str], str, list[str]]:
-    """The files written, the summary text and the capture errors."""
+            expected: object = None) -> tuple[list[str], str, list[str], list[CaptureResult]]:
+    """The files written, the summary text, the capture errors and the captures' results."""
     from pd_analyze.output import report
 
     if fmt == "html":  # plots and drill-down need the whole tables
@@ -97,11 +102,9 @@ def _report(paths: list[str], out_dir: str, fmt: str, profile: str, timeout: flo
         written.append(html_report.write(analysis, f"{out_dir}/report.html",
                                          tables_dir_note="the CSV files beside this page",
                                          expected=expected))  # type: ignore[arg-type]
-        text, errors = report.summary(analysis), analysis.errors
-    else:
-        streamed = report.stream(paths, out_dir, fmt, Settings(profile, timeout, rpc_timeout), progress, jobs, chain)
-        written, text, errors = streamed.written, streamed.summary, streamed.errors
-    return written, text, errors
+        return written, report.summary(analysis), analysis.errors, list(analysis.captures)
+    streamed = report.stream(paths, out_dir, fmt, Settings(profile, timeout, rpc_timeout), progress, jobs, chain)
+    return streamed.written, streamed.summary, streamed.errors, streamed.captures
 
 
 @main.command("audit", epilog=AUDIT_EXAMPLES)

@@ -331,8 +331,7 @@ class Dissector:
         res.findings += checks.ndr(stub, declared, opnum, number, request_stub)
         res.findings += checks.blocks(stub, opnum, number, request_stub, self.checker.record.max_length,
                                       self.checker.tolerate)
-        if self.records:
-            self._records(res, stub, hdr, dgram)
+        self._records(res, stub, hdr, dgram)
         if not response and not pdu.retransmission and pdu.request is not None:
             self.calls.charge(key, pdu.request, _decoded_cost(stub), res.findings)  # info keeps the stub
         if self.annotate:
@@ -442,6 +441,8 @@ class Dissector:
             v = block.values
             if not response:
                 res.findings += self.checker.iod(v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], block.index, number)
+            if not self.records:  # the IOD fields' limits (P4) only: the record's checks are not wanted
+                continue
             if block.layout not in (rec.WRITE_REQ, rec.READ_RES) or len(block.record) < block.record_len:
                 continue
             if response and stub.status is not None and not stub.status.ok:

@@ -138,6 +138,9 @@ class PduColumns:
     rec_start: np.ndarray  # int64 (0 when none)
     rec_len: np.ndarray  # int32 (0 when none)
     flag: np.ndarray  # bool: a frame-local rule may report something (module docstring)
+    # bool: the only such rule is H13 on a write request above the record limit (its finding is made from the
+    # columns, engine.column_findings, instead of dissecting the frame)
+    long_write: np.ndarray
 
 
 @dataclass(slots=True)
@@ -177,7 +180,9 @@ def decode(batch: FrameBatch, checker: Checker) -> DecodedBatch:
     status = fields_by_order(rpc.FAULT_LE, rpc.FAULT_BE, raw, hdr.little, ("rpc.fault_status",))["rpc.fault_status"]
     stubs["status"] = np.where(fault, status, stubs["status"]).astype(np.uint32)
     ordinary = stubs.pop("ok") | fault
-    stubs["flag"] = ordinary & (stubs["flag"] | fault | rpc_batch.flags(hdr, present, record_service))
+    other_flags = stubs["flag"] | fault | rpc_batch.flags(hdr, present, record_service)
+    stubs["flag"] = ordinary & (other_flags | stubs["long_write"])
+    stubs["long_write"] &= ordinary & ~other_flags
     rows = np.select([~hdr.plausible, other & request, other, ordinary], [ROUTE_SKIP, ROUTE_SKIP, ROUTE_DECIDE,
                                                                           ROUTE_PNIO], ROUTE_FRAMES)
     route[d] = rows
@@ -309,16 +314,17 @@ def _stubs(data: np.ndarray, at: np.ndarray, length: np.ndarray, candidate: np.n
     ok &= ~(block & ((f["iod.block_type"] != expected) | (f["iod.block_length"] != BLOCK_LENGTH)))
     trailing = block & (np.where(carries, after - record_len, after) > 0)
     with_record = carries & (request | (status == 0))
-    flag = _flag(f, status, block_status, ndr, block, nil, trailing, length, response, opnum, checker)
-    out = {"ok": ok, "flag": flag, "args_max": args_max, "status": status, "args_len": f["ndr.args_len"],
-           "max_count": f["ndr.max_count"], "has_block": block, "block_type": f["iod.block_type"],
+    flag, long_write = _flag(f, status, block_status, ndr, block, nil, trailing, length, response, opnum, checker)
+    out = {"ok": ok, "flag": flag, "long_write": long_write, "args_max": args_max, "status": status,
+           "args_len": f["ndr.args_len"], "max_count": f["ndr.max_count"], "has_block": block,
+           "block_type": f["iod.block_type"],
            "iod_seq": f["iod.seq"], "ar_hi": ar_hi, "ar_lo": ar_lo, "target_hi": np.where(implicit, target_hi, 0),
            "target_lo": np.where(implicit, target_lo, 0), "api": f["iod.api"], "slot": f["iod.slot"],
            "subslot": f["iod.subslot"], "index": index, "record_len": f["iod.record_len"],
            "block_status": block_status, "rec_start": np.where(with_record, at + rec.NDR_SIZE + rec.IOD_SIZE, 0),
            "rec_len": np.where(with_record, record_len, 0)}
     return {name: out[name].astype(dtype, copy=False) for name, dtype in (("ok", np.bool_), ("flag", np.bool_),
-                                                                          *_STUB_COLUMNS)}
+                                                                          ("long_write", np.bool_), *_STUB_COLUMNS)}
 
 
 def _expected_block(opnum: np.ndarray, response: np.ndarray) -> np.ndarray:
@@ -337,8 +343,10 @@ def _packed(f: dict[str, np.ndarray], names: tuple[str, ...]) -> np.ndarray:
 
 def _flag(f: dict[str, np.ndarray], status: np.ndarray, block_status: np.ndarray, ndr: np.ndarray,
           block: np.ndarray, nil: np.ndarray, trailing: np.ndarray, length: np.ndarray, response: np.ndarray,
-          opnum: np.ndarray, checker: Checker) -> np.ndarray:
-    """Stubs on which pnio_checks.ndr or pnio_checks.blocks (without the request) or Checker.iod may report."""
+          opnum: np.ndarray, checker: Checker) -> tuple[np.ndarray, np.ndarray]:
+    """Stubs on which pnio_checks.ndr or pnio_checks.blocks (without the request) or Checker.iod may report,
+    but for H13 on a write request above the record limit; and the stubs of such writes (the engine states
+    H13 from the columns: pnio_checks.request_length)."""
     request = ~response
     write = opnum == OP_WRITE
     read = ~write
@@ -366,11 +374,11 @@ def _flag(f: dict[str, np.ndarray], status: np.ndarray, block_status: np.ndarray
     pd = block & np.isin(index, _PD_INDICES)
     max_record = checker.record.max_length
     flag |= pd & request & ((index == INDEX_PD_DPV1) | (f["iod.api"] != API_PROFIDRIVE)  # profibus_index, H10
-                            | (write & ((record_len < PD_HEADER) | (record_len > max_record)))  # H13
+                            | (write & (record_len < PD_HEADER))  # H13 (too short)
                             | (read & (record_len < max_record)))  # H14
     flag |= pd & response & read & (record_len < PD_HEADER)  # H13 of a read response
     flag |= pd & request & _outside_limits(f, checker)  # P4 on the IOD fields
-    return flag
+    return flag, pd & request & write & (record_len > max_record)  # H13 (too long)
 
 
 def _outside_limits(f: dict[str, np.ndarray], checker: Checker) -> np.ndarray:

@@ -189,12 +189,18 @@ def _request_header(block: Block, opnum: int, frame: int, max_record: int,
             out.append(finding("api_not_profidrive", frame, "iod.api", f"{v[rec.B_API]:#010x}",
                                "0x00003a00", "API is not the PROFIdrive API 0x3A00"))
         if opnum == OP_WRITE and not 4 <= reclen <= max_record:
-            out.append(finding("pd_record_length", frame, "iod.record_len", reclen, f"4 ... {max_record}",
-                               "PROFIdrive parameter request length out of range (device answers B1)"))
+            out.append(request_length(reclen, frame, max_record))
         if opnum != OP_WRITE and reclen < max_record:
             out.append(finding("pd_read_buffer_small", frame, "iod.record_len", reclen, f">= {max_record}",
                                f"read buffer below {max_record} bytes: a long parameter response may not fit (B1)"))
     return out
+
+
+def request_length(reclen: int, frame: int, max_record: int) -> Finding:
+    """H13 on a parameter request written with a RecordDataLength outside 4 ... the record limit (the
+    columns state it for a request above the limit from its RecordDataLength alone, pnio_batch.long_write)."""
+    return finding("pd_record_length", frame, "iod.record_len", reclen, f"4 ... {max_record}",
+                   "PROFIdrive parameter request length out of range (device answers B1)")
 
 
 def _response_header(block: Block, frame: int) -> list[Finding]:

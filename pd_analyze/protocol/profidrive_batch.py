@@ -50,7 +50,8 @@ class RecordColumns:
     """One entry per record given, in the order given."""
 
     regular: np.ndarray  # bool
-    flag: np.ndarray  # bool
+    flag: np.ndarray  # bool: a P or Q rule of the record alone may report (batch_checks.flags)
+    limits_only: np.ndarray  # bool: flagged only for a limit of its header or addresses (stated from the columns)
     plausible: np.ndarray  # bool: profidrive.plausible(record, response) (index 0x002F carries PROFIdrive)
     ref: np.ndarray  # uint8 Request Reference
     ident: np.ndarray  # uint8 Request ID (requests) or Response ID (responses)
@@ -137,13 +138,13 @@ def decode(buf: bytes, start: np.ndarray, length: np.ndarray, response: np.ndarr
     addresses = _addresses(b, start, n_addr, first_addr)
     block_cols, position = _assemble(b, walk, regular, first_block, int(n_blocks.sum()))
     pad_note = regular & walk.pad_note
-    flag = batch_checks.flags(batch_checks.Columns(
+    flag, limits_only = batch_checks.flags(batch_checks.Columns(
         regular, response, length, end, pad_note, ref, ident, do, n_u8, first_addr, addresses.record,
         addresses.attr, addresses.n_elems, addresses.pnu, addresses.subindex, block_cols.record, position,
         block_cols.format, block_cols.n_values, block_cols.data_start, block_cols.data_len, block_cols.error),
         b, checker)
-    records = RecordColumns(regular, flag, _plausible(buf, start, length, response, regular, end, ref, ident, n,
-                                                      checker.record.max_params),
+    plausible = _plausible(buf, start, length, response, regular, end, ref, ident, n, checker.record.max_params)
+    records = RecordColumns(regular, flag, limits_only, plausible,
                             ref, ident, do, n_u8, first_addr, n_addr, first_block, n_blocks, end)
     return DecodedRecords(records, addresses, block_cols)
 
@@ -306,9 +307,9 @@ def merge_records(a: DecodedRecords, b: DecodedRecords) -> DecodedRecords:
     """The records of `a`, then those of `b` (decoded from another buffer: b's `data_start` keep pointing
     into it, so only what needs no value bytes may be read of them), every index shifted to match."""
     ra, rb = a.records, b.records
-    records = RecordColumns(*(np.concatenate([getattr(ra, f), getattr(rb, f) + (
-        len(a.addresses.record) if f == "first_addr" else len(a.blocks.record) if f == "first_block" else 0)])
-        for f in RecordColumns.__dataclass_fields__))
+    offsets = {"first_addr": len(a.addresses.record), "first_block": len(a.blocks.record)}
+    records = RecordColumns(*(np.concatenate([getattr(ra, f), getattr(rb, f) + offsets[f] if f in offsets
+                                              else getattr(rb, f)]) for f in RecordColumns.__dataclass_fields__))
     shift = len(ra.ref)
     addresses = AddressColumns(*(np.concatenate([getattr(a.addresses, f), getattr(b.addresses, f) + (
         shift if f == "record" else 0)]) for f in AddressColumns.__dataclass_fields__))

@@ -71,20 +71,24 @@ class Columns:
     error: np.ndarray
 
 
-def flags(c: Columns, b: np.ndarray, checker: Checker) -> np.ndarray:
-    """The `flag` column: irregular records, and regular ones on which a record-local rule may report."""
-    flag = ~c.regular
+def flags(c: Columns, b: np.ndarray, checker: Checker) -> tuple[np.ndarray, np.ndarray]:
+    """The `flag` column: irregular records, and regular ones on which a record-local rule may report; and
+    `limits_only`: the regular records flagged only because their header or an address breaks a limit (the
+    engine states those findings from the columns, Checker.request_limits and response_limits, instead of
+    parsing the record again; a regular record is never a vendor service's)."""
     request = c.regular & ~c.response
     response = c.regular & c.response
+    limits = np.zeros(len(c.regular), bool)
     for field, req_ident, res_ident in (("ref", None, None), ("ident", "request.req_id", "response.resp_id"),
                                         ("do", None, None), ("n", "request.n_params", "response.n_params")):
         values = getattr(c, field)
-        flag |= request & breaks(checker, req_ident or f"request.{field}", values)
-        flag |= response & breaks(checker, res_ident or f"response.{field}", values)
-    flag |= response & breaks(checker, "response.length", c.length)  # Q11
+        limits |= request & breaks(checker, req_ident or f"request.{field}", values)
+        limits |= response & breaks(checker, res_ident or f"response.{field}", values)
+    limits |= response & breaks(checker, "response.length", c.length)  # Q11
     bad_address = (breaks(checker, "request.attribute", c.attr) | breaks(checker, "request.n_elems", c.n_elems)
                    | breaks(checker, "request.pnu", c.pnu) | breaks(checker, "request.subindex", c.subindex))
-    flag[c.addr_record[bad_address]] = True
+    limits[c.addr_record[bad_address]] = True
+    flag = ~c.regular
     # P5, P10, Q12, Q6 (a positive change response's end is its header): bytes after the parsed record
     flag |= c.regular & (c.end < c.length)
     flag |= c.pad_note  # P8: pad_nonzero, pad_missing_final
@@ -92,7 +96,7 @@ def flags(c: Columns, b: np.ndarray, checker: Checker) -> np.ndarray:
     # Q8: a negative read or change response without any error block
     has_error = np.bincount(c.block_record[c.format == pt.FMT_ERROR], minlength=len(flag)) > 0
     flag |= response & ((c.ident == pt.RES_READ_NAK) | (c.ident == pt.RES_CHANGE_NAK)) & ~has_error
-    return flag
+    return flag | limits, limits & ~flag
 
 
 def _block_flags(c: Columns, b: np.ndarray, checker: Checker) -> np.ndarray:

@@ -34,6 +34,12 @@ class Checker:
         # the common case is decided by two comparisons.
         self._within = {key: (max(lim.ranges[0][0] for _, lim in pairs), min(lim.ranges[0][1] for _, lim in pairs))
                         for key, pairs in self._by_key.items() if all(len(lim.ranges) == 1 for _, lim in pairs)}
+        # an address's fields at once: the attribute (a byte, its limit of several ranges) by the values
+        # inside every limit, the others by their ranges (None: a limit of several ranges)
+        self._attributes = frozenset(v for v in range(256) if not self._breaks("request.attribute", v))
+        ranges = [self._within.get(key, (-(1 << 62), 1 << 62) if key not in self._by_key else None)
+                  for key in ("request.n_elems", "request.pnu", "request.subindex")]
+        self._address_within = None if None in ranges else tuple(x for pair in ranges for x in pair)
 
     @classmethod
     def for_profile(cls, profile: str = DEFAULT) -> Checker:
@@ -73,6 +79,9 @@ class Checker:
                                    f"{name} = {shown} outside the {profile.name} limit {lim.text()} "
                                    f"({lim.source})", source=lim.source))
 
+    def _breaks(self, key: str, value: int) -> bool:
+        return any(not lim.allows(value) for _, lim in self._by_key.get(key, ()))
+
     def describe(self, key: str, value: int) -> str:
         """The dump's check text: each profile's verdict on the value."""
         parts = []
@@ -87,16 +96,8 @@ class Checker:
         if not p.header_ok:
             return out
         vendor = p.vendor is not None  # a vendor service: its ID, attributes and indexes are the vendor's
-        self.limit("request.ref", "pd.ref", p.ref, frame, out)
-        self.limit("request.req_id", "pd.req_id", p.ident, frame, out, vendor)
-        self.limit("request.do", "pd.do", p.do, frame, out)
-        self.limit("request.n_params", "pd.n_params", p.n, frame, out)
-        for i, a in enumerate(p.addresses):
-            attr, n_elems, pnu, subindex = _address_fields(i)
-            self.limit("request.attribute", attr, a.attr, frame, out, vendor)
-            self.limit("request.n_elems", n_elems, a.n_elems, frame, out)
-            self.limit("request.pnu", pnu, a.pnu, frame, out, vendor)
-            self.limit("request.subindex", subindex, a.subindex, frame, out)
+        self.request_limits(p.ref, p.ident, p.do, p.n, [(a.attr, a.n_elems, a.pnu, a.subindex) for a in p.addresses],
+                            frame, out, vendor)
         change = p.ident == pt.REQ_CHANGE
         if isinstance(p.vendor, VendorRequest):  # laid out as its service declares (protocol.md 5.5)
             change = p.vendor.layout_of(p.addresses[0].attr if p.addresses else 0) == "change"
@@ -112,6 +113,26 @@ class Checker:
             out.append(finding("request_trailing", frame, "pd.trailing", p.length - p.end, 0,
                                f"{p.length - p.end} bytes left after the parsed change request"))
         return out
+
+    def request_limits(self, ref: int, ident: int, do: int, n: int, addresses: list[tuple[int, int, int, int]],
+                       frame: int, out: list[Finding], vendor: bool = False) -> None:
+        """The limits of a request's header and addresses (attribute, No. of elements, PNU, subindex);
+        `vendor`: a vendor service's (its ID, attributes and PNUs are checked against the vendor alone). The
+        engine states them from the columns for a record on which no other rule may report."""
+        self.limit("request.ref", "pd.ref", ref, frame, out)
+        self.limit("request.req_id", "pd.req_id", ident, frame, out, vendor)
+        self.limit("request.do", "pd.do", do, frame, out)
+        self.limit("request.n_params", "pd.n_params", n, frame, out)
+        within, attributes = self._address_within, self._attributes
+        for i, (attr, n_elems, pnu, subindex) in enumerate(addresses):
+            if within is not None and (attr in attributes and within[0] <= n_elems <= within[1]
+                                       and within[2] <= pnu <= within[3] and within[4] <= subindex <= within[5]):
+                continue  # the common case: inside every limit (40 addresses a request are checked per frame)
+            names = _address_fields(i)
+            self.limit("request.attribute", names[0], attr, frame, out, vendor)
+            self.limit("request.n_elems", names[1], n_elems, frame, out)
+            self.limit("request.pnu", names[2], pnu, frame, out, vendor)
+            self.limit("request.subindex", names[3], subindex, frame, out)
 
     def _change_blocks(self, p: Parsed, frame: int) -> list[Finding]:
         out: list[Finding] = []
@@ -167,13 +188,10 @@ class Checker:
     # --- responses -----------------------------------------------------------------------------
     def response(self, p: Parsed, frame: int, request: Parsed | None = None) -> list[Finding]:
         out: list[Finding] = []
-        self.limit("response.length", "pd.n_params" if p.length < 4 else "iod.record_len", p.length, frame, out)
         if not p.header_ok:
+            self.limit("response.length", "pd.n_params" if p.length < 4 else "iod.record_len", p.length, frame, out)
             return out
-        self.limit("response.ref", "pd.ref", p.ref, frame, out)
-        self.limit("response.resp_id", "pd.resp_id", p.ident, frame, out, p.vendor is not None)
-        self.limit("response.do", "pd.do", p.do, frame, out)
-        self.limit("response.n_params", "pd.n_params", p.n, frame, out)
+        self.response_limits(p.length, p.ref, p.ident, p.do, p.n, frame, out, p.vendor is not None)
         if p.ident == pt.RES_CHANGE and p.vendor is None:
             body = p.length - 4
             if body and "trailing_00_00" in self.tolerate and body == 2 and p.blocks == [] and p.end == 4:
@@ -196,6 +214,17 @@ class Checker:
             out.append(finding("response_trailing", frame, "pd.trailing", p.length - p.end, 0,
                                f"{p.length - p.end} bytes left after the parsed response"))
         return out
+
+    def response_limits(self, length: int, ref: int, ident: int, do: int, n: int, frame: int, out: list[Finding],
+                        vendor: bool = False) -> None:
+        """The limits of a response's length (Q11) and header (`vendor`: a vendor service's ID is checked
+        against the vendor alone). The engine states them from the columns for a record on which no other
+        rule may report."""
+        self.limit("response.length", "pd.n_params" if length < 4 else "iod.record_len", length, frame, out)
+        self.limit("response.ref", "pd.ref", ref, frame, out)
+        self.limit("response.resp_id", "pd.resp_id", ident, frame, out, vendor)
+        self.limit("response.do", "pd.do", do, frame, out)
+        self.limit("response.n_params", "pd.n_params", n, frame, out)
 
     def _response_ids(self, p: Parsed, frame: int, request: Parsed | None) -> list[Finding]:
         out = []

@@ -15,7 +15,7 @@ from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.capture.raw import RawFrame
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.rules import Finding
-from pd_analyze.model.values import OP_WRITE
+from pd_analyze.model.values import OP_WRITE, PTYPE_REQUEST
 from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol import pnio_checks
 from pd_analyze.protocol.dissector import Dissector
@@ -40,6 +40,28 @@ class FrameChecks:
         d.records = records
         results = d.feed(frame)
         return results[0] if results else None
+
+    def stated(self, view: BatchView, i: int) -> list[Finding]:
+        """The frame-local findings of column row i (BatchView.stated) as the per-frame checks give them, from
+        the columns: H13 of a parameter request above the record limit, then the limits its record's header
+        and addresses break (a regular record, never a vendor service's)."""
+        p, frame = view.p, int(view.frame_no[i])
+        out: list[Finding] = []
+        if p.long_write[i]:
+            out.append(pnio_checks.request_length(int(p.record_len[i]), frame, self.checker.record.max_length))
+        record = int(view.rec_of[i])
+        rc = view.records.records
+        if record < 0 or not rc.limits_only[record]:
+            return out
+        head = int(rc.ref[record]), int(rc.ident[record]), int(rc.do[record]), int(rc.n[record])
+        if p.ptype[i] != PTYPE_REQUEST:
+            self.checker.response_limits(int(p.rec_len[i]), *head, frame, out)
+            return out
+        a, first = view.records.addresses, int(rc.first_addr[record])
+        at = slice(first, first + int(rc.n_addr[record]))
+        self.checker.request_limits(*head, list(zip(a.attr[at].tolist(), a.n_elems[at].tolist(), a.pnu[at].tolist(),
+                                                    a.subindex[at].tolist(), strict=True)), frame, out)
+        return out
 
     def paired(self, res_stub: rec.Stub | None, req_stub: rec.Stub | None, opnum: int, frame: int) -> list[Finding]:
         """N4 and H6-H8: a response's NDR args and IOD blocks against its request's."""

@@ -4,6 +4,8 @@ replaced (the values last read back before its write request, 7.6's change trail
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 
 from pd_analyze.analysis.engine.facts import Channel
@@ -117,21 +119,9 @@ class Finals:
             device = np.array([c[0] for c in cols.channel], np.int64)[cols.ch] if cols.channel else cols.ch
             reads.append(column_reads(view, cols.req[read], cols.res[read], device[read], cols.do[read],
                                       cols.read_res_frame[read]))
-        # the changes: the machine's (element by element) and the vector path's (as columns)
+        # the changes: the machine's and the vector path's, element by element as columns
         machine = [t for t in opened if records.writes_values(t.request, t.req_id)]
-        k1, k2, cframes, slots = [], [], [], []
-        for t in machine:
-            t.values_before = []
-            for _attr, n, pnu, sub in records.addresses(t.request):
-                row: list = []
-                t.values_before.append(row)
-                for j in range(max(n, 1)):
-                    k1.append(t.channel[0] << 8 | (t.do & 0xFF))
-                    k2.append(pnu << 17 | (sub + j))
-                    cframes.append(t.opened_at)
-                    slots.append(row)
-        listed = Elements(np.array(k1, np.uint64), np.array(k2, np.uint64), np.array(cframes, np.int64),
-                          np.zeros(len(k1), np.int64), lambda e: "")
+        listed, listed_position = _listed_changes(machine, records)
         column = None
         if cols is not None and view is not None and len(cols):
             change = np.flatnonzero((cols.req_id == pt.REQ_CHANGE) & (cols.req >= 0))
@@ -143,17 +133,50 @@ class Finals:
         if not len(changes) and not any(len(r) for r in reads):
             return
         values = self.values.before(reads, changes)
-        for row, value in zip(slots, values, strict=False):
-            row.append(value)
+        for e, pos, text in _known(listed.owner, listed_position, values[:len(listed)]):
+            before = machine[e].values_before
+            before += [""] * (pos + 1 - len(before))
+            before[pos] = text
         if column is not None:
             change, elements, position, _i = column
-            rest = values[len(listed):]
-            for owner, pos, value in zip(elements.owner.tolist(), position.tolist(), rest, strict=True):
-                k = int(change[owner])
-                before = cols.values_before.setdefault(k, [])  # type: ignore[union-attr]
-                while len(before) <= pos:
-                    before.append([])
-                before[pos].append(value)
+            for e, pos, text in _known(change[elements.owner], position, values[len(listed):]):
+                before = cols.values_before.setdefault(e, [])  # type: ignore[union-attr]
+                before += [""] * (pos + 1 - len(before))
+                before[pos] = text
+
+
+def _listed_changes(machine: list[Txn], records: Records) -> tuple[Elements, np.ndarray]:
+    """The elements the machine's changes write (owner: the change's place in `machine`), with per element
+    its address's position among the change's addresses."""
+    addresses = [records.address_array(t.request) for t in machine]
+    counts = np.fromiter((len(a) for a in addresses), np.int64, len(addresses))
+    table = np.concatenate(addresses) if addresses else np.empty((0, 4), np.int64)
+    entry = np.repeat(np.arange(len(machine)), counts)
+    position = np.arange(len(table)) - np.repeat(np.cumsum(counts) - counts, counts)
+    m = np.maximum(table[:, 1], 1)
+    pair = np.repeat(np.arange(len(table)), m)
+    i = np.arange(int(m.sum())) - np.repeat(np.cumsum(m) - m, m)
+    device = np.fromiter((t.channel[0] for t in machine), np.int64, len(machine))
+    do = np.fromiter((t.do & 0xFF for t in machine), np.int64, len(machine))
+    opened = np.fromiter((t.opened_at for t in machine), np.int64, len(machine))
+    owner = entry[pair]
+    k1 = (device[owner] << 8 | do[owner]).astype(np.uint64)
+    k2 = (table[pair, 2] << 17 | (table[pair, 3] + i)).astype(np.uint64)
+    return Elements(k1, k2, opened[owner], owner, lambda e: ""), position[pair]
+
+
+def _known(entry: np.ndarray, position: np.ndarray, values: np.ndarray) -> Iterator[tuple[int, int, str]]:
+    """The value_before cells of changes from their elements (entry, address position: address after
+    address) and the values last read of them (None: none): (entry, position, text) of each address every
+    element of which has a value (the others' cell is "")."""
+    known = (values != None) & (values != "")  # noqa: E711 (element-wise on an object array)
+    if not known.any():
+        return
+    starts = np.flatnonzero(np.r_[True, (entry[1:] != entry[:-1]) | (position[1:] != position[:-1])])
+    ends = np.r_[starts[1:], len(values)]
+    for g in np.flatnonzero(np.logical_and.reduceat(known, starts)).tolist():
+        first = int(starts[g])
+        yield int(entry[first]), int(position[first]), " ".join(values[first:int(ends[g])].tolist())
 
 
 def _done(prev: LastDone | Txn) -> LastDone:

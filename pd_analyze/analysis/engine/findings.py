@@ -51,13 +51,17 @@ class Findings:
                 alone[(id(row), with_records)] = res
             return res
 
-        flag, rec_of, rec_flag = view.flag, view.rec_of, view.records.records.flag
+        flag, stated, rec_of, rec_flag = view.flag, view.stated, view.rec_of, view.records.records.flag
         for row in rows:
-            if not row.odd and flag[row.col]:
+            if row.odd:
+                continue
+            if flag[row.col]:
                 record = int(rec_of[row.col])
                 res = dissected(row, record >= 0 and bool(rec_flag[record]))
                 if res is not None:
                     row.findings += [f for f in res.findings if f.name not in PAIRING_RULES]
+            elif stated[row.col]:
+                row.findings += self.checks.stated(view, row.col)
         pairs_q, pairs_s, pair_rows = [], [], []
         for row in rows:
             call = row.call
@@ -152,6 +156,8 @@ class Findings:
                 res = dissected(i, record >= 0 and bool(rec_flag[record]))
                 if res is not None:
                     put(k, [f for f in res.findings if f.name not in PAIRING_RULES])
+            for k in np.flatnonzero(view.stated[side]).tolist():
+                put(k, self.checks.stated(view, int(side[k])))
         for k in np.flatnonzero(paired_flags(view, calls.q, calls.s)).tolist():
             q, s = int(calls.q[k]), int(calls.s[k])
             res, req = dissected(s, False), dissected(q, False)

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import struct
 
+import numpy as np
+
 from pd_analyze.analysis.engine.facts import Carried, Record
 from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.model import pd_values as pt
@@ -50,6 +52,15 @@ class Records:
         rows = slice(first, first + int(rc.n_addr[record]))
         return list(zip(a.attr[rows].tolist(), a.n_elems[rows].tolist(), a.pnu[rows].tolist(),
                         a.subindex[rows].tolist(), strict=True))
+
+    def address_array(self, record: Record) -> np.ndarray:
+        """`addresses` as an (n, 4) int64 array."""
+        if isinstance(record, int) and not isinstance(record, bool):
+            rc, a = self.view.records.records, self.view.records.addresses  # type: ignore[union-attr]
+            first = int(rc.first_addr[record])
+            rows = slice(first, first + int(rc.n_addr[record]))
+            return np.stack([a.attr[rows], a.n_elems[rows], a.pnu[rows], a.subindex[rows]], axis=1).astype(np.int64)
+        return np.array(self.addresses(record), np.int64).reshape(-1, 4)
 
     def writes_values(self, record: Record, req_id: int) -> bool:
         """A change parameter, or a vendor service laid out as one (protocol.md 5.5)."""

@@ -91,8 +91,6 @@ class EngineRun:
         # each channel's last parameter request's addresses, as Q7 compares a read response with them (6.4)
         self.last_request: CappedTable[tuple, tuple] = CappedTable(CHANNEL_REQUESTS)
         self._first: dict[tuple[int, int], int] = {}  # the part's activities first seen in column rows (_first_seen)
-        self.taken = 0  # PNIO rows the vector path took whole
-        self.pnio_rows = 0  # PNIO rows in all
 
     # --- the loop -----------------------------------------------------------------------------------
     def feed(self, batch: FrameBatch) -> None:
@@ -161,8 +159,10 @@ class EngineRun:
         self._last_requests(view, calls, ep, keep & ~marked, records)
         done_calls, ep = _given_back(calls, ep, keep)
         cols = of_episodes(view, done_calls, ep) if len(ep.w) else None
-        self.taken += 2 * len(done_calls.q)
-        self.pnio_rows += len(dec.rows) + sum(1 for r in dec.odd_rows if not r.decide)
+        result = self.results[-1]
+        result.vector_pdus += 2 * len(done_calls.q)
+        result.column_pdus += len(dec.rows)
+        result.pnio_pdus += len(dec.rows) + sum(1 for r in dec.odd_rows if not r.decide)
         self._remember_calls(view, done_calls)
         self.pairing.order_activities(self._first)
         self._first = {}

@@ -21,7 +21,7 @@ from pd_analyze.analysis.engine.txn import NS, Txn
 from pd_analyze.analysis.engine.txncols import MISSING, TxnCols, of_txns
 from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.analysis.rows import Rows, finding_row
-from pd_analyze.analysis.schema import COLUMNS, micros
+from pd_analyze.analysis.schema import micros
 from pd_analyze.analysis.table_batches import TIME_TYPE, batch_schema, rows_to_batch
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.values import status_text
@@ -38,8 +38,9 @@ def _hex_table() -> list[str]:
 
 
 _HEX = _hex_table()
-_FORMAT = [pt.FORMAT_NAME.get(v) or _HEX[v] for v in range(256)]
-_ATTRIBUTE = [pt.ATTRIBUTE.get(v) or _HEX[v] for v in range(256)]
+# the format and attribute cells by code (the format's shifted by one: "" for a row without a value block)
+_FORMAT_CELLS = pa.array(["", *(pt.FORMAT_NAME.get(v) or _HEX[v] for v in range(256))], pa.large_string())
+_ATTRIBUTE_CELLS = pa.array([pt.ATTRIBUTE.get(v) or _HEX[v] for v in range(256)], pa.large_string())
 
 
 def _hex(value: int) -> str:
@@ -163,45 +164,47 @@ class TableBuilder:
         fmt_cell = np.where(fmt != pt.FMT_ERROR, fmt, -1)
         count = np.maximum(elems, 1)
         ranged = (attr == pt.ATTR_VALUE) & (count > 1)
-        labels = [f"P{p}[{a}..{a + c - 1}]" if r else f"P{p}[{a}]"
-                  for p, a, c, r in zip(pnu.tolist(), sub.tolist(), count.tolist(), ranged.tolist(), strict=True)]
+        label_cells = _labels(pnu, sub, count, ranged)
         text = _texts(bc.text)
         written = _take(text, wb)
         read = _take(text, rb)
-        errs = err.tolist()
-        owners = owner.tolist()
+        failed = np.flatnonzero(err >= 0)  # the rows with an error (few, but for refusals)
+        fails = err[failed].tolist()
+        err_hex, err_text = np.full(len(err), "", object), np.full(len(err), "", object)
+        err_hex[failed] = [_hex(e) for e in fails]
+        err_text[failed] = [self._error_text(e) for e in fails]
         device_of = pa.array([x[0] for x in texts], pa.large_string())
         owner_idx = pa.array(owner)
         out["parameters"].append(pa.Table.from_arrays([
             pa.array(numbers[owner], pa.int64()), captures.take(owner_idx), device_of.take(owner_idx),
-            pa.array(t.do[owner], pa.int64()), pa.array(labels, pa.large_string()),
+            pa.array(t.do[owner], pa.int64()), label_cells,
             pa.array(pnu, pa.int64()), _pnu_names(pnu, self.names), pa.array(sub, pa.int64()),
-            pa.array(elems, pa.int64()),
-            pa.array([_ATTRIBUTE[a] for a in attr.tolist()], pa.large_string()),
-            pa.array(["" if f < 0 else _FORMAT[f] for f in fmt_cell.tolist()], pa.large_string()),
-            written, read, pa.array([_hex(e) for e in errs], pa.large_string()),
-            pa.array([self._error_text(e) if e >= 0 else "" for e in errs], pa.large_string()),
+            pa.array(elems, pa.int64()), _ATTRIBUTE_CELLS.take(pa.array(attr)),
+            _FORMAT_CELLS.take(pa.array(fmt_cell + 1)),
+            written, read, pa.array(err_hex.tolist(), pa.large_string()),
+            pa.array(err_text.tolist(), pa.large_string()),
             pa.array(err_sub, pa.int64(), mask=err_sub < 0),
             pa.array(whole_row, pa.bool_()),
         ], schema=batch_schema("parameters")))
         # --- per transaction: its label, its errors -------------------------------------------------------
-        params: list[list[str]] = [[] for _ in range(n)]
+        params = _joined_texts(label_cells, np.r_[starts, len(owner)])
+        labels = label_cells.take(pa.array(failed)).to_pylist()
         errors: list[list[str]] = [[] for _ in range(n)]
-        for o, label, e in zip(owners, labels, errs, strict=True):
-            params[o].append(label)
-            if e >= 0:
-                errors[o].append(f"{label}:{_hex(e)}")
+        for o, label, e in zip(owner[failed].tolist(), labels, fails, strict=True):
+            errors[o].append(f"{label}:{_hex(e)}")
         for o in np.flatnonzero(whole).tolist():
             errors[o] = [f"*:{_hex(int(bc.error[first_res[o]]))}"]
-        self._refused(t, errs, owners, labels, whole, _at(bc.error, np.where(whole, first_res, -1), -1))
+        self._refused(t, fails, owner[failed].tolist(), labels, whole,
+                      _at(bc.error, np.where(whole, first_res, -1), -1))
         # --- changes: one row per value block written ---------------------------------------------------
-        changes = np.flatnonzero(wb >= 0).tolist()
-        if changes:
-            out["changes"].append(self._changes(t, changes, owners, labels, pnu, sub, written, errs, numbers,
-                                                captures, device_of, j))
+        changes = np.flatnonzero(wb >= 0)
+        if len(changes):
+            out["changes"].append(self._changes(t, changes, owner, label_cells, pnu, sub, written, err, numbers,
+                                                captures, device_of, starts))
         # --- transactions ---------------------------------------------------------------------------------
         resp_id = [_HEX[int(i)] if h else "" for i, h in zip(rc.ident[s].tolist(), has_res.tolist(), strict=True)]
-        out["transactions"].append(self._transactions(t, numbers, captures, texts, params, errors, resp_id))
+        out["transactions"].append(self._transactions(t, numbers, captures, texts, params,
+                                                      [" ".join(e) for e in errors], resp_id))
         cap = captures.to_pylist() if t.findings else []
         found = [finding_row(cap[k], f, int(numbers[k])) for k, fs in t.findings.items() for f in fs]
         if found:
@@ -209,13 +212,14 @@ class TableBuilder:
 
     def _refused(self, t: TxnCols, errs: list[int], owners: list[int], labels: list[str], whole: np.ndarray,
                  whole_error: np.ndarray) -> None:
-        """T9 of each transaction refused by the drive (verdict nak), at its response, naming its errors."""
+        """T9 of each transaction refused by the drive (verdict nak), at its response, naming its errors
+        (`errs`, `owners`, `labels`: the parameter rows with an error)."""
         naks = [k for k, v in enumerate(t.verdict) if v == "nak"]
         if not naks:
             return
         words: dict[int, list[str]] = {k: [] for k in naks}
         for o, label, e in zip(owners, labels, errs, strict=True):
-            if e >= 0 and o in words and not whole[o]:
+            if o in words and not whole[o]:
                 words[o].append(refusal(label, e, self._error_text(e)))
         for k in naks:
             if whole[k]:
@@ -224,34 +228,35 @@ class TableBuilder:
             t.findings.setdefault(k, []).append(refused_finding(int(t.read_res_frame[k]), int(t.write_frame[k]),
                                                                 words[k]))
 
-    def _changes(self, t: TxnCols, rows: list[int], owners: list[int], labels: list[str], pnu: np.ndarray,
-                 sub: np.ndarray, written: pa.Array, errs: list[int], numbers: np.ndarray, captures: pa.Array,
-                 devices: pa.Array, j: np.ndarray) -> pa.Table:
-        cols: list[list] = [[] for _ in range(13)]
-        idx = np.array(rows, np.int64)
-        values = written.take(pa.array(idx)).to_pylist()
-        positions = j[idx].tolist()
-        cap, dev = captures.to_pylist(), devices.to_pylist()
-        for row, value, i in zip(rows, values, positions, strict=True):
-            k = owners[row]
-            e = errs[row]
-            if e >= 0:
-                result = f"error {_hex(e)}: {self._error_text(e)}"
-            else:
-                result = "ok" if t.verdict[k] in ANSWERED else t.verdict[k]
-            before_all = t.values_before.get(k, ())
-            before = before_all[i] if i < len(before_all) else [None]
-            for col, cell in zip(cols, (cap[k], dev[k], int(t.do[k]), int(numbers[k]), int(t.write_frame[k]),
-                                        int(t.t_start[k]), labels[row], None, None, None, value, result,
-                                        " ".join(b for b in before if b is not None) if all(before) else ""),
-                                 strict=True):
-                col.append(cell)
-        cols[7], cols[8], cols[9] = pnu[idx], _pnu_names(pnu[idx], self.names), sub[idx]
-        return _table("changes", cols)
+    def _changes(self, t: TxnCols, rows: np.ndarray, owner: np.ndarray, labels: pa.Array, pnu: np.ndarray,
+                 sub: np.ndarray, written: pa.Array, err: np.ndarray, numbers: np.ndarray, captures: pa.Array,
+                 devices: pa.Array, starts: np.ndarray) -> pa.Table:
+        """One row per value block written (`rows`: among the parameter rows, transaction after transaction),
+        a column at a time."""
+        k = owner[rows]
+        taken = pa.array(rows)
+        kept = pa.array(k)
+        starts_at = _times(t.t_start).take(kept)
+        errs = err[rows]
+        verdicts = np.array(t.verdict, object)
+        result = np.where(np.isin(verdicts, list(ANSWERED)), "ok", verdicts)[k]
+        for at in np.flatnonzero(errs >= 0).tolist():
+            e = int(errs[at])
+            result[at] = f"error {_hex(e)}: {self._error_text(e)}"
+        before = np.full(len(owner), "", object)  # per parameter row; only changes with some value known
+        for entry, cells in t.values_before.items():
+            before[int(starts[entry]):int(starts[entry]) + len(cells)] = cells
+        text, integer = pa.large_string(), pa.int64()
+        return pa.Table.from_arrays([
+            captures.take(kept), devices.take(kept), pa.array(t.do[k], integer), pa.array(numbers[k], integer),
+            pa.array(t.write_frame[k], integer), starts_at, labels.take(taken),
+            pa.array(pnu[rows], integer), _pnu_names(pnu[rows], self.names), pa.array(sub[rows], integer),
+            written.take(taken), pa.array(result.tolist(), text), pa.array(before[rows].tolist(), text),
+        ], schema=batch_schema("changes"))
 
     @staticmethod
     def _transactions(t: TxnCols, numbers: np.ndarray, captures: pa.Array, texts: list[tuple],
-                      params: list[list[str]], errors: list[list[str]], resp_id: list[str]) -> pa.Table:
+                      params: pa.Array, errors: list[str], resp_id: list[str]) -> pa.Table:
         """The transactions' rows, a column at a time (the cells Rows.add makes)."""
         text, integer = pa.large_string(), pa.int64()
         channel = t.channel
@@ -264,14 +269,13 @@ class TableBuilder:
               for i in (4, 5, 6)),
             _opt_int(t.ref), pa.array([_hex(v) for v in t.req_id.tolist()], text), _opt_int(t.do),
             _opt_int(t.n_params),
-            pa.array([" ".join(p) for p in params], text), pa.array(resp_id, text),
-            pa.array(t.verdict, text), pa.array([" ".join(e) for e in errors], text),
+            params, pa.array(resp_id, text), pa.array(t.verdict, text), pa.array(errors, text),
             pa.array(t.pnio_status, text), pa.array([status_text(s) for s in t.pnio_status], text),
             pa.array(t.b5, integer), pa.array(t.reads, integer), pa.array(t.retrans, integer),
             pa.array(t.write_frame, integer), pa.array(t.write_res_frame, integer, mask=t.write_res_frame == 0),
             _joined(t.read_frames, t.read_offsets), pa.array(t.read_res_frame, integer, mask=t.read_res_frame == 0),
             _joined(t.frames, t.frame_offsets),
-            pa.array([micros(v / NS) for v in start.tolist()], integer).cast(TIME_TYPE),
+            _times(start),
             _seconds(t.t_write_res, start), _seconds(t.t_done, start), _seconds(t.t_done, t.t_last_read),
             _seconds(t.t_first_read, t.t_write_res), _seconds(t.t_last_read, start),
             pa.array(t.capture_ended, pa.bool_()), pa.array(t.closed_by, text),
@@ -335,18 +339,33 @@ def _take(text: pa.Array, rows: np.ndarray) -> pa.Array:
     return taken
 
 
-def _table(name: str, cols: list) -> pa.Table:
-    schema = batch_schema(name)
-    arrays = []
-    for c, field, values in zip(COLUMNS[name], schema, cols, strict=True):
-        if field.type == TIME_TYPE:
-            arrays.append(pa.array([micros(v / NS) for v in values], pa.int64()).cast(TIME_TYPE))
-        else:
-            arrays.append(pa.array(values, field.type))
-        del c
-    return pa.Table.from_arrays(arrays, schema=schema)
+def _times(ns: np.ndarray) -> pa.Array:
+    """Capture times (integer nanoseconds) as the tables hold them: schema.micros of the seconds (one per
+    transaction: a Python division, as the rows of the per-frame tables make them)."""
+    return pa.array([micros(v / NS) for v in ns.tolist()], pa.int64()).cast(TIME_TYPE)
 
 
 def _pnu_names(pnu: np.ndarray, names: pt.Names) -> pa.Array:
     """The name of each parameter number ("" for most: profile parameters and the profile's own table)."""
-    return pa.array([names.pnu(p) for p in pnu.tolist()], pa.large_string())
+    unique, inverse = np.unique(pnu, return_inverse=True)
+    return pa.array([names.pnu(p) for p in unique.tolist()], pa.large_string()).take(pa.array(inverse.ravel()))
+
+
+def _labels(pnu: np.ndarray, sub: np.ndarray, count: np.ndarray, ranged: np.ndarray) -> pa.Array:
+    """Each address's label, P<pnu>[<subindex>] or P<pnu>[<first>..<last>] for several Value elements
+    (profidrive.Address.label, a column at a time)."""
+    import pyarrow.compute as pc
+
+    def text(values: np.ndarray) -> pa.Array:
+        return pa.array(values.astype(np.int64)).cast(pa.string())
+
+    last = pc.if_else(pa.array(ranged), pc.binary_join_element_wise("..", text(sub + count - 1), ""), "")
+    return pc.binary_join_element_wise("P", text(pnu), "[", text(sub), last, "]", "").cast(pa.large_string())
+
+
+def _joined_texts(values: pa.Array, offsets: np.ndarray) -> pa.Array:
+    """The texts of each group (values[offsets[i]:offsets[i + 1]]) joined by spaces."""
+    import pyarrow.compute as pc
+
+    lists = pa.LargeListArray.from_arrays(pa.array(offsets, pa.int64()), values)
+    return pc.binary_join(lists, pa.scalar(" ", values.type))

@@ -51,7 +51,7 @@ class Txn:
         self.findings: list[Finding] = []
         # a change: per address, the values of its elements last read back before its write request (None:
         # not read in the capture)
-        self.values_before: list[list[str | None]] = []
+        self.values_before: list[str] = []  # a change's value_before cell per address ("" unknown; [] none known)
 
     def spoil(self, frame: int) -> None:
         """A PDU of the transaction at `frame` cannot be decoded: it is malformed (protocol.md 7.4 rule 1)."""

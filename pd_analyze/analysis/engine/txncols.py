@@ -50,7 +50,8 @@ class TxnCols:
     closed_by: list[str]
     number: np.ndarray  # int64
     findings: dict[int, list[Finding]] = field(default_factory=dict)  # by entry, only those with findings
-    values_before: dict[int, list] = field(default_factory=dict)  # by entry, only changes
+    # by entry, only changes with some value known: per address, its value_before cell (Txn.values_before)
+    values_before: dict[int, list[str]] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.ch)

@@ -110,10 +110,6 @@ def change_elements(view: BatchView, req: np.ndarray, device: np.ndarray, do: np
     return Elements(k1, k2, frame[owner[pair]], owner[pair], lambda e: ""), position[pair], i
 
 
-def element_key(k1: int, k2: int) -> Element:
-    return (k1 >> 8, k1 & 0xFF, k2 >> 17, k2 & 0x1FFFF)
-
-
 def listed_reads(pairs: list[tuple[Element, str]], frames: list[int], owners: list[int]) -> Elements:
     """Reads the loop closed (their elements and values, as Records.read_back gives them)."""
     if not pairs:
@@ -128,42 +124,46 @@ class ReadValues:
     """The value last read back of each element, from batch to batch (capped: the oldest forgotten)."""
 
     def __init__(self) -> None:
-        self.table: CappedTable[Element, str] = CappedTable(READ_VALUES)
+        # by element as two integers (device << 8 | DO, PNU << 17 | subindex: Elements.k1, k2)
+        self.table: CappedTable[tuple[int, int], str] = CappedTable(READ_VALUES)
 
-    def before(self, reads: list[Elements], changes: Elements) -> list[str | None]:
+    def before(self, reads: list[Elements], changes: Elements) -> np.ndarray:
         """Per change element, the value last read back before its frame (this batch's reads first, then
-        what earlier batches read); then this batch's reads become the last read of their elements."""
+        what earlier batches read; None: none), as an object array; then this batch's reads become the last
+        read of their elements."""
         reads = [r for r in reads if len(r)]
         k1 = np.concatenate([r.k1 for r in reads]) if reads else np.empty(0, np.uint64)
         k2 = np.concatenate([r.k2 for r in reads]) if reads else np.empty(0, np.uint64)
         frame = np.concatenate([r.frame for r in reads]) if reads else np.empty(0, np.int64)
         source = np.concatenate([np.full(len(r), s) for s, r in enumerate(reads)]) if reads else np.empty(0, np.int64)
         index = np.concatenate([np.arange(len(r)) for r in reads]) if reads else np.empty(0, np.int64)
+        out = np.full(len(changes), None, object)
+        if not len(k1):  # no read in the batch: what earlier batches read, if anything
+            self._earlier(changes, np.arange(len(changes)), out)
+            return out
         # elements numbered over reads and changes together
         all1, all2 = np.concatenate([k1, changes.k1]), np.concatenate([k2, changes.k2])
-        _u, ids = np.unique(np.stack([all1, all2], axis=1), axis=0, return_inverse=True) if len(all1) else (
-            None, np.empty(0, np.int64))
+        _u, ids = np.unique(np.stack([all1, all2], axis=1), axis=0, return_inverse=True)
         ids = ids.ravel().astype(np.int64)
         rid, cid = ids[:len(k1)], ids[len(k1):]
         order = np.lexsort((frame, rid))  # reads by element, then frame
         combined = (rid[order] << np.int64(40)) | frame[order]
         query = (cid << np.int64(40)) | changes.frame
         at = np.searchsorted(combined, query, "left") - 1  # the last read of the element before the frame
-        hit = (at >= 0) & (rid[order][np.maximum(at, 0)] == cid) if len(combined) else np.zeros(len(cid), bool)
-        out: list[str | None] = []
-        table = self.table
-        hits, ats = hit.tolist(), at.tolist()
-        c1, c2 = changes.k1.tolist(), changes.k2.tolist()
-        for e in range(len(cid)):
-            if hits[e]:
-                r = int(order[ats[e]])
-                out.append(reads[int(source[r])].value(int(index[r])))
-            else:
-                out.append(table.get(element_key(c1[e], c2[e])))
+        hit = (at >= 0) & (rid[order][np.maximum(at, 0)] == cid)
+        for e, r in zip(np.flatnonzero(hit).tolist(), order[at[hit]].tolist(), strict=True):
+            out[e] = reads[int(source[r])].value(int(index[r]))
+        self._earlier(changes, np.flatnonzero(~hit), out)
         # the last read of each element in the batch
-        if len(order):
-            last = np.r_[rid[order][1:] != rid[order][:-1], True]
-            for r in order[last].tolist():
-                key = element_key(int(k1[r]), int(k2[r]))
-                table.remember(key, reads[int(source[r])].value(int(index[r])))
+        last = np.r_[rid[order][1:] != rid[order][:-1], True]
+        table = self.table
+        for r in order[last].tolist():
+            table.remember((int(k1[r]), int(k2[r])), reads[int(source[r])].value(int(index[r])))
         return out
+
+    def _earlier(self, changes: Elements, rows: np.ndarray, out: np.ndarray) -> None:
+        """out[rows]: the value earlier batches last read of each of those change elements."""
+        if not len(self.table) or not len(rows):
+            return
+        get = self.table.get
+        out[rows] = [get(key) for key in zip(changes.k1[rows].tolist(), changes.k2[rows].tolist(), strict=True)]

@@ -67,6 +67,9 @@ class BatchView:
     pnio: np.ndarray  # bool per PDU: route PNIO (the rest are DECIDE)
     kind: np.ndarray  # int8 per PDU: KIND_* of a request
     flag: np.ndarray  # bool per PDU: the per-frame checks may report on it (more are added by `calls`)
+    # bool per PDU: its only frame-local findings are limits the columns state themselves (column_findings):
+    # it is not dissected for them
+    stated: np.ndarray
     _texts: list[str] | None = None
 
     @property
@@ -129,10 +132,14 @@ class BatchView:
         records = profidrive_batch.decode(batch.buf, p.rec_start[sel], p.rec_len[sel], ~request[sel], checker)
         rec_of = np.full(len(p.pos), -1, np.int64)
         rec_of[sel] = np.arange(len(sel))
-        flag = p.flag.copy()
-        flag[sel] |= records.records.flag
+        rc = records.records
+        flag = p.flag & ~p.long_write  # what only the per-frame checks can say
+        flag[sel] |= rc.flag & ~rc.limits_only
+        stated = p.long_write.copy()
+        stated[sel] |= rc.limits_only
+        stated &= ~flag
         return BatchView(batch, decoded, records, rec_of, sel, group_key(p.src, p.dst), batch.number[p.pos],
-                         batch.ts[p.pos], pnio, kind, flag)
+                         batch.ts[p.pos], pnio, kind, flag, stated)
 
     # --- records as the per-frame parse gives them -------------------------------------------------
     @property
