@@ -5,8 +5,9 @@ A transaction is numbered when the batch it opens in is settled, and its rows ar
 number. One case makes a number wait: a write request cut before its IOD header was complete (snaplen,
 damage) opens its transaction only when its answer names a PROFIdrive index (protocol.md 7.3 step 1), yet
 the transaction is numbered at the request's frame. While such a request is unanswered, the transactions
-opened after its frame wait for their numbers (and, closed, for their rows); the vector path stays off
-meanwhile (its transactions are numbered in their batch). The wait ends with the answer, or when the call
+opened after its frame wait for their numbers (and, closed, for their rows); the vector path (whose
+transactions are numbered in their batch) takes none opened from such a request on (run._cut_horizon),
+and stays off while one from an earlier batch waits. The wait ends with the answer, or when the call
 expires (rpc_timeout of capture time) or leaves the pairing's table: a bounded delay, rare in practice.
 """
 
@@ -40,11 +41,6 @@ class Numbering:
         opened at or after it wait for their numbers."""
         self._cuts = [c for c in self._cuts if c[2].answered < 0 and pairing.open.get(c[1]) is c[2]]
         return self._cuts[0][0] if self._cuts else None
-
-    def waits(self, pairing: Pairing, rows: list[Pdu]) -> bool:
-        """Whether numbers may wait in this batch (a cut write request pending, or among the batch's
-        `rows`): the vector path then leaves the batch to the loop."""
-        return self.barrier(pairing) is not None or any(row.cut for row in rows)
 
     def number(self, opened: list[Txn], cols: TxnCols | None, barrier: int | None) -> None:
         """Number the transactions `opened` (by the machine) and `cols` (by the vector path) with those waiting,

@@ -45,13 +45,14 @@ from pd_analyze.model.capped import (
     TXN_CALLS,
     CappedTable,
 )
-from pd_analyze.model.values import PTYPE_REQUEST, PTYPE_RESPONSE
+from pd_analyze.model.values import PTYPE_FAULT, PTYPE_REJECT, PTYPE_REQUEST, PTYPE_RESPONSE
 from pd_analyze.protocol import rpc
 from pd_analyze.protocol.dissector import Dissector, truncated_elsewhere
 from pd_analyze.protocol.frames import Accounting
 from pd_analyze.protocol.rpc_calls import CALL_OVERHEAD
 
 _NEVER = -(1 << 62)
+_ANSWERS = (PTYPE_RESPONSE, PTYPE_FAULT, PTYPE_REJECT)  # what answers a call
 _MARK = object()  # a marker in the loop's stream: the first frame of an episode the vector path took
 
 
@@ -191,8 +192,8 @@ class EngineRun:
         empty = np.empty(0, np.int64)
         none = Calls(empty, empty, np.empty(0, bool)), Episodes(empty, empty, empty, empty, empty, empty, empty,
                                                               empty, [])
-        if not self.vector or not len(dec.rows) or self.numbering.waits(self.pairing, dec.odd_rows):
-            return none
+        if not self.vector or not len(dec.rows) or self.numbering.barrier(self.pairing) is not None:
+            return none  # (a cut write request of an earlier part awaits its answer: numbers wait)
         # rows the loop has, or might have, a share in: their keys stay the loop's (an activity does not:
         # what the loop decides by activity, a PDU of another interface, it decides by the activities first
         # seen before it in frame order, `_first_seen`)
@@ -205,6 +206,9 @@ class EngineRun:
             excluded |= np.isin(key_hash(p.act_hi[rows], p.act_lo[rows], p.seq[rows]), hashes)
         if dec.dropped:
             excluded |= np.isin(rows, np.fromiter(dec.dropped, np.int64, len(dec.dropped)))
+        horizon = _cut_horizon(view, rows, dec.odd_rows)
+        if horizon is not None:
+            excluded |= view.frame_no[rows] >= horizon
         pairing = self.pairing
         self._first = self._first_seen(view, rows)
         if len(pairing.activities) + len(self._first) >= KNOWN_ACTIVITIES.count:
@@ -605,6 +609,35 @@ def _loop_frames(view: object, loop_cols: np.ndarray, odd_rows: list[Pdu], ep: E
         for a, b in zip(bounds.tolist(), [*bounds[1:].tolist(), len(keys)], strict=True):
             out[int(keys[a])] = frames[a:b]
     return out
+
+
+def _cut_horizon(view: BatchView, rows: np.ndarray, odd_rows: list[Pdu]) -> int | None:
+    """The frame of the part's first write request cut before its IOD header that has no answer later in the
+    part (None: none). The transactions opened from it on wait for their numbers (engine.numbering); the
+    vector path numbers its transactions in their part, so it takes none from there on. (A cut request that
+    is answered in the part is the loop's, and so is its answer: its key is an odd row's.)"""
+    cut = [row for row in odd_rows if row.cut and row.ptype == PTYPE_REQUEST]
+    if not cut:
+        return None
+    p = view.p
+    answers = rows[np.isin(p.ptype[rows], _ANSWERS)]
+    last: dict[int, int] = {}  # key hash -> the last frame of an answer with that key
+    hashes, frames = key_hash(p.act_hi[answers], p.act_lo[answers], p.seq[answers]), view.frame_no[answers]
+    if len(hashes):
+        order = np.lexsort((frames, hashes))
+        ends = np.r_[hashes[order][1:] != hashes[order][:-1], True]
+        last = dict(zip(hashes[order][ends].tolist(), frames[order][ends].tolist(), strict=True))
+    odd = [row for row in odd_rows if row.ptype in _ANSWERS]
+    for row, h in zip(odd, _hashes([row.key for row in odd]).tolist(), strict=True):
+        last[h] = max(last.get(h, 0), row.frame)
+    pending = [row.frame for row, h in zip(cut, _hashes([row.key for row in cut]).tolist(), strict=True)
+               if last.get(h, 0) <= row.frame]
+    return min(pending) if pending else None
+
+
+def _hashes(keys: list[tuple[int, int, int]]) -> np.ndarray:
+    return key_hash(np.array([k[0] for k in keys], np.uint64), np.array([k[1] for k in keys], np.uint64),
+                    np.array([k[2] for k in keys], np.uint32))
 
 
 def run_batches(source: Iterable[FrameBatch], settings: Settings, rows: Rows, capture_of: Callable[[int], str],
