@@ -11,7 +11,7 @@ offset, and the few fields whose values keep changing (sequence numbers, checksu
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, MutableSequence, Sequence
+from collections.abc import Callable, Iterable, Iterator, MutableSequence, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -339,6 +339,12 @@ class Annotated(MutableSequence[Field]):
         return NotImplemented
 
     __hash__ = None  # type: ignore[assignment]  # mutable
+
+    def __add__(self, other: Iterable[Field]) -> list[Field]:  # as a list's: the fields, then the other's
+        return [*self, *other]
+
+    def __radd__(self, other: Iterable[Field]) -> list[Field]:
+        return [*other, *self]
 
     def __repr__(self) -> str:
         return f"Annotated({list(self)!r})"
