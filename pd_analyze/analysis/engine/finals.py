@@ -25,6 +25,7 @@ class Finals:
 
     def __init__(self) -> None:
         self.last: CappedTable[Channel, LastDone | Txn] = CappedTable(CHANNEL_HISTORY)
+        self._txns: list[Channel] = []  # the channels whose last is a Txn (settle looks at those only)
         self.values = ReadValues()
 
     def apply(self, opened: list[Txn], closed: list[Txn], cols: TxnCols | None, view: BatchView | None,
@@ -36,9 +37,16 @@ class Finals:
 
     def settle(self) -> None:
         """The end of a batch: a closed transaction is remembered by what T1/T4 need of it only."""
-        for channel, prev in list(self.last.items()):
-            if isinstance(prev, Txn) and prev.closed_by:
+        still = []
+        for channel in self._txns:
+            prev = self.last.get(channel)
+            if not isinstance(prev, Txn):
+                continue  # (forgotten, or followed by a closed one since)
+            if prev.closed_by:
                 self.last[channel] = LastDone(prev.write_frame, prev.ref, prev.verdict)
+            else:
+                still.append(channel)
+        self._txns = still
 
     # --- T1/T4 --------------------------------------------------------------------------------------------
     def _reuse(self, opened: list[Txn], cols: TxnCols | None) -> None:
@@ -71,6 +79,8 @@ class Finals:
                 if found is not None:
                     findings.append(found)
             last.remember(channel, now)
+            if now is item:
+                self._txns.append(channel)
 
     def _reuse_columns(self, cols: TxnCols, alone: np.ndarray) -> None:
         """T1/T4 of the vector path's transactions on channels the machine had none on: each against the one
