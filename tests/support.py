@@ -1,13 +1,17 @@
 """Helpers shared by the test modules: what a test needs from the machine (tshark, Chromium) and from
-beside the repository (the real public captures of ../shared/captures)."""
+beside the repository (the real public captures of ../shared/captures), and an analysis's tables as the
+row tuples the row path made."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 import pytest
+
+if TYPE_CHECKING:
+    from pd_analyze.analysis.rows import Rows
 
 
 def in_ci() -> bool:
@@ -42,3 +46,24 @@ def shared_capture(name: str) -> Path:
         pytest.skip(f"{path} absent: the shared real-world captures are beside the repository in CI, not in a "
                     "clone of the project alone")
     return path
+
+
+def table_rows(rows: Rows, name: str) -> list[tuple]:
+    """One table's rows as the row path made them (schema.ROW_TYPES, times as float seconds, None missing),
+    in the order `Analysis` reads them: the rows made one by one (`Rows.add`), then the rows of the
+    engine's pyarrow tables (`Rows.tables`) in the order they were added. The tests of the row-to-batch
+    machinery (writers, sink, summary) feed these to today's row code and to the batch code alike."""
+    from pd_analyze.analysis.schema import COLUMNS, ROW_TYPES, TIME
+
+    row_type = ROW_TYPES[name]
+    out = list(getattr(rows, name))
+    for table in rows.tables.get(name, ()):
+        cells = []
+        for c in COLUMNS[name]:
+            column = table.column(c.name)  # type: ignore[attr-defined]
+            if c.dtype == TIME:  # timestamp[us] back to float seconds: micros() gives the same microsecond back
+                cells.append([None if us is None else us / 1e6 for us in column.cast("int64").to_pylist()])
+            else:
+                cells.append(column.to_pylist())
+        out += [row_type._make(r) for r in zip(*cells, strict=True)]
+    return out

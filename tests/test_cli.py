@@ -99,13 +99,16 @@ def test_report_and_audit(tmp_path):
     assert r.returncode == 1
     # a frame's findings in the order of their rules in the registry (model/rules.py): rpc_truncated is
     # found reading the RPC header, truncated_capture_pnio (why it is cut) is declared after it
-    assert lines[:3] == ["sample_pcaps/truncated_snaplen.pcap:7: error R1 rpc_truncated: fragment body cut: "
+    assert lines[:4] == ["sample_pcaps/truncated_snaplen.pcap:7: error R1 rpc_truncated: fragment body cut: "
                          "134 of 176 bytes present [txn 2]",
                          "sample_pcaps/truncated_snaplen.pcap:7: error L1 truncated_capture_pnio: capture cut inside "
                          "a PNIO RPC PDU (snaplen) [txn 2]",
                          "sample_pcaps/truncated_snaplen.pcap:7: error H5 record_truncated: record at index 0xb02e "
-                         "truncated: RecordDataLength 92, 50 bytes present [txn 2]"]
-    assert lines[-1] == "4 findings in 1 capture: 3 error, 0 warning, 1 info"
+                         "truncated: RecordDataLength 92, 50 bytes present [txn 2]",
+                         # the transaction the cut write request opened is malformed: T8 at that request (6.5)
+                         "sample_pcaps/truncated_snaplen.pcap:7: warning T8 txn_failed: the transaction of frame 7 "
+                         "failed: malformed: the write request of frame 7 cannot be decoded [txn 2]"]
+    assert lines[-1] == "5 findings in 1 capture: 3 error, 1 warning, 1 info"
     assert run("audit", "sample_pcaps/truncated_snaplen.pcap", "--fail-on", "never").returncode == 0
     assert run("audit", SAMPLE, "--fail-on", "info").returncode == 0
 

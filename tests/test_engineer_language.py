@@ -17,6 +17,7 @@ from pd_analyze.model.rules import RULES
 from pd_analyze.model.values import status_text
 from pd_analyze.output.writers import neutralise
 from pd_analyze.protocol import profiles
+from tests.support import table_rows
 
 ROOT = Path(__file__).resolve().parent.parent
 SAMPLES = ROOT / "sample_pcaps"
@@ -310,9 +311,11 @@ def test_annotate_comments_give_the_profile_error_texts(plant):
             notes.close()
 
     plant_text = "manufacturer-specific 0xc9: above the currently valid upper limit"
-    assert texts(Settings(plant)) == [f"pd-analyze: txn 15 nak; P1082[0] error 0xc9 {plant_text}; I Q10 {plant_text}"]
+    refused = "I T9 the drive refused the transaction of frame 61: P1082[0]: error 0xc9"  # at the NAK (6.5)
+    assert texts(Settings(plant)) == [f"pd-analyze: txn 15 nak; P1082[0] error 0xc9 {plant_text}; I Q10 {plant_text}; "
+                                      f"{refused} ({plant_text})"]
     assert texts(Settings()) == ["pd-analyze: txn 15 nak; P1082[0] error 0xc9 manufacturer-specific 0xc9; I Q10 "
-                                 "manufacturer-specific 0xc9"]
+                                 f"manufacturer-specific 0xc9; {refused} (manufacturer-specific 0xc9)"]
 
 
 def test_b5_retries_is_a_display_filter_field_and_where_b5_polling_counts():
@@ -505,7 +508,7 @@ def test_summary_itemises_a_bounded_number_of_failures_and_counts_the_rest(monke
     monkeypatch.setattr(summary, "ITEMISED", 3)
     rows_acc, batch_acc = summary.Summary(), summary.Summary()
     for name in ("transactions", "parameters"):
-        rows = sorted(getattr(a.rows, name), key=sort_key(name))
+        rows = sorted(table_rows(a.rows, name), key=sort_key(name))
         rows_acc.add(name, rows)
         for k in range(0, len(rows), 4):
             batch_acc.add_batch(name, rows_to_batch(name, rows[k:k + 4]))
@@ -690,7 +693,7 @@ def test_progress_on_a_terminal_shows_percent_of_bytes_and_time_left(tmp_path):
     import threading
 
     capture = tmp_path / "big.pcap"
-    _repeated_capture(capture, 10)
+    _repeated_capture(capture, 40)  # 11.8 MB: more than one 8 MiB read of the capture, so a bar part way
     master, slave = pty.openpty()
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 160, 0, 0))
     seen = bytearray()
@@ -714,7 +717,8 @@ def test_progress_on_a_terminal_shows_percent_of_bytes_and_time_left(tmp_path):
     lines = seen.decode(errors="replace").replace("\r", "\n").splitlines()
     bars = [line for line in lines if line.startswith(f"{capture}: ") and "%|" in line]
     assert r.returncode == 0 and bars
-    assert any(re.search(r" 100%\|.*\| 2\.94M/2\.94M \[\d\d:\d\d<\d\d:\d\d, .*12,289 frames\]", b) for b in bars)
+    # at the end: every byte and every frame read (1,339 frames of the sample, 40 times)
+    assert any(re.search(r" 100%\|.*\| 11\.8M/11\.8M \[\d\d:\d\d<\d\d:\d\d, .*53,560 frames\]", b) for b in bars)
     assert any(re.search(r" (3[0-9]|[4-9][0-9])%\|.*<\d\d:\d\d", b) for b in bars)  # part way, with the time left
 
 

@@ -31,6 +31,11 @@ SAMPLES = ROOT / "sample_pcaps"
 A = "sample_pcaps/audit_commissioning.pcap"  # the commands run from the repository root
 B = "sample_pcaps/audit_recommissioning.pcap"
 SET = "sample_pcaps/sets/audit_commissioning.csv"
+REFUSED = [  # the capture's own findings: each refused write of P1300 a T9 at its NAK (protocol.md 6.5)
+    f"{A}:8: info T9 txn_refused: the drive refused the transaction of frame 5: P1300[0]: error 0x02 (low or high "
+    "limit exceeded) [txn 2]",
+    f"{A}:12: info T9 txn_refused: the drive refused the transaction of frame 9: P1300[0]: error 0x02 (low or high "
+    "limit exceeded) [txn 3]"]
 HEADER = "device,do,pnu,subindex,value,tolerance\n"
 
 
@@ -202,7 +207,7 @@ def test_fold_rules_header_error_timeout_strings_and_order() -> None:
 def test_audit_with_the_matching_set_exits_0() -> None:
     r = run("audit", A, "--expect", SET)
     assert r.returncode == 0, r.stdout + r.stderr
-    assert r.stdout == "0 findings in 1 capture: 0 error, 0 warning, 0 info\n"
+    assert r.stdout.splitlines() == [*REFUSED, "2 findings in 1 capture: 0 error, 0 warning, 2 info"]
     assert intended.check(intended.load(SET), collect([A], Settings())[0]) == []
 
 
@@ -230,6 +235,7 @@ def test_five_values_differ(tmp_path: Path) -> None:
     assert r.returncode == 1
     a = "sample_pcaps/audit_commissioning.pcap"
     assert r.stdout.splitlines() == [
+        *REFUSED,  # the capture's own findings, then the set's (as audit prints them today)
         f"{a}:9: error S2 expect_refused: P1300[0] of 192.168.1.21 DO 1: every write refused (2 of 2), last error "
         "0x02 low or high limit exceeded; intended 7; not read back",
         f"{a}:16: error S1 expect_mismatch: P1120[0] of 192.168.1.21 DO 1: intended 10.5, read back 10 "
@@ -242,7 +248,7 @@ def test_five_values_differ(tmp_path: Path) -> None:
         "(VisibleString, frame 16)",
         f"{a}:24: error S1 expect_mismatch: P1120[0] of 192.168.1.22 DO 1: intended 10.5, read back 10 "
         "(FloatingPoint32, frame 24)",
-        "6 findings in 1 capture: 6 error, 0 warning, 0 info",
+        "8 findings in 1 capture: 6 error, 0 warning, 2 info",
     ]
 
 
@@ -251,9 +257,11 @@ def test_one_value_changed_names_exactly_that_parameter(tmp_path: Path) -> None:
     path.write_text((SAMPLES / "sets" / "audit_commissioning.csv").read_text().replace(",1000,0,-300,", ",1000,0,-30,"))
     r = run("audit", A, "--expect", str(path))
     assert r.returncode == 1
-    assert r.stdout == ("sample_pcaps/audit_commissioning.pcap:16: error S1 expect_mismatch: P1000[0] of 192.168.1.21 "
-                        "DO 1: intended -30, read back -300 (Integer16, frame 16)\n"
-                        "1 findings in 1 capture: 1 error, 0 warning, 0 info\n")
+    assert r.stdout.splitlines() == [
+        *REFUSED,
+        "sample_pcaps/audit_commissioning.pcap:16: error S1 expect_mismatch: P1000[0] of 192.168.1.21 DO 1: intended "
+        "-30, read back -300 (Integer16, frame 16)",
+        "3 findings in 1 capture: 1 error, 0 warning, 2 info"]
 
 
 def test_never_written_tolerance_and_strict(tmp_path: Path) -> None:
@@ -263,11 +271,12 @@ def test_never_written_tolerance_and_strict(tmp_path: Path) -> None:
     r = run("audit", A, "--expect", str(path), "--expect-strict", "--fail-on", "warning")
     assert r.returncode == 1
     assert r.stdout.splitlines() == [
+        *REFUSED,
         "sample_pcaps/audit_commissioning.pcap:9: info S5 unexpected_write: P1300[0] of 192.168.1.21 DO 1: written "
         "2 times, last 7; not in the intended set",
         f"{path}:10: warning S4 expect_missing: P1500[0] of 192.168.1.21 DO 1: intended 3, never written or read in "
         "the capture",
-        "2 findings in 1 capture: 0 error, 1 warning, 1 info",
+        "4 findings in 1 capture: 0 error, 1 warning, 3 info",
     ]
     assert run("audit", A, "--expect", str(path)).returncode == 0  # a warning is below the default --fail-on
 
@@ -503,6 +512,6 @@ def test_audit_expect_over_two_captures_in_parallel_is_the_same() -> None:
     one = run("audit", A, B, "--expect", SET)
     two = run("audit", A, B, "--expect", SET, "--jobs", "2")
     assert one.returncode == two.returncode == 1 and one.stdout == two.stdout
-    assert one.stdout.splitlines()[-1] == "3 findings in 2 captures: 3 error, 0 warning, 0 info"
+    assert one.stdout.splitlines()[-1] == "5 findings in 2 captures: 3 error, 0 warning, 2 info"  # the 2 info: REFUSED
     # the later capture's values are the last seen: .21's P1120 was set to 12 in B
     assert "P1120[0] of 192.168.1.21 DO 1: intended 10.0, read back 12 (FloatingPoint32, frame 8)" in one.stdout

@@ -106,7 +106,11 @@ def test_sew_capture_under_the_sew_profile() -> None:
         ["P8300[0]", "Value", "", "0x311c7289", "", ""]]
     changes = a.changes[["txn", "param", "value_written", "result"]].values.tolist()
     assert changes == [[2, "P8489[0]", "0x00000bb8", "ok"]]  # a WRITE service is a change
-    assert set(a.findings.name) == {"profibus_index"}  # every request header on 0x002F, nothing else
+    f = a.findings
+    assert set(f.name) == {"profibus_index", "txn_refused"}  # every request header on 0x002F, and the NAK's T9
+    assert f.loc[f.name != "profibus_index", ["frame", "txn", "severity", "rule", "message"]].values.tolist() == [
+        [14, 3, "info", "T9", "the drive refused the transaction of frame 11: P4660[0]: error 0x811 (vendor error: "
+                              "class 0x08, additional code 0x11)"]]  # at its negative response (protocol.md 6.5)
 
 
 @pytest.mark.parametrize("bad, message", [

@@ -203,12 +203,18 @@ def test_spool_sorts_stably_in_bounded_memory(tmp_path):
     assert list(tmp_path.iterdir()) == []  # spill files removed
 
 
-def test_csv_and_json_report_do_not_import_pandas(tmp_path):
+@pytest.mark.parametrize("fmt", ["csv", "json"])
+def test_csv_and_json_report_do_not_load_the_plots_or_the_html(tmp_path, fmt):
+    """The engine builds its tables with pyarrow (which loads pandas on its first conversion of Python
+    values), so every report has them; matplotlib and the HTML page's modules only `--format html` loads."""
     code = ("import sys; from pd_analyze.cli import main; sys.argv = ['pd-analyze', 'report', "
-            f"'{SAMPLES / 'fault_trace.pcap'}', '--out', '{tmp_path}', '--format', 'json']\n"
+            f"'{SAMPLES / 'fault_trace.pcap'}', '--out', '{tmp_path}', '--format', '{fmt}']\n"
             "try:\n    main()\nexcept SystemExit:\n    pass\n"
-            "assert 'pandas' not in sys.modules and 'pyarrow' not in sys.modules, 'pandas imported'")
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'matplotlib' or m in "
+            "('pd_analyze.output.plots', 'pd_analyze.output.html_report', 'pd_analyze.output.html_plots', "
+            "'pd_analyze.output.html_tables')), file=sys.stderr)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
+    assert r.stderr.splitlines()[-1] == "[]"
     assert "Transactions: 62" in r.stdout
 

@@ -20,6 +20,7 @@ from pd_analyze.analysis.schema import sort_key
 from pd_analyze.analysis.table_batches import rows_to_batch
 from pd_analyze.output import report
 from pd_analyze.output.summary import Summary
+from tests.support import table_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 E22 = "error 0x22 (too many parameter requests (multi-parameter))"
@@ -59,7 +60,7 @@ def both_feeds(analysis: pd_analyze.Analysis, batch: int) -> tuple[str, str]:
     batches), in table order."""
     rows_acc, batch_acc = Summary(), Summary()
     for name in ("transactions", "parameters", "findings"):
-        rows = sorted(getattr(analysis.rows, name), key=sort_key(name))
+        rows = sorted(table_rows(analysis.rows, name), key=sort_key(name))
         rows_acc.add(name, rows)
         for k in range(0, len(rows), batch):
             batch_acc.add_batch(name, rows_to_batch(name, rows[k:k + batch]))
@@ -146,7 +147,7 @@ def test_one_text_per_error_number_whatever_the_order_of_rows(captures):
     given two texts (a vendor's word and the profile's) reads one text, the same in both feeds and in either order
     of the rows; the NAK list too has one line per number."""
     analysis = pd_analyze.analyze(str(captures["mix"]))
-    rows = sorted(analysis.rows.parameters, key=sort_key("parameters"))
+    rows = sorted(table_rows(analysis.rows, "parameters"), key=sort_key("parameters"))
     at = next(i for i, r in enumerate(rows) if r.error == "0x00")
     worded = rows[at]._replace(error_text="vendor: no such parameter", txn=rows[-1].txn + 1)
     texts = set()
@@ -154,7 +155,7 @@ def test_one_text_per_error_number_whatever_the_order_of_rows(captures):
         for feed in ("rows", "batches"):
             acc = Summary()
             for name in ("transactions", "findings"):
-                acc.add(name, analysis.rows.transactions if name == "transactions" else analysis.rows.findings)
+                acc.add(name, table_rows(analysis.rows, name))
             if feed == "rows":
                 acc.add("parameters", order)
             else:

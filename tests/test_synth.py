@@ -601,7 +601,8 @@ def test_intent_frames_and_profiles() -> None:
                                b5_retries=2)  # fmt: skip
     x.on(x.read_reqs(calls), "vendor_limit", profiles=["akd"])
     x.on(x.final_res(calls), "pd_response_truncated")
-    x.txn(calls, 3, "malformed", "test", findings=[(x.final_res(calls), "n_params_not_mirrored")])
+    x.txn(calls, 3, "malformed", "test", findings=[(x.final_res(calls), "n_params_not_mirrored")],
+          decided=x.final_res(calls))  # the cut response decides the verdict: T8 there (protocol.md 6.5)
     with pytest.raises(ValueError, match="not declared"):
         x.on(x.write_req(calls), "x", profiles=["yaskawa"])
     doc = x.render("t.pcap")
@@ -613,7 +614,8 @@ def test_intent_frames_and_profiles() -> None:
     assert doc["transactions"] == [{"ref": 3, "frames": [1, 8], "verdict": "malformed", "reads": 3, "b5_retries": 2,
                                     "rpc_retransmissions": 0, "pnio_status": "", "capture_ended": False,
                                     "t_write_rtt": 0.0015, "t_total": 0.009,
-                                    "findings": [[8, "n_params_not_mirrored"]], "note": "test"}]  # fmt: skip
+                                    "findings": [[8, "n_params_not_mirrored"], [8, "txn_failed"]],
+                                    "note": "test"}]  # fmt: skip
     assert json.loads(dumps(doc)) == doc
 
 

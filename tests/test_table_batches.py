@@ -28,6 +28,7 @@ from pd_analyze.output.batch_cells import float_text, int_text, time_text
 from pd_analyze.output.summary import Summary
 from pd_analyze.output.table_sink import FAN_IN, TableSink
 from pd_analyze.output.writers import csv_time, open_table
+from tests.support import table_rows
 from tests.test_streaming import assert_files_equal_tables
 
 SAMPLES = Path("sample_pcaps")
@@ -133,7 +134,7 @@ def test_batch_schema_types_every_column():
 
 @pytest.mark.parametrize("name", TABLES)
 def test_frame_from_batches_equals_frame_of(samples, name):
-    rows = list(getattr(samples.rows, name))
+    rows = table_rows(samples.rows, name)
     want = frame_of(name, rows)
     pd.testing.assert_frame_equal(frame_from_batches(name, [rows_to_batch(name, rows)]), want)
     rng = random.Random(len(rows))
@@ -144,7 +145,7 @@ def test_frame_from_batches_equals_frame_of(samples, name):
 
 @pytest.mark.parametrize("name", TABLES)
 def test_frame_from_batches_sorts_batches_that_came_out_of_order(samples, name):
-    batches = _batches(name, list(getattr(samples.rows, name)), random.Random(name))
+    batches = _batches(name, table_rows(samples.rows, name), random.Random(name))
     arrived = [r for b in batches for r in b]
     got = frame_from_batches(name, [rows_to_batch(name, b) for b in batches])
     pd.testing.assert_frame_equal(got, frame_of(name, arrived))
@@ -265,7 +266,7 @@ def test_conform_makes_a_batch_hold_what_rows_hold():
 @pytest.mark.parametrize("name", TABLES)
 def test_shuffled_batches_through_the_sink_equal_todays_files(tmp_path, samples, name, fmt):
     by_capture = report._by_capture(name, fmt)
-    rows = list(getattr(samples.rows, name))
+    rows = table_rows(samples.rows, name)
     (tmp_path / "new").mkdir()
     writer = open_table(str(tmp_path / "new"), name, fmt)
     sink = TableSink(name, writer, by_capture=by_capture, spill_dir=str(tmp_path), chunk_rows=50,
@@ -280,7 +281,7 @@ def test_shuffled_batches_through_the_sink_equal_todays_files(tmp_path, samples,
 
 @pytest.mark.parametrize("name", TABLES)
 def test_the_sink_spills_and_still_writes_in_order(tmp_path, samples, name):
-    rows = list(getattr(samples.rows, name))
+    rows = table_rows(samples.rows, name)
     (tmp_path / "new").mkdir()
     writer = open_table(str(tmp_path / "new"), name, "csv")
     sink = TableSink(name, writer, spill_dir=str(tmp_path / "new"), max_held=10, chunk_rows=7, min_write=1)
@@ -336,7 +337,7 @@ def test_summary_from_batches_equals_summary_from_rows(samples):
         analysis = samples if paths is ALL else pd_analyze.analyze(paths)
         rows_acc, batch_acc = Summary(), Summary()
         for name in ("transactions", "parameters", "findings"):
-            rows = sorted(getattr(analysis.rows, name), key=sort_key(name))  # table order, as the sink feeds it
+            rows = sorted(table_rows(analysis.rows, name), key=sort_key(name))  # table order, as the sink feeds it
             rows_acc.add(name, rows)
             i = 0
             while i < len(rows):
@@ -360,7 +361,7 @@ def test_write_batches_equals_the_stream(tmp_path, samples, fmt):
     rng = random.Random(fmt)
     with report.BatchReport(str(tmp_path / "new"), fmt, max_held=40, chunk_rows=30) as out:
         for name in TABLES:
-            batches = _batches(name, list(getattr(samples.rows, name)), rng, whole_keys=True)
+            batches = _batches(name, table_rows(samples.rows, name), rng, whole_keys=True)
             for k, b in enumerate(batches):
                 out.add(name, rows_to_batch(name, b))
                 watermark = _watermark(name, batches[k + 1:], out.by_capture(name))
@@ -377,7 +378,7 @@ def test_write_batches_equals_the_stream(tmp_path, samples, fmt):
 
 
 def test_a_failed_report_leaves_no_spill_behind(tmp_path, samples):
-    rows = list(samples.rows.transactions)
+    rows = table_rows(samples.rows, "transactions")
     with pytest.raises(RuntimeError), report.BatchReport(str(tmp_path), "csv", max_held=10) as out:
         out.add("transactions", rows_to_batch("transactions", rows[::-1]))  # spills
         assert any(p.name.startswith(".pd-analyze-") for p in tmp_path.iterdir())
@@ -389,7 +390,7 @@ def test_write_tables_writes_csv_and_parquet_through_the_batches(tmp_path, sampl
     for fmt in ("csv", "parquet"):
         report.write_tables(samples, str(tmp_path / fmt), fmt)
         for name in TABLES:
-            _assert_same_files(_today(tmp_path / f"today-{fmt}", name, fmt, list(getattr(samples.rows, name)),
+            _assert_same_files(_today(tmp_path / f"today-{fmt}", name, fmt, table_rows(samples.rows, name),
                                       report._by_capture(name, fmt)),
                                tmp_path / fmt / (name + SUFFIX[fmt]), fmt)
         assert not [p for p in (tmp_path / fmt).iterdir() if p.name.startswith(".")]  # no spill left
@@ -397,7 +398,7 @@ def test_write_tables_writes_csv_and_parquet_through_the_batches(tmp_path, sampl
 
 def test_json_batch_lines_are_todays_lines(samples, tmp_path):
     for name in TABLES:
-        rows = sorted(getattr(samples.rows, name), key=sort_key(name))
+        rows = sorted(table_rows(samples.rows, name), key=sort_key(name))
         writer = open_table(str(tmp_path), name, "json")
         writer.write_batch(rows_to_batch(name, rows))
         writer.close()

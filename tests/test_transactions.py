@@ -45,8 +45,9 @@ def test_truncated_write_makes_a_malformed_transaction():
     assert a.transactions.verdict.tolist() == ["ok", "malformed"]
     f = a.findings
     assert sorted(zip(f.frame, f.name, strict=True)) == [
-        (7, "record_truncated"), (7, "rpc_truncated"), (7, "truncated_capture_pnio"), (11, "truncated_capture")]
-    assert f.loc[f.frame == 7, "txn"].tolist() == [2, 2, 2]
+        (7, "record_truncated"), (7, "rpc_truncated"), (7, "truncated_capture_pnio"), (7, "txn_failed"),
+        (11, "truncated_capture")]  # T8 at the write request that cannot be decoded (protocol.md 6.5)
+    assert f.loc[f.frame == 7, "txn"].tolist() == [2, 2, 2, 2]
     assert f.loc[f.frame == 11, "txn"].isna().all()
 
 
