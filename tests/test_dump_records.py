@@ -119,12 +119,19 @@ def test_the_finding_of_a_record_cut_short_is_as_before(tmp_path: Path) -> None:
     lines = dump(path, "--findings-only")
     assert [line for line in lines if line.startswith("  !") and " H7 " not in line] == [  # H7: the write
         # responses of this capture mirror the bytes present
+        # and the T8 of each malformed transaction at the PDU that cannot be decoded (protocol.md 6.5)
         "  ! E H5 record_truncated [iod.record_len]: record at index 0xb02e truncated: RecordDataLength 12, 10 bytes "
         "present (value 10; expected 12)",
+        "  ! W T8 txn_failed [txn.verdict]: the transaction of frame 1 failed: malformed: the write request of frame 1 "
+        "cannot be decoded (value malformed; expected ok or nak)",
         "  ! E H5 record_truncated [iod.record_len]: record at index 0xb02e truncated: RecordDataLength 24, 21 bytes "
         "present (value 21; expected 24)",
+        "  ! W T8 txn_failed [txn.verdict]: the transaction of frame 5 failed: malformed: the write request of frame 5 "
+        "cannot be decoded (value malformed; expected ok or nak)",
         "  ! E H5 record_truncated [iod.record_len]: record at index 0xb02e truncated: RecordDataLength 18, 13 bytes "
-        "present (value 13; expected 18)"]
+        "present (value 13; expected 18)",
+        "  ! W T8 txn_failed [txn.verdict]: the transaction of frame 9 failed: malformed: the read response of frame "
+        "12 cannot be decoded (value malformed; expected ok or nak)"]
     records = [json.loads(line) for line in dump(path, "--format", "json")]
     assert {r["frame"]: [f["rule"] for f in r["findings"]] for r in records if r["findings"]} == \
         {1: ["H5"], 2: ["H7"], 5: ["H5"], 6: ["H7"], 12: ["H5"]}

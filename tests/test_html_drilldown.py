@@ -88,13 +88,16 @@ def test_every_finding_of_a_drilled_frame_is_listed_under_it_on_every_sample() -
     for capture in SAMPLES:
         a = pd_analyze.analyze(str(capture))
         checked += check_every_drilled_frame(a, embedded(html_report.render(a)))
-    assert checked == 114  # every finding of every drilled frame of the samples, each compared
+    # every finding of every drilled frame of the samples, each compared: 117 of frame and transaction rules
+    # (3 R7 at the duplicate answers a transaction lists among its frames, protocol.md 7.6), 39 T8 txn_failed and
+    # 50 T9 txn_refused (6.5)
+    assert checked == 206
 
 
 def test_every_finding_of_a_drilled_frame_is_listed_on_a_fault_rich_capture(rich) -> None:
     a, page = rich
     data = embedded(page.read_text(encoding="utf-8"))
-    assert check_every_drilled_frame(a, data) == 85
+    assert check_every_drilled_frame(a, data) == 149  # 85 of T1-T4, R7 and P2; 54 T8 and 10 T9 (protocol.md 6.5)
     failed = a.transactions[a.transactions.verdict != "ok"]
     named = set(re.findall(r"transaction (\d+)", report.summary(a)))  # drilled whatever their verdict
     named_failed = {int(n) for n in named} & set(failed.txn)
@@ -110,16 +113,21 @@ def test_transaction_level_findings_reach_their_frames(pages: dict[str, Path]) -
         [["Q2 error: response reference 3 does not mirror the request's 2", "E"]]
     assert data["drill"]["19"]["x"] == [95, "pd.ref"]
 
-    data = embedded(pages["pd_timeouts"].read_text(encoding="utf-8"))  # found after the timeout: R7
-    assert [f["F"] for f in data["drill"]["5"]["F"]] == [[[
-        "warning", "R7", "rpc_unanswered", "rpc.seq", "request not answered (no response within 5 s)", "1",
-        "a response within 5 s"]]]
+    data = embedded(pages["pd_timeouts"].read_text(encoding="utf-8"))  # found after the timeout: R7, and T8 at
+    # the write request the deadline closed (protocol.md 6.5)
+    assert [f["F"] for f in data["drill"]["5"]["F"]] == [[
+        ["warning", "R7", "rpc_unanswered", "rpc.seq", "request not answered (no response within 5 s)", "1",
+         "a response within 5 s"],
+        ["warning", "T8", "txn_failed", "txn.verdict", "the transaction of frame 15 failed: timeout: no final "
+         "response within 10 s", "timeout", "ok or nak"]]]
     assert data["drill"]["5"]["x"] == [15, "rpc.seq"]
     assert data["drill"]["3"]["x"] is None  # a deadline timeout: no field decided it
 
     data = embedded(pages["pd_retries_and_duplicates"].read_text(encoding="utf-8"))  # T3, T4 on ok transactions
     t3 = next(f for f in data["drill"]["10"]["F"] if f["n"] == 52)
-    assert [x[1:3] for x in t3["F"]] == [["T3", "write_while_pending"]] and data["drill"]["10"]["x"] == [52, "pd.ref"]
+    # (and T8 of the transaction it superseded, at the superseding write: protocol.md 6.5)
+    assert [x[1:3] for x in t3["F"]] == [["T3", "write_while_pending"], ["T8", "txn_failed"]]
+    assert data["drill"]["10"]["x"] == [52, "pd.ref"]
 
 
 def test_the_field_that_decided_the_verdict(pages: dict[str, Path]) -> None:

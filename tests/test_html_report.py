@@ -88,6 +88,11 @@ def test_plots_are_embedded_svg(fault_html: str) -> None:
         assert label in timeline
 
 
+# fault_trace's findings: the T4 of txn 42, T8 txn_failed of its 2 pnio_error and T9 txn_refused of its 7 nak
+# transactions (protocol.md 6.5)
+FAULT_TRACE_RULES = ["T4"] + ["T8"] * 2 + ["T9"] * 7
+
+
 def test_tables_and_drilldown_data(fault_html: str) -> None:
     data = embedded(fault_html)
     t = data["tables"]["transactions"]
@@ -95,7 +100,9 @@ def test_tables_and_drilldown_data(fault_html: str) -> None:
     assert len(t["rows"]) == t["total"] == 62 and t["note"] == ""
     verdicts = [r[names.index("verdict")] for r in t["rows"]]
     assert {v: verdicts.count(v) for v in set(verdicts)} == {"ok": 53, "nak": 7, "pnio_error": 2}
-    assert len(data["tables"]["findings"]["rows"]) == 1 and len(data["tables"]["changes"]["rows"]) == 12
+    f = data["tables"]["findings"]
+    rules = [r[[c["name"] for c in f["columns"]].index("rule")] for r in f["rows"]]
+    assert sorted(rules) == FAULT_TRACE_RULES and len(data["tables"]["changes"]["rows"]) == 12
     drilled = {int(k) for k, v in data["drill"].items() if v["v"] != "ok"}
     assert drilled == {5, 7, 12, 13, 15, 17, 43, 46, 59}  # every failed transaction has its frames
     assert len(data["drill"]) == 62  # and, the capture being small, every other one too
@@ -287,7 +294,8 @@ def test_fault_report_sorts_filters_and_drills_down(browser, reports: dict[str, 
     assert len(column(browser, "transactions", "txn")) == 50  # first page of 62
     pager = browser.find_element(By.CSS_SELECTOR, "div[data-table='transactions'] .pager span").text
     assert pager == "rows 1–50 of 62"
-    assert len(column(browser, "findings", "rule")) == 1 and len(column(browser, "changes", "param")) == 12
+    assert sorted(column(browser, "findings", "rule")) == FAULT_TRACE_RULES
+    assert len(column(browser, "changes", "param")) == 12
 
     click_header(browser, "transactions", "t_total")  # numeric sort, ascending, empty cells last
     totals = [float(v) for v in column(browser, "transactions", "t_total") if v]

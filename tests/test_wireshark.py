@@ -84,10 +84,17 @@ def test_annotate_comments_say_verdicts_errors_and_rules(tmp_path: Path) -> None
     rows = tshark(out, "-Y", "frame.comment", "-T", "fields", "-e", "frame.number", "-e", "frame.comment")
     comments = {int(n): text for n, text in rows}
     assert comments[19] == "pd-analyze: txn 5 request P2[0]: nak"
-    assert comments[22] == "pd-analyze: txn 5 nak; P2[0] error 0x01 parameter value cannot be changed"
-    assert comments[27].endswith("P2019[0]: pnio_error") and comments[28] == "pd-analyze: txn 7 pnio_error"
+    # the refusal and the failure are findings at the frame that decided the verdict: T9, T8 (protocol.md 6.5)
+    assert comments[22] == "pd-analyze: txn 5 nak; P2[0] error 0x01 parameter value cannot be changed; I T9 the " \
+        "drive refused the transaction of frame 19: P2[0]: error 0x01 (parameter value cannot be changed)"
+    assert comments[27].endswith("P2019[0]: pnio_error") and comments[28] == "pd-analyze: txn 7 pnio_error; W T8 " \
+        "the transaction of frame 27 failed: pnio_error: DF80B100 write: access write length error (parameter " \
+        "request above the record limit or shorter than its header, or read buffer too small) (in the answer to the " \
+        "write)"
     assert comments[291].startswith("pd-analyze: txn 42 request P1082[0]: ok; I T4 ")
-    assert comments[60] == "pd-analyze: txn 15 request P1082[0]: pnio_error"  # a busy drive given up (7.3 step 5)
+    assert comments[60] == "pd-analyze: txn 15 request P1082[0]: pnio_error; W T8 the transaction of frame 60 " \
+        "failed: pnio_error: DE80B500 read: access state conflict (PROFIdrive: response not ready yet / request " \
+        "still processed): every read answered B5 (3), no final response within 10 s"  # a busy drive given up (7.3)
     assert not [text for text in comments.values() if ": timeout" in text]
 
 
@@ -224,18 +231,20 @@ FILTERS = [  # (capture, expression, frames it selects among the PNIO RPC frames
     (WORKED, "pd.req_id == \"request parameter (read)\"", [1]),  # a value name
     (FAULT, "pd.addr.pnu == 964 and txn.verdict == \"nak\"", [97]),  # txn 17's request
     (FAULT, "finding.rule == \"T4\"", [291]),
-    (FAULT, "finding.severity == \"info\"", [291]),
+    # T4 at 291, T9 txn_refused at the negative response of each of the 7 NAKs (protocol.md 6.5)
+    (FAULT, "finding.severity == \"info\"", [22, 52, 56, 102, 291, 300, 318, 396]),
     (FAULT, "pd.val.error == 0x11", [52, 396]),  # txns 12 and 59
     (FAULT, "pn_io.profidrive.parameter.error_num in {0x02 0x03} and ip.src == 192.168.1.21", [56]),
     (SAMPLES / "pd_negative.pcap", "txn.verdict == \"nak\" and pd.val.error_subindex", [10, 14, 18]),
     # contains and matches on every text field, the analysis fields included (== keeps to the value names)
     (TIMEOUTS, "txn.verdict contains \"out\"", [9, 10, 15, 73, 75, 77, 79, 80, 85, 90, 127, 128, 129, 130, 135, 136]),
-    (TIMEOUTS, "finding.severity contains \"arn\"", [15, 80]),
+    (TIMEOUTS, "finding.severity contains \"arn\"", [9, 15, 57, 73, 80, 127]),  # R7; T8 at each failed write
     (FAULT, "txn.verdict matches \"^(NAK|pnio)\" and frame.number < 60", [19, 20, 21, 22, 27, 28, 45, 46, 47, 48,
                                                                           49, 50, 51, 52, 53, 54, 55, 56]),
     (FAULT, "txn.verdict matches \"(?-i)^NAK\"", []),  # (?-i): case-sensitive, as PCRE2's
     (FAULT, "finding.rule ~ \"t4\"", [291]),
-    (FAULT, "finding.rule matches \"^T[0-9]$\" or finding.rule contains \"Q\"", [291]),
+    (FAULT, "finding.rule matches \"^T[0-9]$\" or finding.rule contains \"Q\"",  # T4; T8 (28, 60) and T9
+     [22, 28, 52, 56, 60, 102, 291, 300, 318, 396]),
     (SAMPLES / "pd_commissioning.pcap", "pd.val.string contains \"Pump\"", [16, 35]),  # the read, the write
     (SAMPLES / "pd_commissioning.pcap", "pd.val.string matches \"^sinamics\"", [16]),
     (WORKED, "eth.src contains 02:00:00 and eth.src matches \"\\\\x02\\\\x01$\" and frame.number < 3", [2]),

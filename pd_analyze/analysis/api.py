@@ -66,13 +66,7 @@ class Analysis:
         return values_frame(self.parameters)
 
     def _frame(self, name: str) -> pd.DataFrame:
-        """A table from its rows (the per-frame path's) and its pyarrow tables (the columns')."""
-        tables = self.rows.tables.get(name)
-        if not tables:
-            return frame_of(name, getattr(self.rows, name))
-        from pd_analyze.analysis.table_batches import frame_from_batches, rows_to_batch
-
-        return frame_from_batches(name, [rows_to_batch(name, getattr(self.rows, name)), *tables])
+        return table_frame(self.rows, name)
 
     @cached_property
     def parameter_state(self) -> pd.DataFrame:
@@ -122,6 +116,17 @@ ACCOUNTING_COLUMNS = {  # name: dtype
     "capture": "str", "read": "int64", "decoded": "int64", "skipped": "int64", "malformed": "int64",
     "balanced": "bool", "transactions": "int64", "error": "str", "skipped_by_reason": "object",
     "malformed_by_reason": "object"}
+
+
+def table_frame(rows: Rows, name: str) -> pd.DataFrame:
+    """One of the four tables as a DataFrame: its rows made one by one (Rows.add) and its pyarrow tables
+    (the engine's, Rows.add_table), in that order."""
+    tables = rows.tables.get(name)
+    if not tables:
+        return frame_of(name, getattr(rows, name))
+    from pd_analyze.analysis.table_batches import frame_from_batches, rows_to_batch
+
+    return frame_from_batches(name, [rows_to_batch(name, getattr(rows, name)), *tables])
 
 
 def accounting_frame(captures: Iterable[CaptureResult]) -> pd.DataFrame:

@@ -19,7 +19,7 @@ import dask
 import dask.dataframe as dd
 import pandas as pd
 
-from pd_analyze.analysis.api import accounting_frame, expand
+from pd_analyze.analysis.api import accounting_frame, expand, table_frame
 from pd_analyze.analysis.capture_run import DEFAULT_TXN_TIMEOUT, CaptureResult, Settings
 from pd_analyze.analysis.jobs import analyze_file
 from pd_analyze.analysis.rows import Rows
@@ -37,7 +37,7 @@ class Tables(NamedTuple):
 
 
 def _table(part: tuple[Rows, object], name: str) -> pd.DataFrame:
-    return frame_of(name, getattr(part[0], name))
+    return table_frame(part[0], name)  # (the engine's rows come as pyarrow tables, Rows.add_table)
 
 
 def _accounting(part: tuple[Rows, CaptureResult]) -> pd.DataFrame:

@@ -70,9 +70,11 @@ def add_findings(res: FrameResult, extra: Sequence[Finding]) -> None:
     for f in res.findings:
         by_field.setdefault(f.field, []).append(f)
     named = {f.field for f in added}
-    for fld in res.fields():
-        if fld.name in named:
-            mark_field(fld, by_field, frozenset())
+    for layer in res.layers:
+        fields = layer.fields  # a Layout's fields are shared between frames: each marked one is put back
+        for i, fld in enumerate(fields):
+            if fld.name in named:
+                fields[i] = mark_field(fld, by_field, frozenset())
 
 
 def _key(f: Finding) -> tuple[str, str, str, str]:

@@ -6,7 +6,7 @@ number. One case makes a number wait: a write request cut before its IOD header 
 damage) opens its transaction only when its answer names a PROFIdrive index (protocol.md 7.3 step 1), yet
 the transaction is numbered at the request's frame. While such a request is unanswered, the transactions
 opened after its frame wait for their numbers (and, closed, for their rows); the vector path (whose
-transactions are numbered in their batch) takes none opened from such a request on (run._cut_horizon),
+transactions are numbered in their batch) takes none opened from such a request on (take.cut_horizon),
 and stays off while one from an earlier batch waits. The wait ends with the answer, or when the call
 expires (rpc_timeout of capture time) or leaves the pairing's table: a bounded delay, rare in practice.
 """

@@ -1,8 +1,8 @@
 """The capture loop: batch by batch, decode (analysis.engine.decode), take the ordinary calls and
-transactions whole as vector expressions (vector), run the compact loop over every other row (calls,
-machine), settle what needs them all (finals), make the findings the columns leave to the reference's
-code (findings), number the transactions opened, hand the closed ones' rows on (tables), carry what is
-still open.
+transactions whole as vector expressions (vector; what of a part it may take: take), run the compact loop
+over every other row (calls, machine), settle what needs them all (finals), make the findings the columns
+leave to the reference's code (findings), number the transactions opened, hand the closed ones' rows on
+(tables), carry what is still open.
 
 Every capture takes this one way, whatever its size; a capture is one stream of frames through one
 pairing and one machine, so no frame, channel or batch ever changes path.
@@ -27,33 +27,23 @@ from pd_analyze.analysis.engine.machine import FsmCall, Machine
 from pd_analyze.analysis.engine.numbering import Numbering
 from pd_analyze.analysis.engine.records import Records
 from pd_analyze.analysis.engine.tables import TableBuilder
+from pd_analyze.analysis.engine.take import EMPTY, Costs, VectorTake, given_back
 from pd_analyze.analysis.engine.txn import Txn
 from pd_analyze.analysis.engine.txncols import TxnCols, of_episodes
-from pd_analyze.analysis.engine.vector import Calls, Episodes, episodes, key_hash, pair, pair_key
-from pd_analyze.analysis.engine.view import BatchView
+from pd_analyze.analysis.engine.vector import Calls, Episodes
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.schema import arrow_text
 from pd_analyze.analysis.stations import names_in_batch
 from pd_analyze.capture import CaptureError
 from pd_analyze.capture.batches import BATCH_FRAMES, FrameBatch, frame_batches
 from pd_analyze.capture.raw import RawFrame
-from pd_analyze.model.capped import (
-    CHANNEL_REQUESTS,
-    KNOWN_ACTIVITIES,
-    OPEN_CALLS,
-    PENDING_TRANSACTIONS,
-    TXN_CALLS,
-    CappedTable,
-)
-from pd_analyze.model.values import PTYPE_FAULT, PTYPE_REJECT, PTYPE_REQUEST, PTYPE_RESPONSE
+from pd_analyze.model.capped import CHANNEL_REQUESTS, CappedTable
+from pd_analyze.model.values import PTYPE_REQUEST, PTYPE_RESPONSE
 from pd_analyze.protocol import rpc
 from pd_analyze.protocol.dissector import Dissector, truncated_elsewhere
 from pd_analyze.protocol.frames import Accounting
-from pd_analyze.protocol.rpc_calls import CALL_OVERHEAD
 
 _NEVER = -(1 << 62)
-_ANSWERS = (PTYPE_RESPONSE, PTYPE_FAULT, PTYPE_REJECT)  # what answers a call
-_MARK = object()  # a marker in the loop's stream: the first frame of an episode the vector path took
 
 
 class EngineRun:
@@ -91,7 +81,8 @@ class EngineRun:
         self.last_frame = 0
         # each channel's last parameter request's addresses, as Q7 compares a read response with them (6.4)
         self.last_request: CappedTable[tuple, tuple] = CappedTable(CHANNEL_REQUESTS)
-        self._first: dict[tuple[int, int], int] = {}  # the part's activities first seen in column rows (_first_seen)
+        self.costs = Costs.of(checker.record)
+        self.take = VectorTake(self.vector, self.pairing, self.machine, self.numbering, self.costs)
 
     # --- the loop -----------------------------------------------------------------------------------
     def feed(self, batch: FrameBatch) -> None:
@@ -133,7 +124,7 @@ class EngineRun:
             (decide_ns if row.decide else pnio_ns)[at] = row.ts
         runmax_pnio = np.maximum.accumulate(np.maximum(pnio_ns, self.now_pnio))
         static_pnio = np.maximum.accumulate(np.maximum(np.maximum(pnio_ns, decide_ns), self.now_pnio))
-        calls, ep = self._vector(dec, runmax_all, static_pnio)
+        calls, ep = self.take.part(dec, runmax_all, static_pnio)
         taken = np.zeros(len(p.pos), bool)
         taken[calls.q] = True
         taken[calls.s] = True
@@ -158,15 +149,15 @@ class EngineRun:
         keep = np.ones(len(ep.w), bool)
         keep[rejected] = False
         self._last_requests(view, calls, ep, keep & ~marked, records)
-        done_calls, ep = _given_back(calls, ep, keep)
+        done_calls, ep = given_back(calls, ep, keep)
         cols = of_episodes(view, done_calls, ep) if len(ep.w) else None
         result = self.results[-1]
         result.vector_pdus += 2 * len(done_calls.q)
         result.column_pdus += len(dec.rows)
         result.pnio_pdus += len(dec.rows) + sum(1 for r in dec.odd_rows if not r.decide)
-        self._remember_calls(view, done_calls)
-        self.pairing.order_activities(self._first)
-        self._first = {}
+        self.take.remember_calls(view, done_calls)
+        self.pairing.order_activities(self.take.first)
+        self.take.first = {}
         loose = self.findings.vector(dec, done_calls, ep, cols, records)
         loose += self.findings.loop(dec, accepted, self.part)
         for row in accepted:
@@ -184,96 +175,6 @@ class EngineRun:
         self._close_part(view, batch, records, accepted)
 
     # --- the vector path -------------------------------------------------------------------------------
-    def _vector(self, dec: Decoded, runmax_all: np.ndarray, runmax_pnio: np.ndarray) -> tuple[Calls, Episodes]:
-        """The calls and transactions of the part the vector path takes whole (none when it is off, or when
-        the caps come near: then the loop's order of evictions decides, and it takes everything)."""
-        view = dec.view
-        p = view.p
-        empty = np.empty(0, np.int64)
-        none = Calls(empty, empty, np.empty(0, bool)), Episodes(empty, empty, empty, empty, empty, empty, empty,
-                                                              empty, [])
-        if not self.vector or not len(dec.rows) or self.numbering.barrier(self.pairing) is not None:
-            return none  # (a cut write request of an earlier part awaits its answer: numbers wait)
-        # rows the loop has, or might have, a share in: their keys stay the loop's (an activity does not:
-        # what the loop decides by activity, a PDU of another interface, it decides by the activities first
-        # seen before it in frame order, `_first_seen`)
-        excluded = np.zeros(len(dec.rows), bool)
-        keys = {row.key for row in dec.odd_rows if row.key[0] or row.key[1]}
-        rows = dec.rows
-        if keys:
-            hashes = key_hash(np.array([k[0] for k in keys], np.uint64), np.array([k[1] for k in keys], np.uint64),
-                              np.array([k[2] for k in keys], np.uint32))
-            excluded |= np.isin(key_hash(p.act_hi[rows], p.act_lo[rows], p.seq[rows]), hashes)
-        if dec.dropped:
-            excluded |= np.isin(rows, np.fromiter(dec.dropped, np.int64, len(dec.dropped)))
-        horizon = _cut_horizon(view, rows, dec.odd_rows)
-        if horizon is not None:
-            excluded |= view.frame_no[rows] >= horizon
-        pairing = self.pairing
-        self._first = self._first_seen(view, rows)
-        if len(pairing.activities) + len(self._first) >= KNOWN_ACTIVITIES.count:
-            self._first = {}
-            return none  # (the loop's order of evictions decides)
-        known = _Known(pairing)
-        runmax_pdu = runmax_all[p.pos]
-        calls = pair(view, rows, runmax_pdu, pairing.timeout, excluded, known)
-        if not len(calls.q):
-            return none
-        # the loop's rows between each drive and controller (odd rows, and the column rows not taken)
-        taken = np.zeros(len(p.pos), bool)
-        taken[calls.q] = True
-        taken[calls.s] = True
-        loop_cols = rows[~taken[rows]]
-        static = runmax_pnio[p.pos]
-        ep = _empty_episodes()
-        frames_by_pair = _loop_frames(view, loop_cols, dec.odd_rows, None, calls)
-        for _ in range(8):  # episodes refused add their rows to the loop's; until nothing changes
-            ep = episodes(view, calls, frames_by_pair, static, self.machine.timeout, self.machine.b5_threshold)
-            more = _loop_frames(view, loop_cols, dec.odd_rows, ep, calls)
-            if all(np.array_equal(more.get(k, _E), v) for k, v in frames_by_pair.items()) and \
-                    more.keys() == frames_by_pair.keys():
-                break
-            frames_by_pair = more
-        else:  # (not settled: the loop takes every transaction of the part)
-            ep = _empty_episodes()
-        # PROFIdrive calls outside an episode are the loop's
-        in_ep = np.zeros(len(calls.q), bool)
-        in_ep[ep.w] = True
-        in_ep[ep.reads] = True
-        keep = ~calls.pd | in_ep
-        out = Calls(calls.q[keep], calls.s[keep], calls.pd[keep])
-        if self._near_caps(_most_at_once(view.frame_no[out.q], view.frame_no[out.s]),
-                           _most_at_once(ep.start, ep.end)):
-            return none
-        index = np.full(len(calls.q), -1, np.int64)
-        index[np.flatnonzero(keep)] = np.arange(int(keep.sum()))
-        return out, Episodes(index[ep.w], index[ep.reads], ep.first_read, ep.n_reads, ep.channel, ep.group, ep.start,
-                             ep.end, ep.channels)
-
-    def _first_seen(self, view: BatchView, rows: np.ndarray) -> dict[tuple[int, int], int]:
-        """The activities of the column `rows` (frame order) not known when the part begins: activity -> the
-        frame of its first row."""
-        p = view.p
-        acts = np.stack([p.act_hi[rows], p.act_lo[rows]], axis=1)
-        if not len(acts):
-            return {}
-        distinct, first = np.unique(acts, axis=0, return_index=True)
-        known = self.pairing.activities
-        frames = view.frame_no[rows[first]].tolist()
-        return {act: frame for act, frame in zip(map(tuple, distinct.tolist()), frames, strict=True)
-                if act not in known}
-
-    def _near_caps(self, calls: int, transactions: int) -> bool:
-        """Whether the loop's tables could reach a cap with the calls and transactions the vector path takes
-        (at most `calls` and `transactions` of them open at once), where the order the loop meets rows in
-        decides what is evicted: the loop then takes the part whole."""
-        machine, pairing = self.machine, self.pairing
-        return (len(machine.pending) + transactions >= PENDING_TRANSACTIONS.count
-                or machine.pending.bytes + transactions * _PENDING_COST >= PENDING_TRANSACTIONS.bytes
-                or len(pairing.open) + calls >= OPEN_CALLS.count
-                or pairing.open.bytes + calls * _CALL_COST >= OPEN_CALLS.bytes
-                or len(machine.calls_table()) + calls >= TXN_CALLS.count)
-
     def _loop(self, dec: Decoded, stream: list[Pdu], calls: Calls, ep: Episodes, runmax_all: np.ndarray,
               runmax_pnio: np.ndarray) -> tuple[list[Pdu], list[int], np.ndarray]:
         """The loop over the part's other rows in frame order, the first frames of the episodes on a channel
@@ -282,11 +183,11 @@ class EngineRun:
         batch, view = dec.batch, dec.view
         pairing, machine, records = self.pairing, self.machine, self.machine.records
         last_request = self.last_request
-        first = self._first  # activities the vector path's rows make known, at their first frames
+        first = self.take.first  # activities the vector path's rows make known, at their first frames
         marks = self._marks(view, calls, ep, stream)
         marked = np.zeros(len(ep.w), bool)
         marked[marks] = True
-        mark_frames = view.frame_no[calls.q[ep.w[marks]]] if len(marks) else _E
+        mark_frames = view.frame_no[calls.q[ep.w[marks]]] if len(marks) else EMPTY
         items: list = [*stream, *marks]
         frames = np.concatenate([np.fromiter((r.frame for r in stream), np.int64, len(stream)), mark_frames])
         # (at one frame an episode's marker before... a frame is one PDU: a marker's frame is its write's)
@@ -318,7 +219,7 @@ class EngineRun:
                         at_row = int(np.searchsorted(batch.number, row.frame))
                         heapq.heappush(heap, (row.frame, seq, int(runmax_all[at_row]), int(runmax_pnio[at_row]), row))
                 else:
-                    last_request.remember(channel, int(view.rec_of[calls.q[ep.w[k]]]), _REQUEST_COST)
+                    last_request.remember(channel, int(view.rec_of[calls.q[ep.w[k]]]), self.costs.request)
                 continue
             row = item
             pairing.tick(row_now_all)
@@ -336,7 +237,7 @@ class EngineRun:
             if row.whole and row.ptype == PTYPE_REQUEST:
                 for w in row.writes or ():
                     if w is not None and w.record is not None:
-                        last_request.remember(w.channel, w.record, _REQUEST_COST)
+                        last_request.remember(w.channel, w.record, self.costs.request)
             elif row.whole and row.ptype == PTYPE_RESPONSE and row.answer is not None and row.answer.head is not None:
                 request = last_request.get(response_channel(view, row))
                 row.q7 = self.findings.q7(row, view, records, None if request is None else
@@ -355,7 +256,7 @@ class EngineRun:
         kept as its addresses (the part's records go)."""
         last = self.last_request
         for k in np.flatnonzero(unmarked).tolist():  # (per channel in frame order: a later write replaces)
-            last.remember(ep.channels[int(ep.channel[k])], int(view.rec_of[calls.q[ep.w[k]]]), _REQUEST_COST)  # type: ignore[attr-defined]
+            last.remember(ep.channels[int(ep.channel[k])], int(view.rec_of[calls.q[ep.w[k]]]), self.costs.request)  # type: ignore[attr-defined]
         for channel, request in list(last.items()):
             if not isinstance(request, tuple):
                 addresses = tuple(records.addresses(request))
@@ -394,25 +295,6 @@ class EngineRun:
         for row in rows:
             row.part = self.part
         return rows
-
-    def _remember_calls(self, view: object, calls: Calls) -> None:
-        """The calls the vector path took, answered: remembered rpc_timeout after the answer (a late copy is
-        recognised by its key and body digest), their activities known."""
-        if not len(calls.q):
-            return
-        import zlib
-
-        p, ns, buf = view.p, view.batch.ns, memoryview(view.batch.buf)  # type: ignore[attr-defined]
-        q, s = calls.q, calls.s
-        start, length = p.body_start[q].astype(np.int64).tolist(), p.body_len[q].astype(np.int64).tolist()
-        hi, lo = p.act_hi[q].tolist(), p.act_lo[q].tolist()
-        keys = list(zip(hi, lo, p.seq[q].tolist(), strict=True))
-        columns = {"frame": view.frame_no[q].tolist(), "ts": ns[p.pos[q]].tolist(),  # type: ignore[attr-defined]
-                   "answered": ns[p.pos[s]].tolist(), "src": p.src[q].tolist(), "dst": p.dst[q].tolist(),
-                   "if_hi": p.if_hi[q].tolist(), "if_lo": p.if_lo[q].tolist(), "opnum": p.opnum[q].tolist(),
-                   "digest": [zlib.crc32(buf[a:a + n]) for a, n in zip(start, length, strict=True)], "size": length,
-                   "response_frame": view.frame_no[s].tolist()}  # type: ignore[attr-defined]
-        self.pairing.remember_log(keys, columns)
 
     def _settle(self, view: object, records: Records, cols: TxnCols | None) -> None:
         """T1/T4 and the values read and replaced, over the transactions of both ways, then the numbers."""
@@ -507,70 +389,6 @@ def _handed_on(txn: Txn) -> None:
             c.fsm = None
 
 
-def _most_at_once(begin: np.ndarray, end: np.ndarray) -> int:
-    """The most of the intervals [begin, end] (frames) open at one time."""
-    if not len(begin):
-        return 0
-    events = np.concatenate([begin, end])
-    step = np.concatenate([np.ones(len(begin), np.int64), -np.ones(len(end), np.int64)])
-    order = np.lexsort((-step, events))  # (at one frame an opening before a closing: counted together)
-    return int(np.cumsum(step[order]).max())
-
-
-_REQUEST_COST = 64 + 72 * 39  # the most a channel's last parameter request counts (its addresses)
-_PENDING_COST = 1024 + 256 + 2 * 240 + 128 * 39 + 192 * 39  # the most a pending transaction counts (machine)
-_CALL_COST = CALL_OVERHEAD + 65_536  # the most an open call counts (calls.Pairing)
-
-
-class _Known:
-    """Keys the loop holds (open calls, calls answered lately)."""
-
-    def __init__(self, pairing: Pairing) -> None:
-        self.pairing = pairing
-
-    def __contains__(self, key: object) -> bool:
-        return self.pairing.known(key)  # type: ignore[arg-type]
-
-    def __bool__(self) -> bool:
-        pairing = self.pairing
-        return bool(pairing.open or pairing.closed or pairing.logs)
-
-
-_E = np.empty(0, np.int64)
-
-
-def _empty_episodes() -> Episodes:
-    return Episodes(_E, _E, _E, _E, _E, _E, _E, _E, [])
-
-
-def _given_back(calls: Calls, ep: Episodes, keep: np.ndarray) -> tuple[Calls, Episodes]:
-    """The calls and episodes the vector path took, but those of the episodes given back to the loop (the
-    episodes' call indices renumbered)."""
-    if keep.all():
-        return calls, ep
-    back = np.zeros(len(calls.q), bool)
-    for k in np.flatnonzero(~keep).tolist():
-        back[int(ep.w[k])] = True
-        back[ep.reads[ep.first_read[k]:ep.first_read[k] + ep.n_reads[k]]] = True
-    index = np.cumsum(~back) - 1
-    sub = _subset(ep, keep)
-    return Calls(calls.q[~back], calls.s[~back], calls.pd[~back]), Episodes(
-        index[sub.w], index[sub.reads], sub.first_read, sub.n_reads, sub.channel, sub.group, sub.start, sub.end,
-        sub.channels)
-
-
-def _subset(ep: Episodes, keep: np.ndarray) -> Episodes:
-    if keep.all():
-        return ep
-    first = np.zeros(int(keep.sum()), np.int64)
-    n = ep.n_reads[keep]
-    np.cumsum(n[:-1], out=first[1:])
-    reads = np.concatenate([ep.reads[a:a + b] for a, b in zip(ep.first_read[keep].tolist(), n.tolist(), strict=True)]) \
-        if len(n) else _E
-    return Episodes(ep.w[keep], reads.astype(np.int64), first, n, ep.channel[keep], ep.group[keep], ep.start[keep],
-                    ep.end[keep], ep.channels)
-
-
 def _merged(columns: list[Pdu], odd: list[Pdu]) -> list[Pdu]:
     if not odd:
         return columns
@@ -579,65 +397,6 @@ def _merged(columns: list[Pdu], odd: list[Pdu]) -> list[Pdu]:
     out = columns + odd
     out.sort(key=lambda row: row.frame)  # (stable: a frame is in one list only)
     return out
-
-
-def _loop_frames(view: object, loop_cols: np.ndarray, odd_rows: list[Pdu], ep: Episodes | None,
-                 calls: Calls) -> dict[int, np.ndarray]:
-    """The frames of the loop's rows by drive and controller (pair_key): the column rows not taken, the odd
-    rows, and (with `ep`) the rows of PROFIdrive calls taken but in no episode."""
-    p = view.p  # type: ignore[attr-defined]
-    cols = loop_cols
-    if ep is not None:
-        in_ep = np.zeros(len(calls.q), bool)
-        in_ep[ep.w] = True
-        in_ep[ep.reads] = True
-        out_ep = calls.pd & ~in_ep
-        cols = np.concatenate([cols, calls.q[out_ep], calls.s[out_ep]])
-    request = p.ptype[cols] == PTYPE_REQUEST
-    keys = np.where(request, pair_key(p.dst[cols], p.src[cols]), pair_key(p.src[cols], p.dst[cols]))
-    frames = view.frame_no[cols]  # type: ignore[attr-defined]
-    if odd_rows:
-        odd_keys = np.array([(r.dst << 32 | r.src) if r.ptype == PTYPE_REQUEST else (r.src << 32 | r.dst)
-                             for r in odd_rows], np.uint64)
-        keys = np.concatenate([keys, odd_keys])
-        frames = np.concatenate([frames, np.array([r.frame for r in odd_rows], np.int64)])
-    order = np.lexsort((frames, keys))
-    keys, frames = keys[order], frames[order]
-    out: dict[int, np.ndarray] = {}
-    if len(keys):
-        bounds = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
-        for a, b in zip(bounds.tolist(), [*bounds[1:].tolist(), len(keys)], strict=True):
-            out[int(keys[a])] = frames[a:b]
-    return out
-
-
-def _cut_horizon(view: BatchView, rows: np.ndarray, odd_rows: list[Pdu]) -> int | None:
-    """The frame of the part's first write request cut before its IOD header that has no answer later in the
-    part (None: none). The transactions opened from it on wait for their numbers (engine.numbering); the
-    vector path numbers its transactions in their part, so it takes none from there on. (A cut request that
-    is answered in the part is the loop's, and so is its answer: its key is an odd row's.)"""
-    cut = [row for row in odd_rows if row.cut and row.ptype == PTYPE_REQUEST]
-    if not cut:
-        return None
-    p = view.p
-    answers = rows[np.isin(p.ptype[rows], _ANSWERS)]
-    last: dict[int, int] = {}  # key hash -> the last frame of an answer with that key
-    hashes, frames = key_hash(p.act_hi[answers], p.act_lo[answers], p.seq[answers]), view.frame_no[answers]
-    if len(hashes):
-        order = np.lexsort((frames, hashes))
-        ends = np.r_[hashes[order][1:] != hashes[order][:-1], True]
-        last = dict(zip(hashes[order][ends].tolist(), frames[order][ends].tolist(), strict=True))
-    odd = [row for row in odd_rows if row.ptype in _ANSWERS]
-    for row, h in zip(odd, _hashes([row.key for row in odd]).tolist(), strict=True):
-        last[h] = max(last.get(h, 0), row.frame)
-    pending = [row.frame for row, h in zip(cut, _hashes([row.key for row in cut]).tolist(), strict=True)
-               if last.get(h, 0) <= row.frame]
-    return min(pending) if pending else None
-
-
-def _hashes(keys: list[tuple[int, int, int]]) -> np.ndarray:
-    return key_hash(np.array([k[0] for k in keys], np.uint64), np.array([k[1] for k in keys], np.uint64),
-                    np.array([k[2] for k in keys], np.uint32))
 
 
 def run_batches(source: Iterable[FrameBatch], settings: Settings, rows: Rows, capture_of: Callable[[int], str],
