@@ -28,6 +28,7 @@ from pd_analyze.analysis.engine.tables import TableBuilder
 from pd_analyze.analysis.engine.txn import Txn
 from pd_analyze.analysis.engine.txncols import TxnCols, of_episodes
 from pd_analyze.analysis.engine.vector import Calls, Episodes, episodes, key_hash, pair, pair_key
+from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.schema import arrow_text
 from pd_analyze.analysis.stations import names_in_batch
@@ -35,13 +36,14 @@ from pd_analyze.capture import CaptureError
 from pd_analyze.capture.batches import BATCH_FRAMES, FrameBatch, frame_batches
 from pd_analyze.capture.raw import RawFrame
 from pd_analyze.model.capped import CHANNEL_REQUESTS, OPEN_CALLS, PENDING_TRANSACTIONS, TXN_CALLS, CappedTable
-from pd_analyze.model.values import PTYPE_REQUEST, PTYPE_RESPONSE
+from pd_analyze.model.values import PTYPE_FAULT, PTYPE_REJECT, PTYPE_REQUEST, PTYPE_RESPONSE
 from pd_analyze.protocol import rpc
 from pd_analyze.protocol.dissector import Dissector, truncated_elsewhere
 from pd_analyze.protocol.frames import Accounting
 from pd_analyze.protocol.rpc_calls import CALL_OVERHEAD
 
 _NEVER = -(1 << 62)
+_ANSWERS = (PTYPE_RESPONSE, PTYPE_FAULT, PTYPE_REJECT)  # what answers a call (the dump links it to its request)
 _MARK = object()  # a marker in the loop's stream: the first frame of an episode the vector path took
 
 
@@ -140,6 +142,7 @@ class EngineRun:
         keep[rejected] = False
         self._last_requests(view, calls, ep, keep & ~marked, records)
         done_calls, ep = _given_back(calls, ep, keep)
+        self._calls_paired(view, done_calls, accepted)
         cols = of_episodes(view, done_calls, ep) if len(ep.w) else None
         self.taken += 2 * len(done_calls.q)
         self.pnio_rows += len(dec.rows) + sum(1 for r in dec.odd_rows if not r.decide)
@@ -159,6 +162,16 @@ class EngineRun:
             self.rows.add_finding(self.capture_of(f.frame), f)
         self._settle(view, records, cols)
         self._close_part(view, batch, records, accepted)
+
+    def _calls_paired(self, view: BatchView, calls: Calls, accepted: list[Pdu]) -> None:
+        """The part's paired calls (the vector path's and the loop's) and the PDUs the loop took as PNIO by
+        their call, to `rows.add_calls` (the dump's links)."""
+        answered = [(row.call.frame, row.frame) for row in accepted
+                    if row.call is not None and not row.copy and row.whole and row.ptype in _ANSWERS]
+        loop = np.array(answered, np.int64).reshape(-1, 2)
+        self.rows.add_calls(np.concatenate([view.frame_no[calls.q], loop[:, 0]]),
+                            np.concatenate([view.frame_no[calls.s], loop[:, 1]]),
+                            [row.frame for row in accepted if row.decide])
 
     # --- the vector path -------------------------------------------------------------------------------
     def _vector(self, dec: Decoded, runmax_all: np.ndarray, runmax_pnio: np.ndarray) -> tuple[Calls, Episodes]:
