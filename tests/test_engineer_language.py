@@ -280,10 +280,10 @@ def test_the_profile_names_reach_the_tables_the_summary_and_the_state_on_both_pa
     files = {}
     for columns in (False, True):
         out = tmp_path / str(columns)
-        streamed = report.stream([NEGATIVE], str(out), "csv", Settings(plant, columns=columns))
+        streamed = report.stream([NEGATIVE], str(out), "csv", Settings(plant, vector=columns))
         assert streamed.summary == text
         files[columns] = (out / "parameters.csv").read_bytes(), (out / "changes.csv").read_bytes()
-        state, _ = collect([NEGATIVE], Settings(plant, columns=columns))
+        state, _ = collect([NEGATIVE], Settings(plant, vector=columns))
         assert {row[6] for row in state.rows() if row[3] == 2000} == {"reference speed"}  # pnu_name
     assert files[False] == files[True] and b",maximum speed," in files[True][0]
     plain = analyze(NEGATIVE).parameters
@@ -534,7 +534,7 @@ def test_summary_names_a_drive_by_its_station_name_when_the_capture_has_it(tmp_p
     path = str(SAMPLES / "audit_commissioning.pcap")
     text = report.summary(analyze(path))
     for columns in (False, True):
-        assert report.stream([path], str(tmp_path / str(columns)), "csv", Settings(columns=columns)).summary == text
+        assert report.stream([path], str(tmp_path / str(columns)), "csv", Settings(vector=columns)).summary == text
     lines = text.splitlines()
     assert "  192.168.1.21 (pump-1)      2  (nak=2)" in lines
     assert "       2  192.168.1.21 (pump-1) DO 1 P1300[0] error 0x02 (low or high limit exceeded)" in lines

@@ -8,12 +8,7 @@ protocol says yet, the assertion is written anyway and runs as a strict xfail na
 exactly the transactions concerned (the rest is asserted as usual); the fix turns it into a failure that asks
 for the mark to be removed:
 
-- T8 `txn_failed` and T9 `txn_refused` (protocol.md 6.5) are not raised yet;
-- a transaction's `frames` omit the copies of its responses, the fragments of a response before the one that
-  completes it, and, in the second transaction a Write-Multiple opens, the Write-Multiple's frames;
-- a write cut before its Index is numbered at its response, not at its write request frame;
-- times are floats: t_start and the figures are off by up to a microsecond;
-- a write request whose IOD BlockLength is not 60 (H2) leaves its transaction `pnio_error`, not `malformed`.
+- times are floats: t_start and the figures are off by up to a microsecond.
 """
 
 from __future__ import annotations
@@ -40,16 +35,9 @@ from pd_analyze.model.rules import RULES
 FRAMES, SMALL, SEED = 3000, 800, 5  # the small capture is the one read in batches of 1 and 7 frames (slow today)
 RUNS = ("analyze", 1, 7, 1000, 0)  # analyze(); the engine in batches of these sizes (0: the default)
 TABLES = ("transactions", "parameters", "findings", "changes", "accounting")
-NEW_RULES = ("txn_failed", "txn_refused")  # T8, T9: protocol.md 6.5, being added to the analyser
+OUTCOME_RULES = ("txn_failed", "txn_refused")  # T8, T9: protocol.md 6.5
 
-T8_T9 = "protocol.md 6.5 T8 txn_failed / T9 txn_refused: not raised yet (being added with issue #23's engine)"
-FRAMES_GAP = ("issue #23 design point 2, protocol.md 7.6: a transaction's frames are every frame of its calls: "
-              "copies of its responses, every fragment of a response, a Write-Multiple's frames in each "
-              "transaction it opens")
-NUMBERING = ("issue #23 design point 2, protocol.md 7.3 step 1: a write cut before its Index opens its "
-             "transaction at the request's frame and is numbered there, not at its response")
 TIMES = "issue #23: exact integer times (t_start and the figures from the capture's integer timestamps)"
-BLOCK_LENGTH = "issue #23 design point 2, protocol.md 7.4 rule 1: BlockLength not 60 (H2) makes it malformed"
 
 
 @pytest.fixture(scope="module")
@@ -118,17 +106,20 @@ def keyed(truth: dict[str, Any]) -> list[tuple[tuple[int, int], dict[str, Any]]]
     return out
 
 
-def frames_beyond_today(t: dict[str, Any], position: int) -> bool:
-    """A transaction whose frames include what today's analyser does not list (FRAMES_GAP)."""
+def with_companions(t: dict[str, Any], position: int) -> bool:
+    """A transaction whose frames include more than its calls' first request and answer frames: copies of its
+    responses, every fragment of a response, a Write-Multiple's frames in each transaction it opens (issue #26
+    point 4: `frames` lists every frame that belongs to the transaction)."""
     copies = sum(1 for _, _, rule in t["findings"] if rule == "rpc_retransmission")
     return (t["kind"].startswith(("fragmented_cl_answer", "fragmented_ip_"))
             or copies > t["rpc_retransmissions"]  # a copy of a response
             or position > 0)  # the second transaction of a Write-Multiple
 
 
-def renumbered_today(truth: dict[str, Any]) -> set[int]:
-    """Write request frames of the transactions today's numbering moves (NUMBERING): a write cut before its
-    Index, and every write request between it and its response."""
+def numbered_by_request(truth: dict[str, Any]) -> set[int]:
+    """Write request frames of the transactions whose number depends on numbering a write cut before its Index
+    at its request (protocol.md 7.3 step 1), not at its response: that write, and every write request between
+    it and its response."""
     cut = [(t["write_req_frame"], t["write_res_frame"]) for t in truth["transactions"]
            if t["kind"].startswith("snaplen_write_header")]
     return {t["write_req_frame"] for t in truth["transactions"]
@@ -174,10 +165,10 @@ def findings_of(a: Analysis) -> Counter[tuple[int, str]]:
     return Counter(zip(f.frame.astype(int), f.name.astype(str), strict=True))
 
 
-def recorded(truth: dict[str, Any], new: bool) -> Counter[tuple[int, str]]:
-    """The findings the truth records, the new rules (T8, T9) or the others."""
+def recorded(truth: dict[str, Any], outcome: bool) -> Counter[tuple[int, str]]:
+    """The findings the truth records: the outcome rules (T8, T9), or the others."""
     return Counter((frame, rule) for t in truth["transactions"] for frame, _, rule in t["findings"]
-                   if (rule in NEW_RULES) == new)
+                   if (rule in OUTCOME_RULES) == outcome)
 
 
 # --- the generator's capture --------------------------------------------------------------------------------------
@@ -202,9 +193,9 @@ def test_the_capture_holds_every_kind_and_every_case_the_gaps_concern(captures: 
     assert any(t["pnio_status"] == "DE80B500" and t["verdict"] == "pnio_error" for t in txns)  # a busy drive
     assert any(t["pnio_status"] == "DE80B500" and t["verdict"] == "timeout" for t in txns)  # B5, then silence
     # the cases the strict xfails below concern are really there
-    assert any(frames_beyond_today(t, k[1]) for k, t in keyed(truth))
+    assert any(with_companions(t, k[1]) for k, t in keyed(truth))
     assert any(blocklength(t) for t in txns)
-    cut = renumbered_today(truth)
+    cut = numbered_by_request(truth)
     assert len(cut) > sum(t["kind"].startswith("snaplen_write_header") for t in txns)  # a write in between
 
 
@@ -246,8 +237,7 @@ def test_truth_is_written_beside_the_capture_as_json(captures: dict) -> None:
 
 def test_the_truths_rules_are_the_analysers() -> None:
     for name, rule_id in RULE_IDS.items():
-        if name not in NEW_RULES:
-            assert RULES[name].id == rule_id, name
+        assert RULES[name].id == rule_id, name
 
 
 # --- the analyser against the truth --------------------------------------------------------------------------------
@@ -262,13 +252,12 @@ def test_transactions_as_recorded(case: tuple[Analysis, dict]) -> None:
     a, truth = case
     assert len(a.transactions) == len(truth["transactions"])
     assert differences(a, truth, FIELDS, lambda t, _: True) == []
-    assert differences(a, truth, ("verdict",), lambda t, _: not blocklength(t)) == []
+    assert differences(a, truth, ("verdict",), lambda t, _: True) == []
 
 
 def test_transactions_numbered_in_the_order_of_their_write_request(case: tuple[Analysis, dict]) -> None:
     a, truth = case
-    moved = renumbered_today(truth)
-    assert differences(a, truth, ("txn",), lambda t, _: t["write_req_frame"] not in moved) == []
+    assert differences(a, truth, ("txn",), lambda t, _: True) == []
 
 
 def test_naks_give_the_error_numbers_per_parameter(case: tuple[Analysis, dict]) -> None:
@@ -285,13 +274,13 @@ def test_naks_give_the_error_numbers_per_parameter(case: tuple[Analysis, dict]) 
 
 def test_every_recorded_finding_is_raised_at_its_frame(case: tuple[Analysis, dict]) -> None:
     a, truth = case
-    missing = recorded(truth, new=False) - findings_of(a)
+    missing = recorded(truth, outcome=False) - findings_of(a)
     assert sorted(missing.elements()) == []
 
 
 def test_frames_of_each_transaction(case: tuple[Analysis, dict]) -> None:
     a, truth = case
-    assert differences(a, truth, ("frames",), lambda t, k: not frames_beyond_today(t, k)) == []
+    assert differences(a, truth, ("frames",), lambda t, k: True) == []
 
 
 def test_times_to_the_microsecond(case: tuple[Analysis, dict]) -> None:
@@ -312,24 +301,22 @@ def test_every_batch_size_gives_the_tables_of_analyze(analyses: Any, how: int) -
 
 
 # --- what today's analyser does not do yet (strict xfails) ---------------------------------------------------------
-@pytest.mark.xfail(strict=True, reason=T8_T9)
 def test_failed_and_refused_transactions_raise_t8_and_t9(case: tuple[Analysis, dict]) -> None:
     a, truth = case
-    assert [RULES[name].id for name in NEW_RULES] == [RULE_IDS[name] for name in NEW_RULES]
-    got = Counter({key: n for key, n in findings_of(a).items() if key[1] in NEW_RULES})
-    assert got == recorded(truth, new=True)
+    got = Counter({key: n for key, n in findings_of(a).items() if key[1] in OUTCOME_RULES})
+    assert got == recorded(truth, outcome=True)
 
 
-@pytest.mark.xfail(strict=True, reason=FRAMES_GAP)
 def test_frames_list_copies_every_fragment_and_write_multiple(case: tuple[Analysis, dict]) -> None:
     a, truth = case
-    assert differences(a, truth, ("frames",), frames_beyond_today) == []
+    assert any(with_companions(t, k[1]) for k, t in keyed(truth))
+    assert differences(a, truth, ("frames",), with_companions) == []
 
 
-@pytest.mark.xfail(strict=True, reason=NUMBERING)
 def test_a_write_cut_before_its_index_is_numbered_at_its_write_request(case: tuple[Analysis, dict]) -> None:
     a, truth = case
-    moved = renumbered_today(truth)
+    moved = numbered_by_request(truth)
+    assert moved
     assert differences(a, truth, ("txn",), lambda t, _: t["write_req_frame"] in moved) == []
 
 
@@ -346,7 +333,7 @@ def test_exact_integer_times(case: tuple[Analysis, dict]) -> None:
     assert wrong == []
 
 
-@pytest.mark.xfail(strict=True, reason=BLOCK_LENGTH)
 def test_a_write_of_blocklength_not_60_is_malformed(case: tuple[Analysis, dict]) -> None:
     a, truth = case
+    assert {t["verdict"] for t in truth["transactions"] if blocklength(t)} == {"malformed"}
     assert differences(a, truth, ("verdict",), lambda t, _: blocklength(t)) == []

@@ -91,10 +91,10 @@ def test_station_names_from_pn_dcp() -> None:
 
     for columns in (False, True):
         for size in (1, 7, 100, 0):
-            results = run([B, A, "sample_pcaps/worked_example.pcap"], Rows(), Settings(columns=columns,
+            results = run([B, A, "sample_pcaps/worked_example.pcap"], Rows(), Settings(vector=columns,
                                                                                         batch_frames=size))
             assert [r.stations for r in results] == [{}, {"192.168.1.21": "pump-1"}, {}], (columns, size)
-        chain = run([B, A], Rows(), Settings(columns=columns), chain=True)
+        chain = run([B, A], Rows(), Settings(vector=columns), chain=True)
         assert [r.stations for r in chain] == [{}, {"192.168.1.21": "pump-1"}]
     assert names_in_file(A) == {"192.168.1.21": "pump-1"}
     assert names_in_file("-") == {} and names_in_file(str(ROOT / "sample_pcaps" / "absent.pcap")) == {}
@@ -119,10 +119,10 @@ def test_station_names_of_a_real_capture() -> None:
     real = shared_capture("cisagov_icsnpp-profinet-io-cm__profinet_io_cm_mixed_1.pcap")
     for columns in (False, True):
         for size in (1, 100, 0):
-            results = run([str(real), A], Rows(), Settings(columns=columns, batch_frames=size))
+            results = run([str(real), A], Rows(), Settings(vector=columns, batch_frames=size))
             assert [r.stations for r in results] == [{"192.168.1.2": "versamax-pns11"},
                                                      {"192.168.1.21": "pump-1"}], (columns, size)
-        chain = run([A, str(real)], Rows(), Settings(columns=columns), chain=True)
+        chain = run([A, str(real)], Rows(), Settings(vector=columns), chain=True)
         assert [r.stations for r in chain] == [{"192.168.1.21": "pump-1"}, {"192.168.1.2": "versamax-pns11"}]
 
 
@@ -147,15 +147,15 @@ def test_station_names_behind_vlan_tags_are_found_on_both_paths(tmp_path: Path) 
     path.write_bytes(pcap_bytes([Frame(1_000_000_000 * (k + 1), f) for k, f in enumerate(frames)]))
     want = {"10.0.0.1": "plain", "10.0.0.2": "one-tag", "10.0.0.3": "qinq", "10.0.0.4": "three"}
     for columns in (False, True):
-        assert run([str(path)], Rows(), Settings(columns=columns))[0].stations == want, columns
+        assert run([str(path)], Rows(), Settings(vector=columns))[0].stations == want, columns
 
 
 @pytest.mark.parametrize("path", sorted(p for p in SAMPLES.glob("*") if p.suffix in (".pcap", ".pcapng", ".gz")),
                          ids=lambda p: p.name)
 def test_columnar_and_per_frame_paths_give_the_same_state(path: Path) -> None:
-    one, _ = collect([str(path)], Settings(columns=False))
+    one, _ = collect([str(path)], Settings(vector=False))
     for size in (1, 7, 0):
-        two, _ = collect([str(path)], Settings(columns=True, batch_frames=size))
+        two, _ = collect([str(path)], Settings(vector=True, batch_frames=size))
         assert list(two.rows()) == list(one.rows()), size
 
 
@@ -164,8 +164,8 @@ def test_state_of_generated_mixed_capture_is_the_same_on_both_paths(tmp_path: Pa
 
     path = tmp_path / "mixed.pcap"
     make_capture(path, 3_000, seed=5, pnio_share=0.5)
-    one, _ = collect([str(path)], Settings(columns=False))
-    two, _ = collect([str(path)], Settings(columns=True, batch_frames=333))
+    one, _ = collect([str(path)], Settings(vector=False))
+    two, _ = collect([str(path)], Settings(vector=True, batch_frames=333))
     assert one.elements and list(two.rows()) == list(one.rows())
     assert list(state_of(pd_analyze.analyze(str(path)).rows).rows()) == list(one.rows())
 

@@ -34,10 +34,11 @@ KNOWN_ANALYSER_GAPS: dict[tuple[str, str], str] = {}
 # file -> the analyser fix its transactions wait for (strict xfail, as above).
 KNOWN_TRANSACTION_GAPS: dict[str, str] = {}
 
-# Rules the transaction engine reports (protocol.md 6.4 Q2-Q5 pairing, 6.5 T1-T6): profile-independent.
+# Rules the transaction engine reports (protocol.md 6.4 Q2-Q5 pairing, 6.5 T1-T6, T8, T9): profile-independent.
 TXN_RULES = frozenset({
     "reference_mismatch", "response_id_mismatch", "do_not_mirrored", "n_params_not_mirrored",
     "reference_reused", "read_without_request", "write_while_pending", "retry", "b5_polling", "fallback_pairing",
+    "txn_failed", "txn_refused",
 })  # fmt: skip
 
 

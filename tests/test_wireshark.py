@@ -348,22 +348,39 @@ def test_comments_are_the_same_whichever_path_reads_the_capture(name: str) -> No
 
     said = []
     for columns in (False, True):
-        notes = frame_notes.collect(str(SAMPLES / name), Settings(columns=columns))
+        notes = frame_notes.collect(str(SAMPLES / name), Settings(vector=columns))
         said.append([(note.frame, note.comment()) for note in notes])
         notes.close()
     assert said[0] == said[1] and said[0]
 
 
-def test_companion_pdus_share_their_calls_key() -> None:
-    """extract writes the FACK, ping, working and ack PDUs of a kept call by its (activity, sequence number):
-    on a CL-fragmented write and read, every FACK and the retransmitted fragment carry their call's key."""
-    from pd_analyze.output.extract import _call
-    from pd_analyze.protocol.dissector import dissect
+def _records(path: Path) -> list[tuple[int, bytes]]:
+    """(time in ns, bytes) of every record of a pcap, in order."""
+    import dpkt
 
-    activity = "000000ac-0000-1000-8000-000000000001"
-    keys = {r.frame: _call(r) for r in dissect(str(SAMPLES / "cl_fragments_fack.pcapng"),
-                                                  dissector=Dissector(annotate=True))}
-    assert keys == {n: (activity, 1 if n <= 7 else 2) for n in range(1, 12)}
+    with path.open("rb") as f:
+        return [(round(ts * 1e6), bytes(buf))
+                for ts, buf in dpkt.pcap.Reader(f)]
+
+
+def test_extract_writes_exactly_the_frames_its_transactions_list(tmp_path: Path) -> None:
+    """One rule for `transactions.frames` and `extract` (issue #26 point 4): the frames written are exactly the
+    `frames` of the chosen transactions. Txn 3 of pd_retries_and_duplicates is captured twice by a mirror port:
+    its frames are every one from 14 to 25, the copies of its requests (15, 19, 23) and of its answers (17, 21,
+    25) included, and extract writes those twelve."""
+    src = SAMPLES / "pd_retries_and_duplicates.pcap"
+    t = analyze(str(src)).transactions.set_index("txn")
+    assert t.loc[3, "frames"] == " ".join(str(n) for n in range(14, 26))
+    assert t.loc[3, "rpc_retransmissions"] == 3
+    source = _records(src)
+    failed = list(t.index[t.verdict == "pnio_error"])
+    for args, chosen in ((["--txn", "3"], [3]), (["--verdict", "pnio_error"], failed)):
+        out = tmp_path / "x.pcap"
+        r = run("extract", src, "-w", out, *args)
+        assert r.returncode == 0, r.stderr
+        listed = sorted({int(n) for txn in chosen for n in t.loc[txn, "frames"].split()})
+        assert _records(out) == [source[n - 1] for n in listed]
+        assert r.stderr.decode().strip() == f"{out}: {len(listed)} frames of {len(chosen)} transactions written"
 
 
 def test_value_str_names_only_the_string_values() -> None:

@@ -63,13 +63,13 @@ def pd_edge_cases_capture() -> Built:
     x.on(cut, "truncated_capture_pnio")
     x.on(cut, "iod_truncated")
     x.txn(calls, None, "malformed", "write cut inside its IOD header (its reference unknown): opened by its "
-          "response (index 0xB02E); its two B5 reads and the response pair with it")
+          "response (index 0xB02E); its two B5 reads and the response pair with it", decided=cut)
     calls = s.parameter_access(read_request(2, 1, [P(964)]), _word(2), b5_retries=1)
     cut = _cut(cap, calls[0], RECORD_AT + 6)  # cut inside the record (6 of 10 bytes)
     x.on(cut, "rpc_truncated")
     x.on(cut, "truncated_capture_pnio")
     x.on(cut, "record_truncated")
-    x.txn(calls, 2, "malformed", "write cut inside its record")
+    x.txn(calls, 2, "malformed", "write cut inside its record", decided=cut)
     x.txn(s.parameter_access(read_request(3, 1, [P(965)]), _word(3)), 3, "ok", "the next one pairs as usual")
 
     # --- session 2 (.12 -> .22): 0xB02F and 0xB02E on one AR (protocol.md 7.2) -------------------------------
@@ -85,9 +85,11 @@ def pd_edge_cases_capture() -> Built:
     calls = s.parameter_access(change_request(1, 1, [(P(971), value_block(0x06, [1]))]), None, b5_retries=3,
                                read_gap_us=100_000)  # fmt: skip
     x.txn(calls, 1, "pnio_error", "three B5, then the controller writes again: refused, not silent (DE80B500)")
+    given_up = calls
     calls = s.parameter_access(change_request(2, 1, [(P(971), value_block(0x06, [1]))]), change_ok(2, 1, 1),
                                b5_retries=1)  # fmt: skip
     x.txn(calls, 2, "ok", "the next write", findings=[(x.write_req(calls), "write_while_pending")])
+    x.superseded(given_up, x.write_req(calls))
     calls = s.parameter_access(read_request(3, 1, [P(964)]), None, b5_retries=4, read_gap_us=2_000_000)
     x.txn(calls, 3, "pnio_error", "four B5 over 8 s, then no more reads: the deadline passes inside the capture")
     cap.clock.advance_us(3_000_000)  # beyond both deadlines before the next frame

@@ -50,6 +50,8 @@ class _Txn:
     note: str
     findings: list[tuple[Frame, str]]
     extra: dict[str, Any]
+    decided: Frame | None = None  # the frame that decided a failed verdict (T8), when not the default
+    copies: list[Frame] = field(default_factory=list)  # copies of its calls' frames (a mirror port's)
 
 
 @dataclass
@@ -81,6 +83,8 @@ class Intent:
         note: str = "",
         *,
         findings: Sequence[tuple[Frame, str]] = (),
+        decided: Frame | None = None,
+        copies: Sequence[Frame] = (),
         **extra: Any,
     ) -> list[Call]:
         """One PROFIdrive transaction: its calls (write, reads), reference
@@ -89,9 +93,16 @@ class Intent:
         pnio_status and the figures are derived from the calls, `extra` adds or overrides (e.g. capture_ended=True for a
         transaction still open at capture end). `findings` are the
         transaction-level rules (protocol.md 6.4 Q2-Q5, 6.5 T1-T6) the
-        pairing must report, as (frame, rule)."""
-        self._txns.append(_Txn(list(calls), ref, verdict, note, list(findings), extra))
+        pairing must report, as (frame, rule). T8 txn_failed and T9 txn_refused (protocol.md 6.5) are added
+        at the frame that decided the verdict (`_decided`); `decided` states it where the calls cannot: the
+        undecodable PDU of a malformed transaction (or `superseded`, for the write that ended it)."""
+        self._txns.append(_Txn(list(calls), ref, verdict, note, list(findings), extra, decided, list(copies)))
         return list(calls)
+
+    def superseded(self, calls: Sequence[Call], by: Frame) -> None:
+        """The transaction of `calls` ended by the write request at `by` (T3 is the new one's): its T8 there."""
+        txn = next(t for t in self._txns if t.calls == list(calls))
+        txn.decided = by
 
     def loose(self, frames: Frame | Iterable[Frame], rule: str) -> None:
         """A transaction-level rule (e.g. T2 read_without_request) on a frame of no transaction."""
@@ -120,12 +131,13 @@ class Intent:
             profiles.append({"profile": prof, "findings": [list(x) for x in found]})
         txns = []
         for t in self._txns:
-            frames = [num(f) for c in t.calls for f in c.request + c.response]
+            frames = [num(f) for c in t.calls for f in c.request + c.response] + [num(f) for f in t.copies]
             item: dict[str, Any] = {"ref": t.ref, "frames": [min(frames), max(frames)], "verdict": t.verdict}
             item.update(self._figures(t))
             item.update(t.extra)
-            if t.findings:
-                item["findings"] = sorted([num(f), rule] for f, rule in t.findings)
+            outcome = self._outcome(t)
+            if t.findings or outcome:
+                item["findings"] = sorted([num(f), rule] for f, rule in [*t.findings, *outcome])
             if t.note:
                 item["note"] = t.note
             txns.append(item)
@@ -134,6 +146,26 @@ class Intent:
         if self._loose:
             out["loose"] = sorted([num(f), rule] for f, rule in self._loose)
         return out
+
+    @staticmethod
+    def _outcome(t: _Txn) -> list[tuple[Frame, str]]:
+        """T8 or T9 at the frame that decided the verdict (protocol.md 6.5): a NAK's final response; the answer
+        that refused a record service (a fault or reject too); for a transaction that got no final answer
+        (a timeout, or a busy drive given up) the write that superseded it (`superseded`), else its write
+        request, where the deadline or the capture's end closed it; a malformed one's undecodable PDU."""
+        if t.verdict == "nak":
+            return [(t.calls[-1].response[-1], "txn_refused")]
+        if t.verdict not in ("pnio_error", "timeout", "malformed"):
+            return []
+        if t.decided is not None:
+            return [(t.decided, "txn_failed")]
+        if t.verdict == "malformed":
+            raise ValueError(f"malformed transaction {t.note!r}: state its undecodable PDU (decided=)")
+        ending = next((c for c in t.calls if c.fault is not None or c.status not in (None, STATUS_OK, STATUS_B5)),
+                      None)
+        if ending is not None:
+            return [(ending.response[-1], "txn_failed")]
+        return [(t.calls[0].request[-1], "txn_failed")]
 
     def _ticks(self, frame: Frame) -> int:
         """The frame time as written to the file, in ns (truncated to the file's resolution)."""

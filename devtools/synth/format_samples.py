@@ -250,7 +250,7 @@ def truncated_snaplen_capture() -> tuple[Capture, Intent]:
     # change request with 20 Unsigned32 values: 92-byte record, 298-byte frame
     req = change_request(2, 1, [(P(2000, n_elems=20), value_block(0x07, list(range(1, 21))))])
     calls = s.parameter_access(req, change_ok(2, 1, 1))  # frames 7-10, frame 7 cut
-    x.txn(calls, 2, "malformed", "write request cut by the snaplen (R1, H5)")
+    x.txn(calls, 2, "malformed", "write request cut by the snaplen (R1, H5)", decided=x.write_req(calls))
     cap.send_udp(s.controller, 50010, other, 50020, bytes(400))  # frame 11, cut
     return cap, x
 

@@ -171,13 +171,15 @@ def pd_out_of_range_capture() -> Built:
     for ref, case in enumerate(_out_of_range_cases(), 1):
         calls = s.parameter_access(case.request, case.response, **case.kw)
         txn_findings = [(x.final_res(calls), rule) for rule in case.txn_rules]
-        x.txn(calls, case.request[0], case.verdict, case.note, findings=txn_findings)
         frames = {
             "request": [x.write_req(calls)],
             "response": [x.final_res(calls)],
             "reads": x.read_reqs(calls),
             "requests": [x.write_req(calls), *x.read_reqs(calls)],
         }[case.at]
+        # a malformed one: the PDU its violation makes undecodable decided the verdict (T8 there)
+        x.txn(calls, case.request[0], case.verdict, case.note, findings=txn_findings,
+              decided=frames[0] if case.verdict == "malformed" else None)
         assert case.request[0] in (ref, 0), ref
         for rule in case.rules:
             x.on(frames, rule)

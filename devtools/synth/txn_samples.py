@@ -53,8 +53,8 @@ def _word(ref: int, do: int = 1, value: int = 0x1234) -> bytes:
 def _mirror(cap: Capture, calls: list[Call], delay_ns: int = 4000) -> tuple[list[Frame], list[Frame]]:
     """Every frame of the calls captured a second time, frame-identical, `delay_ns` later (a mirror port
     that sees both directions twice). A duplicate request is a retransmission to the analyser (counted
-    on its call); a duplicate response is dropped and belongs to no transaction (protocol.md 2.3, 2.4).
-    Returns the copies of the requests and of the responses."""
+    on its call); a duplicate response is not decoded again (protocol.md 2.4); both belong to the call's
+    transaction (its frames). Returns the copies of the requests and of the responses."""
     req_copies, res_copies = [], []
     for c in calls:
         req_copies += [cap.repeat(f, (f.ts_ns or 0) + delay_ns) for f in c.request]
@@ -179,7 +179,8 @@ def pd_retries_and_duplicates_capture() -> Built:
                                b5_retries=1)  # fmt: skip
     req_copies, res_copies = _mirror(cap, calls)
     x.on(req_copies + res_copies, "rpc_retransmission")  # duplicate requests and duplicate responses
-    x.txn(calls, 3, "ok", "mirror-port duplicates: 3 duplicate requests counted, duplicate responses dropped")
+    x.txn(calls, 3, "ok", "mirror-port duplicates: 3 duplicate requests counted, every copy its frame",
+          copies=req_copies + res_copies)
     # ref 4: the write is refused with DF 80 B5 00 (busy), the controller writes again with the same reference
     calls = s.parameter_access(read_request(4, 1, [P(966)]), None, write_status=DF_B5)
     x.txn(calls, 4, "pnio_error", "write refused DF 80 B5 00")
@@ -200,8 +201,10 @@ def pd_retries_and_duplicates_capture() -> Built:
     # read refused B5: pnio_error DE80B500 (protocol.md 7.3 step 5)
     calls = s.parameter_access(read_request(6, 1, [P(969)]), None, b5_retries=1)
     x.txn(calls, 6, "pnio_error", "superseded by the write of ref 7 after a B5 answer")
+    given_up = calls
     calls = s.parameter_access(read_request(7, 1, [P(970)]), _word(7))
     x.txn(calls, 7, "ok", "written while ref 6 was pending", findings=[(x.write_req(calls), "write_while_pending")])
+    x.superseded(given_up, x.write_req(calls))
 
     # --- session 2 (.12 -> .22): read without request (T2), fallback pairing (T6) ---
     s = sess(2)

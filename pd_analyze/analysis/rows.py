@@ -12,6 +12,7 @@ import uuid
 from dataclasses import dataclass, field
 from typing import Any
 
+from pd_analyze.analysis.engine.rules import WHOLE, refusal, refused_finding
 from pd_analyze.analysis.schema import ChangeRow, FindingRow, ParameterRow, TransactionRow
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.rules import Finding
@@ -106,6 +107,7 @@ class Rows:
         device, controller, ar, index = self.channel_texts(txn.channel)
         request, response = records.parsed(txn.request), records.parsed(txn.response)
         errors = []
+        refusals: list[str] = []  # each error in words (T9)
         blocks = response.blocks if response is not None else []
         addresses = request.addresses if request is not None else []
         written_blocks = request.blocks if request is not None else []
@@ -121,8 +123,9 @@ class Rows:
             written = written_blocks[i] if i < len(written_blocks) else None
             err = res_block.error if res_block is not None and res_block.is_error else -1
             label = addr.label()
-            if err >= 0:
+            if err >= 0 and whole is None:
                 errors.append(f"{label}:{_hex(err)}")
+                refusals.append(refusal(label, err, error_meaning(err, response, self.names)))
             fmt = written if written is not None else res_block
             read_values = values_of(res_block) if res_block is not None and not res_block.is_error else None
             append(ParameterRow._make((
@@ -136,6 +139,9 @@ class Rows:
                 self._change(capture, txn, number, i, addr, label, written, res_block, response, device)
         if whole is not None:
             errors = [f"*:{_hex(whole.error)}"]  # header-level error: the whole request refused
+            refusals = [refusal(WHOLE, whole.error, error_meaning(whole.error, response, self.names))]
+        if txn.verdict == "nak":
+            txn.findings.append(refused_finding(txn.read_res_frame, txn.write_frame, refusals))
         fig = txn.figures()
         v = txn.channel
         self.transactions.append(TransactionRow._make((

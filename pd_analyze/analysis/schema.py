@@ -63,7 +63,8 @@ COLUMNS: Mapping[str, tuple[Column, ...]] = MappingProxyType({
         ("write_res_frame", "Int64", "frame of the write response"),
         ("read_req_frames", "string", "frames of the read requests"),
         ("read_res_frame", "Int64", "frame of the final read response"),
-        ("frames", "string", "every frame of the transaction (requests, responses, B5 answers)"),
+        ("frames", "string", "every frame that belongs to the transaction: requests, answers, B5 answers, "
+                               "fragments, retransmissions and copies (protocol.md 7.6); what extract writes"),
         ("t_start", TIME, "time of the write request"),
         ("t_write_rtt", "Float64", "seconds from write request to write response"),
         ("t_total", "Float64", "seconds from write request to the final read response"),

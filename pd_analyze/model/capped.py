@@ -50,8 +50,8 @@ TXN_FRAMES = 10_000  # frames of one transaction (10 s of B5 polling every milli
 TXN_CALLS = Cap("transaction calls awaiting their answer", 65_536)
 READ_VALUES = Cap("values last read back, per parameter element", 262_144)
 CHANNEL_HISTORY = Cap("channels' last closed transactions", 65_536)
-# `extract`: calls of the transactions kept, for the PDUs the report does not count (FACK, ping, working)
-EXTRACT_CALLS = Cap("RPC calls of extracted transactions", 4096)
+# transactions whose rows wait rpc_timeout for late copies of their calls (engine.late; beyond: not listed)
+LATE_COPIES = Cap("transactions held for late copies of their calls", 4096)
 
 _pop = OrderedDict.pop  # the dict's own, under CappedTable.pop (faster than super() on every call)
 _ROOM: list = []  # make_room's answer when nothing had to go (never appended to)

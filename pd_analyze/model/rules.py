@@ -180,6 +180,8 @@ _RULES = (
     R("T5", "b5_polling", INFO, SEQUENCE, PD, "B5 retries above the threshold"),
     R("T7", "txn_evicted", WARNING, SEQUENCE, "pd-analyze limits",
       "transaction table full, or a transaction with too many frames: it ends as a timeout"),
+    R("T8", "txn_failed", WARNING, SEQUENCE, PD, "transaction failed: pnio_error, timeout or malformed"),
+    R("T9", "txn_refused", INFO, SEQUENCE, PD, "transaction refused by the drive (nak)"),
     # the parameter state against an intended set (pd-analyze audit --expect, analysis.intended)
     R("S1", "expect_mismatch", ERROR, COMMENT, EXPECT, "confirmed or read-back value differs from the intended one"),
     R("S2", "expect_refused", ERROR, COMMENT, EXPECT, "every write of an intended parameter was refused"),
@@ -195,7 +197,7 @@ RULES: Mapping[str, Rule] = MappingProxyType({r.name: r for r in _RULES})
 TRANSACTION_RULES = frozenset({
     "reference_mismatch", "response_id_mismatch", "do_not_mirrored", "n_params_not_mirrored",
     "write_while_pending", "reference_reused", "retry", "fallback_pairing", "read_without_request",
-    "b5_polling", "txn_evicted"})
+    "b5_polling", "txn_evicted", "txn_failed", "txn_refused"})
 
 
 def finding(name: str, frame: int, field: str, value: object, expected: object, message: str,

@@ -10,3 +10,5 @@ VERDICTS = tuple(reversed(PRECEDENCE))
 ANSWERED = frozenset({"ok", "nak"})
 # The controller may retry these with the same Request Reference (T4) rather than reuse it (T1).
 FAILED_UNANSWERED = frozenset({"pnio_error", "timeout"})
+# The exchange failed (T8 txn_failed, protocol.md 6.5): the drive never gave a parameter response that counts.
+FAILED = frozenset({"malformed", "pnio_error", "timeout"})

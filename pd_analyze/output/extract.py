@@ -3,10 +3,11 @@ drive vendor's support.
 
 A transaction is selected when it passes every criterion given (a list within one criterion is "any of"):
 its verdict, a parameter number it addresses, its device, its number (the report's txn), and with a display
-filter any frame of it matching. Its frames are those the report names (its `frames` column: requests,
-responses, B5 answers, RPC and IP fragments, retransmitted requests) plus the frames of its RPC calls that
-the report does not count (FACKs, pings, working, acks of the same activity and sequence number), so that
-`report` on the written file finds the same transactions with the same verdicts.
+filter any frame of it matching. Exactly the frames the report names are written: its `frames` column, every
+frame that belongs to the transaction (requests, responses, B5 answers, RPC and IP fragments, retransmitted
+requests, duplicate answers and mirror copies, a Write-Multiple's frames in each transaction it opens). One
+rule for both, so `report` on the written file finds the same transactions with the same verdicts; the
+liveness PDUs of a call (ping, working, FACK, ack) are no transaction's frames and are not written.
 
 A pcap is written as a pcap (its file header, then the chosen records as they are), a pcapng as a pcapng
 (every section header, interface description and other non-packet block kept, then the chosen packet
@@ -22,7 +23,6 @@ from typing import Any
 from pd_analyze.analysis.capture_run import Settings
 from pd_analyze.capture import CaptureError
 from pd_analyze.capture.records import CaptureCopy
-from pd_analyze.model.capped import EXTRACT_CALLS, CappedTable
 from pd_analyze.model.verdicts import VERDICTS
 from pd_analyze.output import frame_notes
 from pd_analyze.output.capture_copy import Copied, UsageError, check_paths, dissector_for, frames, output
@@ -76,7 +76,6 @@ def extract(capture: str, out: str, settings: Settings, selection: Selection) ->
     chosen = _chosen(capture, settings, selection)
     result = Copied(out, transactions=len(chosen))
     notes = frame_notes.collect(capture, settings)
-    calls: CappedTable[tuple[str, int], None] = CappedTable(EXTRACT_CALLS)
     try:
         with CaptureCopy(capture) as copy, output(out) as stream:
             stream.write(copy.header)
@@ -85,11 +84,7 @@ def extract(capture: str, out: str, settings: Settings, selection: Selection) ->
                     if view is None:
                         stream.write(block.raw)
                         continue
-                    call = _call(view.result)
-                    if view.note is not None and any(t.txn in chosen for t in view.note.txns):
-                        if call is not None:
-                            calls.remember(call, None)
-                    elif call is None or call not in calls:
+                    if view.note is None or not any(t.txn in chosen for t in view.note.txns):
                         continue
                     stream.write(block.raw)
                     result.frames += 1
@@ -99,20 +94,6 @@ def extract(capture: str, out: str, settings: Settings, selection: Selection) ->
         notes.close()
     result.errors += notes.errors_besides(result.errors)
     return result
-
-
-def _call(res: Any) -> tuple[str, int] | None:
-    """The RPC call (activity, sequence number) of a dissected frame, None for a frame without one."""
-    if res is None:
-        return None
-    activity = seq = None
-    for f in res.fields():
-        if f.name == "rpc.activity":
-            activity = f.value
-        elif f.name == "rpc.seq":
-            seq = f.value
-            break
-    return (str(activity), seq) if activity is not None and isinstance(seq, int) else None
 
 
 def _chosen(capture: str, settings: Settings, selection: Selection) -> set[int]:

@@ -342,7 +342,7 @@ class Dissector:
         pdu.opnum = opnum
         stub = rec.parse_stub(body, hdr.little, response, opnum, number, res.findings)
         pdu.stub = stub
-        pdu.malformed = stub.truncated
+        pdu.malformed = stub.truncated or checks.header_undecodable(stub, opnum)  # protocol.md 7.4 rule 1
         request_stub = pdu.request.info if pdu.request is not None and isinstance(pdu.request.info, rec.Stub) else None
         if not response and not pdu.retransmission and pdu.request is not None:
             pdu.request.info = stub

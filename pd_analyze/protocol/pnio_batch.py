@@ -57,6 +57,7 @@ from pd_analyze.model.values import (
 )
 from pd_analyze.protocol import link, link_batch, profidrive, rpc, rpc_batch
 from pd_analyze.protocol import pnio as rec
+from pd_analyze.protocol.pnio_checks import BLOCK_LENGTH
 from pd_analyze.protocol.profidrive_checks import Checker
 
 ROUTE_SKIP, ROUTE_FRAMES, ROUTE_DECIDE, ROUTE_PNIO = 0, 1, 2, 3
@@ -69,7 +70,6 @@ _RECORD_SERVICES = np.array(sorted(RECORD_SERVICES))
 _PD_INDICES = np.array(sorted(PROFIDRIVE_INDICES))
 _IOD_LIMITS = ("iod.api", "iod.slot", "iod.subslot", "iod.index")  # Checker.iod's keys, also the field names
 PD_HEADER = profidrive.HEADER.size  # H13's least PROFIdrive record length
-BLOCK_LENGTH = rec.IOD_SIZE - 4  # H2: BlockLength counts the bytes after BlockType and itself
 BLOCK_VERSION = (1, 0)  # H3
 
 
@@ -303,6 +303,10 @@ def _stubs(data: np.ndarray, at: np.ndarray, length: np.ndarray, candidate: np.n
     carries = kinds[0] | kinds[2]  # write requests and read responses carry a record
     after = length - rec.NDR_SIZE - rec.IOD_SIZE  # bytes after the IOD header
     ok &= ~(carries & (record_len > after))  # a record cut short (record_truncated)
+    # a wrong BlockType (H1) or BlockLength (H2) makes the transaction malformed (protocol.md 7.4 rule 1): the
+    # per-frame path's, which marks the PDU so (pnio_checks.header_undecodable)
+    expected = _expected_block(opnum, response)
+    ok &= ~(block & ((f["iod.block_type"] != expected) | (f["iod.block_length"] != BLOCK_LENGTH)))
     trailing = block & (np.where(carries, after - record_len, after) > 0)
     with_record = carries & (request | (status == 0))
     flag = _flag(f, status, block_status, ndr, block, nil, trailing, length, response, opnum, checker)
@@ -315,6 +319,14 @@ def _stubs(data: np.ndarray, at: np.ndarray, length: np.ndarray, candidate: np.n
            "rec_len": np.where(with_record, record_len, 0)}
     return {name: out[name].astype(dtype, copy=False) for name, dtype in (("ok", np.bool_), ("flag", np.bool_),
                                                                           *_STUB_COLUMNS)}
+
+
+def _expected_block(opnum: np.ndarray, response: np.ndarray) -> np.ndarray:
+    """The BlockType each PDU's service and direction asks for (H1; 0 where none)."""
+    expected = np.zeros(len(opnum), np.int64)
+    for (op, is_response), block_type in rec.EXPECTED_BLOCK.items():
+        expected[(opnum == op) & (response == is_response)] = block_type
+    return expected
 
 
 def _packed(f: dict[str, np.ndarray], names: tuple[str, ...]) -> np.ndarray:
@@ -343,9 +355,7 @@ def _flag(f: dict[str, np.ndarray], status: np.ndarray, block_status: np.ndarray
                       | ~np.isin(f["ndr.status.decode"], (ERROR_DECODE_PNIORW, ERROR_DECODE_PNIO)))
     flag |= block & response & read & failed & (f["ndr.status.code1"] != PNIORW_STATE_CONFLICT)  # N9
     flag |= block & response & write & (block_status != status)  # N8
-    expected = np.zeros(len(opnum), np.int64)
-    for (op, is_response), block_type in rec.EXPECTED_BLOCK.items():
-        expected[(opnum == op) & (response == is_response)] = block_type
+    expected = _expected_block(opnum, response)
     flag |= block & ((f["iod.block_type"] != expected) | (f["iod.block_length"] != BLOCK_LENGTH)  # H1, H2
                      | (f["iod.version_high"] != BLOCK_VERSION[0]) | (f["iod.version_low"] != BLOCK_VERSION[1])  # H3
                      | (f["iod.pad"] != 0) | f["iod.rw_pad"]  # H4

@@ -25,6 +25,8 @@ from pd_analyze.model.values import (
 from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol.pnio import Block, Stub
 
+BLOCK_LENGTH = rec.IOD_SIZE - 4  # H2: BlockLength counts the bytes after BlockType and itself
+
 
 def ndr(stub: Stub, stub_len: int, opnum: int, frame: int, request: Stub | None) -> list[Finding]:
     """N1-N9 on an NDR args header (and the request it answers)."""
@@ -122,6 +124,17 @@ def blocks(stub: Stub, opnum: int, frame: int, request: Stub | None, max_record:
     return out
 
 
+def header_undecodable(stub: Stub, opnum: int) -> bool:
+    """A wrong BlockType (H1) or a BlockLength other than 60 (H2) in the stub's IOD headers: the PDU is read
+    with the fixed 64-byte layout, but what it holds cannot be trusted, so its transaction is `malformed`
+    (protocol.md 7.4 rule 1)."""
+    expected = rec.EXPECTED_BLOCK.get((opnum, stub.response))
+    if expected is None:
+        return False
+    return any((b.depth == 0 and b.values[rec.B_TYPE] != expected) or b.values[rec.B_LENGTH] != BLOCK_LENGTH
+               for b in stub.blocks)
+
+
 def _header_form(block: Block, expected: int, frame: int, response: bool) -> list[Finding]:
     out = []
     v = block.values
@@ -131,8 +144,8 @@ def _header_form(block: Block, expected: int, frame: int, response: bool) -> lis
     if block.depth == 1 and response and v[rec.B_TYPE] != expected:
         out.append(finding("multi_write_structure", frame, "iod.block_type", f"{v[rec.B_TYPE]:#06x}",
                            f"{expected:#06x}", "inner Write-Multiple response is not an IODWriteResHeader"))
-    if v[rec.B_LENGTH] != 60:
-        out.append(finding("block_length", frame, "iod.block_length", v[rec.B_LENGTH], 60,
+    if v[rec.B_LENGTH] != BLOCK_LENGTH:
+        out.append(finding("block_length", frame, "iod.block_length", v[rec.B_LENGTH], BLOCK_LENGTH,
                            "BlockLength is not 60 (decoded with the fixed 64-byte layout)"))
     if (v[rec.B_VHIGH], v[rec.B_VLOW]) != (1, 0):
         out.append(finding("block_version", frame, "iod.version_high", f"{v[rec.B_VHIGH]}.{v[rec.B_VLOW]}",

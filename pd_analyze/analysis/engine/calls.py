@@ -82,16 +82,20 @@ class Pairing:
         self.open: CappedTable[Key, Call] = CappedTable(OPEN_CALLS)
         self.closed: CappedTable[Key, Call] = CappedTable(ANSWERED_CALLS)
         self.activities: CappedTable[tuple[int, int], None] = CappedTable(KNOWN_ACTIVITIES)
+        # the activities the loop met first in the current part, with the frame (see `order_activities`)
+        self.new_activities: list[tuple[int, tuple[int, int]]] = []
         self.logs: list[AnsweredLog] = []  # the vector path's answered calls, batch by batch
         self.loose: list[Finding] = []  # findings of no frame's own: calls that expired or were never answered
         self.now = -(1 << 62)
 
-    def pnio(self, row: Pdu) -> bool:
-        """Whether a PDU whose interface is not PNIO's belongs to a PNIO call or activity (protocol.md 1.4)."""
+    def pnio(self, row: Pdu, first_seen: dict[tuple[int, int], int]) -> bool:
+        """Whether a PDU whose interface is not PNIO's belongs to a PNIO call or activity (protocol.md 1.4);
+        `first_seen`: activities the vector path's rows of the part make known, at their first frames."""
         key = row.key
         if row.ptype in _ANSWERS:
             return key in self.open or self._answered(key) is not None
-        return (key[0], key[1]) in self.activities
+        act = (key[0], key[1])
+        return act in self.activities or first_seen.get(act, row.frame) < row.frame
 
     def _answered(self, key: Key) -> Call | None:
         """The call of `key` answered less than rpc_timeout ago: in the table, or in the vector path's logs
@@ -114,17 +118,31 @@ class Pairing:
         """Whether a key is open or answered lately (as far as the vector path must keep off it)."""
         return key in self.open or key in self.closed or any(key in log.index for log in self.logs)
 
-    def remember_log(self, keys: list[Key], columns: dict[str, list], activities: set[tuple[int, int]]) -> None:
-        """The calls the vector path took whole in a batch, answered; their activities known."""
+    def remember_log(self, keys: list[Key], columns: dict[str, list]) -> None:
+        """The calls the vector path took whole in a batch, answered."""
         if not keys:
             return
         self.logs.append(AnsweredLog(columns, dict(zip(keys, range(len(keys)), strict=True)),
                                      max(columns["answered"])))
-        for act in activities:
-            if act not in self.activities:
-                self.activities.remember(act, None)
         while len(self.logs) > 1 and sum(len(log.index) for log in self.logs) > ANSWERED_CALLS.count:
             self.logs.pop(0)  # the oldest batch's calls are forgotten (ANSWERED_CALLS)
+
+    def order_activities(self, first_seen: dict[tuple[int, int], int]) -> None:
+        """The end of a part the vector path took calls of: the activities first met in it, by the loop and
+        (`first_seen`: activity -> first frame, those unknown when the part began) by the vector path, known
+        in the order of their first frames, as a loop over every row would have met them (the oldest is
+        forgotten first; no activity was forgotten within the part: the vector path keeps off near the cap)."""
+        if not first_seen:
+            self.new_activities.clear()
+            return
+        found = dict(first_seen)
+        for frame, act in self.new_activities:
+            found[act] = min(frame, found.get(act, frame))
+        self.new_activities.clear()
+        for act in found:
+            self.activities.pop(act, None)
+        for _frame, act in sorted((frame, act) for act, frame in found.items()):
+            self.activities.remember(act, None)
 
     def tick(self, now: int) -> None:
         """Capture time reached `now` (over every frame, PNIO or not): the calls due expire."""
@@ -137,12 +155,14 @@ class Pairing:
         act = (row.key[0], row.key[1])
         if act not in self.activities:
             self.activities.remember(act, None)
+            self.new_activities.append((row.frame, act))
         if not row.whole:
             copy = row.raw.fragment_copy if row.raw is not None else None
             if copy is not None:  # an identical request fragment again: the call counts it
                 call = self.open.get(row.key)
                 if call is not None:
                     call.copies += 1
+                    row.call, row.copy = call, True  # (its frame is the call's transactions')
             return
         ptype = row.ptype
         if ptype == PTYPE_REQUEST:

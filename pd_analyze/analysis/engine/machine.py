@@ -22,6 +22,8 @@ from pd_analyze.analysis.engine.records import Records
 from pd_analyze.analysis.engine.rules import (
     UNANSWERED_ENDS,
     b5_finding,
+    ends,
+    failed_finding,
     mirroring,
     superseded_finding,
     verdict_of,
@@ -89,14 +91,20 @@ class Machine:
             self.now = now
         self._expire()  # (also when time stood still or went back: a transaction opened past its deadline)
         owner = self._row(row)
-        if owner is not None:
-            frames = owner.frames
-            if not frames or frames[-1] < row.frame or row.frame not in frames:
-                frames.append(row.frame)  # rows come in frame order: one comparison, as a rule
-                if not owner.closed_by:
-                    self.pending.charge(owner.channel, FRAME_COST)
-                    if len(frames) > TXN_FRAMES:
-                        self._evict(owner, row.frame, f"more than {TXN_FRAMES} frames")
+        if owner is None:
+            return None
+        # every frame of the row (a reassembled PDU's fragments) is each of its transactions' (a Write-Multiple
+        # opens several; a copy of a call's request or answer belongs to the call's)
+        owners = self._owners(row.call) or (owner,)
+        for txn in owners:
+            frames = txn.frames
+            for frame in row.frames or (row.frame,):
+                if not frames or frames[-1] < frame or frame not in frames:
+                    frames.append(frame)  # rows come in frame order: one comparison, as a rule
+            if not txn.closed_by:
+                self.pending.charge(txn.channel, FRAME_COST)
+                if len(frames) > TXN_FRAMES:
+                    self._evict(txn, row.frame, f"more than {TXN_FRAMES} frames")
         return owner
 
     def calls_table(self) -> CappedTable:
@@ -127,19 +135,21 @@ class Machine:
             self._close(txn, "deadline")
 
     def _row(self, row: Pdu) -> Txn | None:
-        if not row.whole:
-            return None
+        if not row.whole:  # a fragment: a retransmitted one belongs to its call's transactions
+            return next(iter(self._owners(row.call)), None) if row.copy else None
         call: Call | None = row.call
         ptype = row.ptype
         if ptype == PTYPE_REQUEST:
             if row.opnum not in RECORD_SERVICES:
                 return None
             if row.copy:
-                return self._retransmitted(call)
+                return next(iter(self._owners(call)), None)
             return self._write_request(row) if row.opnum == OP_WRITE else self._read_request(row)
-        if ptype in (PTYPE_RESPONSE, PTYPE_FAULT, PTYPE_REJECT) and call is not None and not row.copy:
+        if ptype in (PTYPE_RESPONSE, PTYPE_FAULT, PTYPE_REJECT) and call is not None:
             if call.opnum not in RECORD_SERVICES:
                 return None
+            if row.copy:  # a second answer to the call: its transactions' frame
+                return next(iter(self._owners(call)), None)
             fsm = self._calls.pop(call.frame, None)
             if fsm is None:
                 return None
@@ -162,9 +172,9 @@ class Machine:
             if row.cut:
                 # cut before its IOD header was complete (snaplen, damage): the index is unknown until the
                 # answer, paired by activity and sequence number, names it (protocol.md 7.3 step 1)
-                self._remember(row.frame, FsmCall("cut", [], None, row))
+                self._remember(row, FsmCall("cut", [], None, row))
             return None
-        self._remember(row.frame, FsmCall("write", opened))
+        self._remember(row, FsmCall("write", opened))
         return next(t for t in opened if t is not None)
 
     def _open(self, row: Pdu, w: Write, position: int) -> Txn:
@@ -172,7 +182,8 @@ class Machine:
         txn.request = w.record
         if w.head is not None:
             txn.ref, txn.req_id, txn.do, txn.n_params = w.head
-        txn.malformed = w.malformed
+        if w.malformed:
+            txn.spoil(row.frame)
         txn.vendor = w.vendor
         self._admit(txn, row.frame)
         return txn
@@ -193,8 +204,9 @@ class Machine:
         txn.admitted = frame
         old = self.pending.get(channel)
         if old is not None:
-            txn.findings.append(superseded_finding(txn.ref, old.write_frame, old.ref, frame))
+            old.ended_at = frame
             self._close(old, "superseded")
+            txn.findings.append(superseded_finding(txn.ref, old, frame))
         self.pending.put(channel, txn, 1024 + self.records.cost(txn.request))
         self._by_ar.setdefault(fallback_key(channel), OrderedDict())[channel] = txn
         while len(self.pending) > 1 and self.pending.full():
@@ -204,7 +216,7 @@ class Machine:
         """The answer to a write cut before its IOD header was complete: when it names a PROFIdrive index
         (a single write, not 0xE040), the transaction opens at the request's frame with what could be read
         of it (nothing of its record): malformed, and its reads pair with it as usual (protocol.md 7.3
-        step 1). Numbered here, at the answer (the frame that opens it)."""
+        step 1). Numbered at the request's frame (engine.numbering)."""
         req = fsm.request
         answer = row.answer
         names = None
@@ -212,10 +224,12 @@ class Machine:
             names = answer.names if row.odd else self.names_of(row)
         if req is None or row.ptype != PTYPE_RESPONSE or names is None:
             return None
-        txn = self._new(req, names.channel, row.frame, 0)
-        txn.malformed = True  # the record is cut (H5/R1 on the request's frame)
+        txn = self._new(req, names.channel, req.frame, 0)
+        txn.spoil(req.frame)  # the record is cut (H5/R1 on the request's frame)
         if req.frame not in txn.frames:
             txn.frames.append(req.frame)
+        if req.call is not None:
+            req.call.fsm = FsmCall("write", [txn])
         self._admit(txn, req.frame)
         return self._write_response(row, FsmCall("write", [txn]))
 
@@ -236,7 +250,8 @@ class Machine:
             first = first or txn
             txn.write_res_frame = row.frame
             txn.t_write_res = row.ts
-            txn.malformed |= row.malformed
+            if row.malformed:
+                txn.spoil(row.frame)
             if answer is not None and answer.fault >= 0:
                 txn.pnio_status = f"{answer.fault:08X}"
                 self._close(txn, "pnio_error")
@@ -265,20 +280,21 @@ class Machine:
             self.loose.append(finding("read_without_request", row.frame, "iod.index", f"{channel[7]:#06x}",
                                       "a pending parameter request", "read on a PROFIdrive index with no "
                                                                      "pending write on the channel"))
-            self._remember(row.frame, FsmCall("read", [None], channel))
+            self._remember(row, FsmCall("read", [None], channel))
             return None
         txn.read_frames.append(row.first)
         txn.t_reads.append(row.first_ts)
         txn.frames.extend(row.frames)
         txn.calls.append(row.call)
-        self._remember(row.frame, FsmCall("read", [txn], channel))
+        self._remember(row, FsmCall("read", [txn], channel))
         return txn
 
     def _read_response(self, row: Pdu, fsm: FsmCall) -> Txn | None:
         txn = fsm.txns[0]
         if txn is None or txn.closed_by:
             return None
-        txn.malformed |= row.malformed
+        if row.malformed:
+            txn.spoil(row.frame)
         answer = row.answer
         if answer is not None and answer.fault >= 0:
             txn.pnio_status = f"{answer.fault:08X}"
@@ -301,7 +317,7 @@ class Machine:
         head = answer.head if answer is not None else None
         txn.response = answer.record if answer is not None else None
         if head is None or not answer.complete:  # type: ignore[union-attr]
-            txn.malformed = True
+            txn.spoil(row.frame)
         else:
             txn.response_head = head
             found, mismatch = mirroring(txn, head, row.frame)
@@ -310,20 +326,22 @@ class Machine:
         self._close(txn, "response")
         return txn
 
-    def _retransmitted(self, call: Call | None) -> Txn | None:
-        fsm = self._calls.get(call.frame) if call is not None else None
-        if fsm is None:
-            return None
-        return next((t for t in fsm.txns if t is not None), None)
+    @staticmethod
+    def _owners(call: Call | None) -> list[Txn]:
+        """The transactions a call's request opened or read for (a copy of the request or of its answer is
+        theirs too), until the run hands them on (it forgets them then: `forget`)."""
+        fsm = call.fsm if call is not None else None
+        return [t for t in fsm.txns if t is not None] if isinstance(fsm, FsmCall) else []
 
     # --- closing ----------------------------------------------------------------------------
     def _evict(self, txn: Txn, frame: int, why: str) -> None:
         """Close a pending transaction the caps cannot hold any longer: a timeout, closed_by "evicted"."""
         self.pending.evict(txn.channel, frame)  # counted; each evicted transaction is a row with its finding
+        txn.ended_at = frame
+        self._close(txn, "evicted")
         txn.findings.append(finding(PENDING_TRANSACTIONS.rule, frame, "pd.ref", txn.ref,
                                     f"{PENDING_TRANSACTIONS.text()}, {TXN_FRAMES} frames each",
-                                    f"{why}: the transaction of frame {txn.write_frame} ends as a timeout"))
-        self._close(txn, "evicted")
+                                    f"{why}: the transaction of frame {txn.write_frame} ends {ends(txn)}"))
 
     def _close(self, txn: Txn, why: str) -> None:
         channel = txn.channel
@@ -341,6 +359,7 @@ class Machine:
         txn.retransmissions = sum(c.copies for c in txn.calls if c is not None)
         if why in UNANSWERED_ENDS and not txn.pnio_status and txn.b5:
             txn.pnio_status = B5_STATUS  # the last answer was B5 (txn.last_status)
+        txn.findings += failed_finding(txn, self.timeout / 1e9)  # T8
         self.closed.append(txn)
 
     def _forget_calls(self, txn: Txn) -> None:
@@ -350,5 +369,7 @@ class Machine:
             if fsm is not None and all(t is None or t is txn or t.closed_by for t in fsm.txns):
                 self._calls.pop(frame)
 
-    def _remember(self, frame: int, fsm: FsmCall) -> None:
-        self._calls.remember(frame, fsm)  # the oldest are forgotten
+    def _remember(self, row: Pdu, fsm: FsmCall) -> None:
+        if row.call is not None:
+            row.call.fsm = fsm
+        self._calls.remember(row.frame, fsm)  # the oldest are forgotten

@@ -9,7 +9,8 @@ from pd_analyze.analysis.engine.facts import Head
 from pd_analyze.analysis.engine.txn import Txn
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.rules import Finding, finding
-from pd_analyze.model.verdicts import ANSWERED, FAILED_UNANSWERED, PRECEDENCE
+from pd_analyze.model.values import status_text
+from pd_analyze.model.verdicts import ANSWERED, FAILED, FAILED_UNANSWERED, PRECEDENCE
 
 # How a transaction that got no final answer ended (its verdict is then timeout, protocol.md 7.4).
 UNANSWERED_ENDS = frozenset({"deadline", "superseded", "capture_end", "evicted"})
@@ -65,10 +66,91 @@ def reuse_finding(last: LastDone, ref: int, frame: int) -> Finding | None:
     return None
 
 
-def superseded_finding(ref: int, old_frame: int, old_ref: int, frame: int) -> Finding:
-    """T3: a write (reference `ref`, at `frame`) while the transaction of `old_frame` is pending."""
-    return finding("write_while_pending", frame, "pd.ref", ref, f"none pending (the transaction of frame {old_frame})",
-                   f"write while the transaction of frame {old_frame} (ref {old_ref}) is pending: it ends as a timeout")
+def ends(txn: Txn) -> str:
+    """How a closed transaction ends, as T3 and T7 name it: the verdict it gets (protocol.md 6.5 T3)."""
+    if txn.verdict == "timeout":
+        return "as a timeout"
+    if txn.verdict == "pnio_error":
+        busy = " (busy: every read answered B5)" if txn.closed_by in UNANSWERED_ENDS else ""
+        return f"as pnio_error {txn.pnio_status}{busy}"
+    return txn.verdict if txn.verdict == "malformed" else f"as {txn.verdict}"
+
+
+def superseded_finding(ref: int, old: Txn, frame: int) -> Finding:
+    """T3: a write (reference `ref`, at `frame`) while the transaction `old` is pending (closed by it just now)."""
+    return finding("write_while_pending", frame, "pd.ref", ref,
+                   f"none pending (the transaction of frame {old.write_frame})",
+                   f"write while the transaction of frame {old.write_frame} (ref {old.ref}) is pending: it ends "
+                   f"{ends(old)}")
+
+
+def failed_finding(txn: Txn, timeout: float) -> list[Finding]:
+    """T8 of a closed transaction whose verdict is malformed, pnio_error or timeout (`timeout`: the transaction
+    timeout, seconds): at the frame that decided the verdict, naming the verdict and its cause in words."""
+    verdict = txn.verdict
+    if verdict not in FAILED:
+        return []
+    if verdict == "malformed":
+        at = txn.malformed_at or txn.admitted
+        return [failed_at(verdict, at, txn.write_frame, f"the {_role(txn, at)} of frame {at} cannot be decoded")]
+    if txn.closed_by == "pnio_error":
+        at = txn.read_res_frame or txn.write_res_frame
+        return [failed_at(verdict, at, txn.write_frame,
+                          answered_with(txn.pnio_status, "read" if at == txn.read_res_frame else "write"))]
+    at = txn.ended_at if txn.closed_by in ("superseded", "evicted") else txn.admitted
+    if txn.closed_by == "superseded":
+        end = f"superseded by the write of frame {at}"
+    elif txn.closed_by == "evicted":
+        end = f"dropped by the analyser's limits at frame {at}"
+    elif txn.closed_by == "capture_end" and txn.capture_ended:
+        end = "the capture ended"
+    else:
+        end = f"no final response within {timeout:g} s"
+    if verdict == "pnio_error":  # every read answered B5 until the controller gave up (protocol.md 7.3 step 5)
+        cause = f"{status_text(txn.pnio_status)}: every read answered B5 ({txn.b5}), {end}"
+    else:
+        cause = end + (f", after {txn.b5} B5 answer{'s' if txn.b5 != 1 else ''}" if txn.b5 else "")
+    return [failed_at(verdict, at, txn.write_frame, cause)]
+
+
+def answered_with(status: str, service: str) -> str:
+    """The cause of a pnio_error closed by an answer (a response, fault or reject) to a "write" or "read": its
+    status in words."""
+    return f"{status_text(status)} (in the answer to the {service})"
+
+
+def failed_at(verdict: str, frame: int, write_frame: int, cause: str) -> Finding:
+    """T8 at `frame` for the transaction of `write_frame`."""
+    return finding("txn_failed", frame, "txn.verdict", verdict, "ok or nak",
+                   f"the transaction of frame {write_frame} failed: {verdict}: {cause}")
+
+
+def refused_finding(frame: int, write_frame: int, errors: list[str]) -> Finding:
+    """T9: the drive refused the transaction of `write_frame` (verdict nak) in its response at `frame`; `errors`:
+    each error in words (`refusal`)."""
+    said = "; ".join(errors) if errors else "no error number given"
+    return finding("txn_refused", frame, "txn.verdict", "nak", "ok",
+                   f"the drive refused the transaction of frame {write_frame}: {said}")
+
+
+WHOLE = ""  # refusal's label of an error that refused the whole request (protocol.md 3.3)
+
+
+def refusal(label: str, error: int, text: str) -> str:
+    """One error of a NAK in words: 'P964[0]: error 0x02 (low or high limit exceeded)', or for the whole
+    request (`label` WHOLE) 'the whole request: error 0x22 (...)'."""
+    return f"{label or 'the whole request'}: error 0x{error:02x} ({text})"
+
+
+def _role(txn: Txn, frame: int) -> str:
+    """Which PDU of the transaction `frame` is."""
+    if frame == txn.read_res_frame:
+        return "read response"
+    if frame == txn.write_res_frame:
+        return "write response"
+    if frame in (txn.admitted, txn.write_frame):
+        return "write request"
+    return "PDU"
 
 
 def b5_finding(retries: int, threshold: int, frame: int) -> Finding:

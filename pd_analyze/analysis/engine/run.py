@@ -22,7 +22,9 @@ from pd_analyze.analysis.engine.decode import Decoded, Decoder, merge_accounting
 from pd_analyze.analysis.engine.facts import Pdu
 from pd_analyze.analysis.engine.finals import Finals
 from pd_analyze.analysis.engine.findings import Findings, response_channel, write_names
-from pd_analyze.analysis.engine.machine import Machine
+from pd_analyze.analysis.engine.late import LateCopies
+from pd_analyze.analysis.engine.machine import FsmCall, Machine
+from pd_analyze.analysis.engine.numbering import Numbering
 from pd_analyze.analysis.engine.records import Records
 from pd_analyze.analysis.engine.tables import TableBuilder
 from pd_analyze.analysis.engine.txn import Txn
@@ -35,7 +37,14 @@ from pd_analyze.analysis.stations import names_in_batch
 from pd_analyze.capture import CaptureError
 from pd_analyze.capture.batches import BATCH_FRAMES, FrameBatch, frame_batches
 from pd_analyze.capture.raw import RawFrame
-from pd_analyze.model.capped import CHANNEL_REQUESTS, OPEN_CALLS, PENDING_TRANSACTIONS, TXN_CALLS, CappedTable
+from pd_analyze.model.capped import (
+    CHANNEL_REQUESTS,
+    KNOWN_ACTIVITIES,
+    OPEN_CALLS,
+    PENDING_TRANSACTIONS,
+    TXN_CALLS,
+    CappedTable,
+)
 from pd_analyze.model.values import PTYPE_FAULT, PTYPE_REJECT, PTYPE_REQUEST, PTYPE_RESPONSE
 from pd_analyze.protocol import rpc
 from pd_analyze.protocol.dissector import Dissector, truncated_elsewhere
@@ -73,7 +82,8 @@ class EngineRun:
         self.as_rows = as_rows
         self.vector = settings.vector and not as_rows
         self.accounting = Accounting()  # the frames the columns took; the dissector counts its own
-        self.next_number = 1
+        self.numbering = Numbering()
+        self.late = LateCopies(self.pairing.timeout)
         self.now_all = _NEVER  # the latest capture time of any frame (ns)
         self.now_pnio = _NEVER  # the latest capture time of a PNIO RPC frame but those whose PNIO-ness the
         # loop decides (ns); with them: machine.now
@@ -81,6 +91,7 @@ class EngineRun:
         self.last_frame = 0
         # each channel's last parameter request's addresses, as Q7 compares a read response with them (6.4)
         self.last_request: CappedTable[tuple, tuple] = CappedTable(CHANNEL_REQUESTS)
+        self._first: dict[tuple[int, int], int] = {}  # the part's activities first seen in column rows (_first_seen)
         self.taken = 0  # PNIO rows the vector path took whole
         self.pnio_rows = 0  # PNIO rows in all
 
@@ -135,6 +146,14 @@ class EngineRun:
             if row.col >= 0 and row.col in dec.dropped:
                 row.findings += dec.dropped[row.col]
         accepted, rejected, marked = self._loop(dec, stream, calls, ep, runmax_all, runmax_pnio)
+        self.numbering.note_cuts(accepted)
+        for row in accepted:  # a copy of a call whose transaction's rows were made already
+            if row.copy and row.owner is None and row.call is not None:
+                number = self.late.copy(row.call.frame, row.frames or (row.frame,), row.ptype == PTYPE_REQUEST)
+                if number is not None:  # its findings are its transaction's, as those of a copy met before
+                    for f in row.findings:
+                        self.rows.add_finding(self.capture_of(f.frame), f, number)
+                    row.findings = []
         self.now_all = max(self.now_all, int(runmax_all[-1]))
         self.now_pnio = max(self.now_pnio, int(runmax_pnio[-1]))
         self.pairing.tick(self.now_all)
@@ -147,6 +166,8 @@ class EngineRun:
         self.taken += 2 * len(done_calls.q)
         self.pnio_rows += len(dec.rows) + sum(1 for r in dec.odd_rows if not r.decide)
         self._remember_calls(view, done_calls)
+        self.pairing.order_activities(self._first)
+        self._first = {}
         loose = self.findings.vector(dec, done_calls, ep, cols, records)
         loose += self.findings.loop(dec, accepted, self.part)
         for row in accepted:
@@ -182,29 +203,25 @@ class EngineRun:
         empty = np.empty(0, np.int64)
         none = Calls(empty, empty, np.empty(0, bool)), Episodes(empty, empty, empty, empty, empty, empty, empty,
                                                               empty, [])
-        if not self.vector or not len(dec.rows):
+        if not self.vector or not len(dec.rows) or self.numbering.waits(self.pairing, dec.odd_rows):
             return none
-        # rows the loop has, or might have, a share in: their keys and activities stay the loop's
+        # rows the loop has, or might have, a share in: their keys stay the loop's (an activity does not:
+        # what the loop decides by activity, a PDU of another interface, it decides by the activities first
+        # seen before it in frame order, `_first_seen`)
         excluded = np.zeros(len(dec.rows), bool)
-        keys, acts = set(), set()
-        for row in dec.odd_rows:
-            hi, lo, seq = row.key
-            if hi or lo:
-                keys.add((hi, lo, seq))
-                if row.decide or not row.whole:
-                    acts.add((hi, lo))
+        keys = {row.key for row in dec.odd_rows if row.key[0] or row.key[1]}
         rows = dec.rows
         if keys:
             hashes = key_hash(np.array([k[0] for k in keys], np.uint64), np.array([k[1] for k in keys], np.uint64),
                               np.array([k[2] for k in keys], np.uint32))
             excluded |= np.isin(key_hash(p.act_hi[rows], p.act_lo[rows], p.seq[rows]), hashes)
-        if acts:
-            hashes = key_hash(np.array([a[0] for a in acts], np.uint64), np.array([a[1] for a in acts], np.uint64),
-                              np.zeros(len(acts), np.uint32))
-            excluded |= np.isin(key_hash(p.act_hi[rows], p.act_lo[rows], np.zeros(len(rows), np.uint32)), hashes)
         if dec.dropped:
             excluded |= np.isin(rows, np.fromiter(dec.dropped, np.int64, len(dec.dropped)))
         pairing = self.pairing
+        self._first = self._first_seen(view, rows)
+        if len(pairing.activities) + len(self._first) >= KNOWN_ACTIVITIES.count:
+            self._first = {}
+            return none  # (the loop's order of evictions decides)
         known = _Known(pairing)
         runmax_pdu = runmax_all[p.pos]
         calls = pair(view, rows, runmax_pdu, pairing.timeout, excluded, known)
@@ -241,6 +258,19 @@ class EngineRun:
         return out, Episodes(index[ep.w], index[ep.reads], ep.first_read, ep.n_reads, ep.channel, ep.group, ep.start,
                              ep.end, ep.channels)
 
+    def _first_seen(self, view: BatchView, rows: np.ndarray) -> dict[tuple[int, int], int]:
+        """The activities of the column `rows` (frame order) not known when the part begins: activity -> the
+        frame of its first row."""
+        p = view.p
+        acts = np.stack([p.act_hi[rows], p.act_lo[rows]], axis=1)
+        if not len(acts):
+            return {}
+        distinct, first = np.unique(acts, axis=0, return_index=True)
+        known = self.pairing.activities
+        frames = view.frame_no[rows[first]].tolist()
+        return {act: frame for act, frame in zip(map(tuple, distinct.tolist()), frames, strict=True)
+                if act not in known}
+
     def _near_caps(self, calls: int, transactions: int) -> bool:
         """Whether the loop's tables could reach a cap with the calls and transactions the vector path takes
         (at most `calls` and `transactions` of them open at once), where the order the loop meets rows in
@@ -260,6 +290,7 @@ class EngineRun:
         batch, view = dec.batch, dec.view
         pairing, machine, records = self.pairing, self.machine, self.machine.records
         last_request = self.last_request
+        first = self._first  # activities the vector path's rows make known, at their first frames
         marks = self._marks(view, calls, ep, stream)
         marked = np.zeros(len(ep.w), bool)
         marked[marks] = True
@@ -300,7 +331,7 @@ class EngineRun:
             row = item
             pairing.tick(row_now_all)
             if row.decide:
-                if not pairing.pnio(row):
+                if not pairing.pnio(row, first):
                     skipped_decide(self.decoder.accounting, row.raw, rpc.SKIP_NOT_PNIO)
                     if row.raw.truncated:
                         self.rows.add_finding(self.capture_of(row.frame), truncated_elsewhere(row.frame))
@@ -389,7 +420,7 @@ class EngineRun:
                    "if_hi": p.if_hi[q].tolist(), "if_lo": p.if_lo[q].tolist(), "opnum": p.opnum[q].tolist(),
                    "digest": [zlib.crc32(buf[a:a + n]) for a, n in zip(start, length, strict=True)], "size": length,
                    "response_frame": view.frame_no[s].tolist()}  # type: ignore[attr-defined]
-        self.pairing.remember_log(keys, columns, set(zip(hi, lo, strict=True)))
+        self.pairing.remember_log(keys, columns)
 
     def _settle(self, view: object, records: Records, cols: TxnCols | None) -> None:
         """T1/T4 and the values read and replaced, over the transactions of both ways, then the numbers."""
@@ -399,14 +430,7 @@ class EngineRun:
             for k in [k for k, v in cols.findings.items() if not v]:
                 del cols.findings[k]
         # numbers in the order the transactions opened, whichever way they went
-        order = sorted([(t.opened_at, t.position, 0, i) for i, t in enumerate(machine.opened)]
-                       + ([(int(f), 0, 1, k) for k, f in enumerate(cols.write_frame.tolist())] if cols else []))
-        for _at, _pos, kind, i in order:
-            if kind == 0:
-                machine.opened[i].number = self.next_number
-            else:
-                cols.number[i] = self.next_number  # type: ignore[union-attr]
-            self.next_number += 1
+        self.numbering.number(machine.opened, cols, self.numbering.barrier(self.pairing))
         machine.opened.clear()
         self._episodes = cols
 
@@ -414,7 +438,7 @@ class EngineRun:
         """Hand on what closed, carry what stays open past the part."""
         machine = self.machine
         done, machine.closed = machine.closed, []
-        self._emit(view, done, self._episodes)
+        self._emit(view, self.numbering.ready(done, records), self._episodes)
         self._episodes = None
         for txn in machine.pending.values():
             if isinstance(txn.request, int):
@@ -430,20 +454,29 @@ class EngineRun:
     def _emit(self, view: object, done: list[Txn], cols: TxnCols | None = None) -> None:
         if not done and cols is None:
             return
-        if self.as_rows:
+        done.sort(key=lambda t: t.number)  # (in number order, whichever way and batch they closed in)
+        for t in done:
+            _handed_on(t)
+        if self.as_rows:  # (rows made one by one: a copy after them is not added to them)
             records = Records(view)  # type: ignore[arg-type]
             for t in done:
                 self.rows.add(self.capture_of(t.write_frame), t, records, self.offset)
                 self._count(self.capture_of(t.write_frame))
             return
-        for name, tables in self.tables.tables(view, done, self.capture_of, self.offset, cols).items():  # type: ignore[arg-type]
-            for table in tables:
-                self.rows.add_table(name, table)
+        made = self.tables.tables(view, done, self.capture_of, self.offset, cols)  # type: ignore[arg-type]
+        self.late.hold(made, done, cols, self.offset, self.now_all)
+        self._hand_on(self.late.release(self.now_all))
         for t in done:
             self._count(self.capture_of(t.write_frame))
         if cols is not None:
             for frame in cols.write_frame.tolist():
                 self._count(self.capture_of(int(frame)))
+
+    def _hand_on(self, released: list[dict]) -> None:
+        for made in released:
+            for name, tables in made.items():
+                for table in tables:
+                    self.rows.add_table(name, table)
 
     def finish(self) -> None:
         """End of capture: what the dissector held, the calls never answered, every pending transaction."""
@@ -455,8 +488,10 @@ class EngineRun:
         loose += self.pairing.loose + self.machine.loose
         for f in loose:
             self.rows.add_finding(self.capture_of(f.frame), f)
+        self.numbering.number([], None, None)  # (no call is open any more: every number is known)
         done, self.machine.closed = self.machine.closed, []
-        self._emit(None, done)
+        self._emit(None, self.numbering.ready(done, Records(None)))
+        self._hand_on(self.late.release(self.now_all, everything=True))
         self.rows.batch_done()
 
     def totals(self) -> Accounting:
@@ -468,6 +503,16 @@ class EngineRun:
 
     def _count(self, path: str) -> None:
         next(r for r in self.results if r.path == path).transactions += 1
+
+
+def _handed_on(txn: Txn) -> None:
+    """A transaction whose rows are made: its retransmissions counted, its calls no longer lead to it (a later
+    copy is engine.late's)."""
+    txn.retransmissions = sum(c.copies for c in txn.calls if c is not None)
+    for c in txn.calls:
+        fsm = c.fsm if c is not None else None
+        if isinstance(fsm, FsmCall) and all(t is None or t.closed_by for t in fsm.txns):
+            c.fsm = None
 
 
 def _most_at_once(begin: np.ndarray, end: np.ndarray) -> int:

@@ -16,6 +16,7 @@ import pyarrow as pa
 
 from pd_analyze.analysis.engine.facts import Carried
 from pd_analyze.analysis.engine.records import Records
+from pd_analyze.analysis.engine.rules import WHOLE, refusal, refused_finding
 from pd_analyze.analysis.engine.txn import NS, Txn
 from pd_analyze.analysis.engine.txncols import MISSING, TxnCols, of_txns
 from pd_analyze.analysis.engine.view import BatchView
@@ -105,6 +106,9 @@ class TableBuilder:
             self._columns(decoded, of_txns(here, req), capture_of, offset, out)  # type: ignore[arg-type]
         if episodes is not None and len(episodes):
             self._columns(view.records, episodes, capture_of, offset, out)  # type: ignore[union-attr]
+        if len(out["findings"]) > 1:  # by transaction, whichever way each went: two transactions' findings of
+            # one rule at one frame (T8 of a superseded one and of its successor) keep one order in any batches
+            out["findings"] = [pa.concat_tables(out["findings"]).sort_by("txn")]
         return out
 
     def _channel_texts(self, channel: tuple) -> tuple[str, str, str, str]:
@@ -189,6 +193,7 @@ class TableBuilder:
                 errors[o].append(f"{label}:{_hex(e)}")
         for o in np.flatnonzero(whole).tolist():
             errors[o] = [f"*:{_hex(int(bc.error[first_res[o]]))}"]
+        self._refused(t, errs, owners, labels, whole, _at(bc.error, np.where(whole, first_res, -1), -1))
         # --- changes: one row per value block written ---------------------------------------------------
         changes = np.flatnonzero(wb >= 0).tolist()
         if changes:
@@ -201,6 +206,23 @@ class TableBuilder:
         found = [finding_row(cap[k], f, int(numbers[k])) for k, fs in t.findings.items() for f in fs]
         if found:
             out["findings"].append(rows_to_batch("findings", found))
+
+    def _refused(self, t: TxnCols, errs: list[int], owners: list[int], labels: list[str], whole: np.ndarray,
+                 whole_error: np.ndarray) -> None:
+        """T9 of each transaction refused by the drive (verdict nak), at its response, naming its errors."""
+        naks = [k for k, v in enumerate(t.verdict) if v == "nak"]
+        if not naks:
+            return
+        words: dict[int, list[str]] = {k: [] for k in naks}
+        for o, label, e in zip(owners, labels, errs, strict=True):
+            if e >= 0 and o in words and not whole[o]:
+                words[o].append(refusal(label, e, self._error_text(e)))
+        for k in naks:
+            if whole[k]:
+                e = int(whole_error[k])
+                words[k] = [refusal(WHOLE, e, self._error_text(e))]
+            t.findings.setdefault(k, []).append(refused_finding(int(t.read_res_frame[k]), int(t.write_frame[k]),
+                                                                words[k]))
 
     def _changes(self, t: TxnCols, rows: list[int], owners: list[int], labels: list[str], pnu: np.ndarray,
                  sub: np.ndarray, written: pa.Array, errs: list[int], numbers: np.ndarray, captures: pa.Array,

@@ -13,12 +13,11 @@ class Txn:
     """A transaction: opened by a write of a parameter request, closed by its final answer, a failure,
     its deadline, the next write on its channel, the caps or the capture's end."""
 
-    __slots__ = ("admitted", "b5", "calls", "capture_ended", "channel", "closed_by", "do", "fallback", "findings",
-                 "frames",
-                 "last_b5", "malformed", "mismatch", "n_params", "number", "opened_at", "pnio_status", "position",
-                 "read_frames", "read_res_frame", "ref", "req_id", "request", "response", "response_head",
-                 "retransmissions", "t_read_res", "t_reads", "t_start", "t_write_res", "values_before", "vendor",
-                 "verdict", "write_frame", "write_res_frame")
+    __slots__ = ("admitted", "b5", "calls", "capture_ended", "channel", "closed_by", "do", "ended_at", "fallback",
+                 "findings", "frames", "last_b5", "malformed", "malformed_at", "mismatch", "n_params", "number",
+                 "opened_at", "pnio_status", "position", "read_frames", "read_res_frame", "ref", "req_id", "request",
+                 "response", "response_head", "retransmissions", "t_read_res", "t_reads", "t_start", "t_write_res",
+                 "values_before", "vendor", "verdict", "write_frame", "write_res_frame")
 
     def __init__(self, channel: Channel, write_frame: int, t_start: int, opened_at: int, position: int) -> None:
         self.channel = channel
@@ -44,6 +43,8 @@ class Txn:
         self.retransmissions = 0
         self.pnio_status = ""
         self.malformed = self.mismatch = self.fallback = self.capture_ended = False
+        self.malformed_at = 0  # the frame of the first PDU of it that cannot be decoded (T8 names it)
+        self.ended_at = 0  # the frame of the write that superseded it, or of its eviction (T8 names it)
         self.closed_by = ""  # "response", "pnio_error", "deadline", "superseded", "capture_end", "evicted"
         self.verdict = ""
         self.frames: list[int] = []
@@ -51,6 +52,12 @@ class Txn:
         # a change: per address, the values of its elements last read back before its write request (None:
         # not read in the capture)
         self.values_before: list[list[str | None]] = []
+
+    def spoil(self, frame: int) -> None:
+        """A PDU of the transaction at `frame` cannot be decoded: it is malformed (protocol.md 7.4 rule 1)."""
+        if not self.malformed_at:
+            self.malformed_at = frame
+        self.malformed = True
 
     def figures(self) -> dict[str, float | None]:
         """Timing figures of protocol.md 7.6 in seconds, each the exact difference of two capture times

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pd_analyze.analysis.engine.rules import LastDone
+from pd_analyze.analysis.engine.rules import LastDone, answered_with, failed_at
 from pd_analyze.analysis.engine.txn import Txn
 from pd_analyze.analysis.engine.vector import Calls, Episodes
 from pd_analyze.analysis.engine.view import BatchView
@@ -153,15 +153,20 @@ def of_episodes(view: BatchView, calls: Calls, ep: Episodes) -> TxnCols:
     last_read_t = np.where(has_read, t[lq], MISSING)
     done = np.where(has_read & ~failed, t[ls], MISSING)
     chosen = ["response"] * n
+    findings: dict[int, list[Finding]] = {}
+    closing = np.where(has_read, frame[ls], frame[ws])
     for i in np.flatnonzero(failed).tolist():
-        chosen[i] = "pnio_error"
+        chosen[i] = "pnio_error"  # T8 at the answer that refused it, as the machine's (rules.failed_finding)
+        service = "read" if has_read[i] else "write"
+        findings[i] = [failed_at("pnio_error", int(closing[i]), int(frame[wq[i]]),
+                                 answered_with(pnio_status[i], service))]
     head = (rc.ref[w_rec].astype(np.int64), rc.ident[w_rec].astype(np.int64), rc.do[w_rec].astype(np.int64),
             rc.n[w_rec].astype(np.int64))
     return TxnCols(
         ep.channels, ep.channel, *head, w_rec.astype(np.int64), res.astype(np.int64), verdict.tolist(), pnio_status,
         b5.astype(np.int64), ep.n_reads.astype(np.int64), np.zeros(n, np.int64), frame[wq], frame[ws],
         np.where(has_read, frame[ls], 0), read_frames, read_offsets, frames, frame_offsets, t[wq], t[ws],
-        first_read, last_read_t, done, np.zeros(n, bool), chosen, np.zeros(n, np.int64))
+        first_read, last_read_t, done, np.zeros(n, bool), chosen, np.zeros(n, np.int64), findings)
 
 
 def last_done_of(cols: TxnCols, k: int) -> LastDone:
