@@ -25,9 +25,13 @@ from pd_analyze.cli.base import (
     text_style,
 )
 from pd_analyze.model.rules import Finding
-from pd_analyze.output import dump, dump_facts
+from pd_analyze.output import dump, dump_facts, dump_file
 from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT, Dissector, dissect
 from pd_analyze.protocol.profidrive_checks import Checker
+
+# fields of a capture record the second pass does not see (it reads frames, not records): -Y naming one
+# takes the per-frame path of -T fields
+_RECORD_FIELDS = frozenset({"frame.iface", "frame.linktype", "frame.caplen"})
 
 DUMP_EXAMPLES = """\b
 Examples:
@@ -90,7 +94,20 @@ def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None
         (lambda n: True)
     colour = sys.stdout.isatty() if color == "auto" and not no_color else color == "always" and not no_color
     style = text_style(colour and fmt == "text")
-    if flt is not None or fmt == "fields" or field_names:  # the frames a filter selects, or -T fields
+    stdin = read == "-" or captures == ("-",)
+    parsed = wireshark.display_filter(flt)
+    if parsed is not None and fmt != "fields" and not field_names and not stdin and \
+            not any(r.names[0] in _RECORD_FIELDS for r in parsed.refs):  # the frames a filter selects
+        status = EXIT_OK
+        for path in paths:
+            if len(paths) > 1 and fmt == "text":
+                click.echo(dump.safe(f"==> {path} <=="))
+            selection = dump_file.Filtered(parsed, ranges, findings_only)
+            status = max(status, _dump_file(path, Settings(profile, rpc_timeout=rpc_timeout), checker, selection,
+                                            ranges, findings_only, fmt, lines_out(colour and fmt == "text"), style,
+                                            time_format))
+        sys.exit(status)
+    if flt is not None or fmt == "fields" or field_names:  # -T fields (and -Y on standard input)
         out = lines_out(colour and fmt == "text")
         sys.exit(wireshark.fields_dump(paths, Settings(profile, rpc_timeout=rpc_timeout), checker, flt, fmt,
                  field_names, field_options, ranges, lambda found: dump.render(found, fmt, out, style, findings_only)))
@@ -100,8 +117,9 @@ def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None
         if len(paths) > 1 and fmt == "text":
             click.echo(dump.safe(f"==> {path} <=="))
         if path != "-":  # read twice: the report's findings and pairing first, then the frames it prints
-            status = max(status, _dump_file(path, Settings(profile, rpc_timeout=rpc_timeout), checker, ranges,
-                                            findings_only, fmt, out, style, time_format))
+            selection = dump_file.WithFindings(ranges) if findings_only else dump_file.Selection(ranges)
+            status = max(status, _dump_file(path, Settings(profile, rpc_timeout=rpc_timeout), checker, selection,
+                                            ranges, findings_only, fmt, out, style, time_format))
             continue
         d = Dissector(annotate=True, rpc_timeout=rpc_timeout, checker=checker)
         clock = dump.Clock(time_format)
@@ -119,18 +137,17 @@ def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None
     sys.exit(status)
 
 
-def _dump_file(path: str, settings: Settings, checker: Checker, ranges: list[tuple[int, int]], findings_only: bool,
-               fmt: str, out: Callable[[str], None], style: dump.Style, time_format: str) -> int:
-    """One capture file: the report's findings and pairing, then the frames printed; the exit code."""
-    from pd_analyze.output import dump_file
-
+def _dump_file(path: str, settings: Settings, checker: Checker, selection: dump_file.Selection,
+               ranges: list[tuple[int, int]], findings_only: bool, fmt: str, out: Callable[[str], None],
+               style: dump.Style, time_format: str) -> int:
+    """One capture file: the report's findings and pairing, then the frames `selection` prints; the exit
+    code. The findings of frames that are not PNIO RPC follow, unless a display filter chose the frames."""
     try:
-        facts = dump_facts.collect(path, settings, txns=False)
+        facts = dump_facts.collect(path, settings, txns=selection.needs_txns)
     except CaptureError as exc:  # (the analysis records a capture's damage; this is what it could not open)
         click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
         return EXIT_USAGE
     frames = dump_file.DumpFrames(path, settings, checker, facts)
-    selection = dump_file.WithFindings(ranges) if findings_only else dump_file.Selection(ranges)
     clock = dump.Clock(time_format)
     failed = False
     try:
@@ -142,7 +159,8 @@ def _dump_file(path: str, settings: Settings, checker: Checker, ranges: list[tup
         facts.close()
     frames_beyond(path, ranges, facts.accounting.read, failed)
     wanted = dump_file.Selection(ranges).wanted
-    _loose([f for f in frames.loose if wanted(np.array([f.frame]))[0]], frames.loose_dropped, fmt, style)
+    if not isinstance(selection, dump_file.Filtered):  # (as tshark -Y: only the frames the filter matches)
+        _loose([f for f in frames.loose if wanted(np.array([f.frame]))[0]], frames.loose_dropped, fmt, style)
     frames_read(path, facts.accounting, failed)
     return EXIT_USAGE if failed else EXIT_OK
 

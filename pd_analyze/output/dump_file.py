@@ -26,9 +26,11 @@ from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.capture.batches import FrameBatch, batches
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.values import PTYPE_REQUEST
+from pd_analyze.output.display_filter import DisplayFilter
 from pd_analyze.output.dump import Clock
 from pd_analyze.output.dump_facts import DumpFacts
 from pd_analyze.output.frame_notes import FrameNote
+from pd_analyze.output.frame_view import ANALYSIS, LAYERS, FrameView
 from pd_analyze.protocol.dissector import MAX_LOOSE_FINDINGS, Dissector
 from pd_analyze.protocol.frames import FrameResult, mark_checks
 from pd_analyze.protocol.pnio_checks import CHECKED_FIELDS
@@ -71,6 +73,35 @@ class WithFindings(Selection):
 
     def frame(self, res: FrameResult, note: FrameNote | None) -> bool:
         return note is not None and bool(note.findings) and super().frame(res, note)
+
+
+class Filtered(Selection):
+    """The frames a display filter matches (`dump -Y`), those with a finding among them (`findings_only`).
+    A filter that names only analysis fields (txn.*, finding.*) and frame.no/frame.ts is judged on the
+    columns with the report's notes, without a tree; one that names a dissected field, frame by frame."""
+
+    def __init__(self, flt: DisplayFilter, ranges: list[tuple[int, int]] | None = None,
+                 findings_only: bool = False) -> None:
+        super().__init__(ranges)
+        self.flt, self.findings_only = flt, findings_only
+        self.per_frame = any(r.kind == LAYERS for r in flt.refs)
+        self.needs_txns = any(r.kind == ANALYSIS and r.names[0].startswith("txn.") for r in flt.refs)
+
+    def columns(self, part: Decoded, rows: np.ndarray, notes: dict[int, FrameNote]) -> np.ndarray:
+        frames = part.view.frame_no[rows]
+        out = self.wanted(frames)
+        matches = self.flt.matches
+        for k in np.flatnonzero(out).tolist():
+            frame = int(frames[k])
+            note = notes.get(frame)
+            out[k] = (not self.findings_only or (note is not None and bool(note.findings))) and \
+                matches(FrameView(frame, float(part.view.ts[rows[k]]), None, None, note))
+        return out
+
+    def frame(self, res: FrameResult, note: FrameNote | None) -> bool:
+        if self.findings_only and (note is None or not note.findings):
+            return False
+        return super().frame(res, note) and self.flt.matches(FrameView(res.frame, res.ts, res, None, note))
 
 
 class DumpFrames:
