@@ -107,8 +107,8 @@ def test_a_record_cut_short_is_decoded_as_far_as_its_bytes_go(tmp_path: Path) ->
         "        00d8  00 00 00                    pd.cut = value 1 cut: 3 of 4 bytes before the record ends",
         "  ! E H5 record_truncated [iod.record_len]: record at index 0xb02e truncated: RecordDataLength 18, 13 bytes "
         "present (value 13; expected 18)",
-        "  ! W T8 txn_failed [txn.verdict]: the transaction of frame 9 failed: malformed: the read response of frame 12 "
-        "cannot be decoded (value malformed; expected ok or nak)"]
+        "  ! W T8 txn_failed [txn.verdict]: the transaction of frame 9 failed: malformed: the read response of frame "
+        "12 cannot be decoded (value malformed; expected ok or nak)"]
 
 
 def test_a_filter_finds_the_parameter_of_a_record_cut_short(tmp_path: Path) -> None:

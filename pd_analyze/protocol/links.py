@@ -15,6 +15,9 @@ from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol.frames import FrameResult
 from pd_analyze.protocol.profidrive import Parsed
 
+# the fields a dissector adds from its pairing (the Call and Parameter access layers)
+LINK_FIELDS = frozenset({"rpc.request_frame", "rpc.response_frame", "rpc.rtt", "pd.request_frame"})
+
 
 class Request(NamedTuple):
     """The request a response, fault or reject answers: its frame, time (the frame's own, as a float) and
