@@ -45,7 +45,9 @@ FILTERS = [
     'pd.req_id == "request parameter (read)"',
     "pd.resp_id >= 0x80",
     "pd.addr.pnu in {964 2000..3000}",
-    "pn_io.profidrive.parameter.number == 964",
+    "pn_io.profidrive.parameter.number == 964",  # (these three: judged on the columns first, dump_prefilter)
+    "pd.addr.pnu == 2000",
+    "pd.addr.pnu eq 0x3c4",
     "pd.val.value",
     "pd.val.error == 0x11 or pd.val.error_subindex",
     'pd.val.string matches "^sin"',

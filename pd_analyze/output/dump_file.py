@@ -26,9 +26,10 @@ from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.capture.batches import FrameBatch, batches
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.values import PTYPE_REQUEST
+from pd_analyze.output import dump_prefilter
 from pd_analyze.output.display_filter import DisplayFilter
 from pd_analyze.output.dump import Clock
-from pd_analyze.output.dump_facts import DumpFacts
+from pd_analyze.output.dump_facts import DumpFacts, FileLinks
 from pd_analyze.output.frame_notes import FrameNote
 from pd_analyze.output.frame_view import ANALYSIS, LAYERS, FrameView
 from pd_analyze.protocol.dissector import MAX_LOOSE_FINDINGS, Dissector
@@ -54,8 +55,9 @@ class Selection:
             out |= (frames >= lo) & (frames <= hi)
         return out
 
-    def columns(self, part: Decoded, rows: np.ndarray, notes: dict[int, FrameNote]) -> np.ndarray:
-        """Per column row `rows` (indices into the part's PDU columns, frame order): printed?"""
+    def columns(self, part: Decoded, rows: np.ndarray, notes: dict[int, FrameNote], links: FileLinks) -> np.ndarray:
+        """Per column row `rows` (indices into the part's PDU columns, frame order): printed? (per_frame: may
+        it be printed: the rows to dissect and judge by `frame`)"""
         return self.wanted(part.view.frame_no[rows])
 
     def frame(self, res: FrameResult, note: FrameNote | None) -> bool:
@@ -66,7 +68,7 @@ class Selection:
 class WithFindings(Selection):
     """The frames the report has a finding at (`dump --findings-only`)."""
 
-    def columns(self, part: Decoded, rows: np.ndarray, notes: dict[int, FrameNote]) -> np.ndarray:
+    def columns(self, part: Decoded, rows: np.ndarray, notes: dict[int, FrameNote], links: FileLinks) -> np.ndarray:
         frames = part.view.frame_no[rows]
         noted = np.fromiter((f for f, n in notes.items() if n.findings), np.int64)
         return self.wanted(frames) & np.isin(frames, noted)
@@ -86,16 +88,20 @@ class Filtered(Selection):
         self.flt, self.findings_only = flt, findings_only
         self.per_frame = any(r.kind == LAYERS for r in flt.refs)
         self.needs_txns = any(r.kind == ANALYSIS and r.names[0].startswith("txn.") for r in flt.refs)
+        self._candidates = dump_prefilter.candidates_of(flt)
 
-    def columns(self, part: Decoded, rows: np.ndarray, notes: dict[int, FrameNote]) -> np.ndarray:
+    def columns(self, part: Decoded, rows: np.ndarray, notes: dict[int, FrameNote], links: FileLinks) -> np.ndarray:
         frames = part.view.frame_no[rows]
         out = self.wanted(frames)
+        if self.findings_only:
+            out &= np.isin(frames, np.fromiter((f for f, n in notes.items() if n.findings), np.int64))
+        if self.per_frame:  # the rows the filter may match: dissected, then judged on their trees
+            return out & self._candidates(part, rows, links) if self._candidates is not None else out
         matches = self.flt.matches
         for k in np.flatnonzero(out).tolist():
             frame = int(frames[k])
             note = notes.get(frame)
-            out[k] = (not self.findings_only or (note is not None and bool(note.findings))) and \
-                matches(FrameView(frame, float(part.view.ts[rows[k]]), None, None, note))
+            out[k] = matches(FrameView(frame, float(part.view.ts[rows[k]]), None, None, note))
         return out
 
     def frame(self, res: FrameResult, note: FrameNote | None) -> bool:
@@ -162,7 +168,7 @@ class DumpFrames:
             times = [float(view.ts[rows[0]])] if len(rows) else []
             times += [row.raw.ts for row in part.odd_rows if row.raw is not None and self._is_pnio(row.raw)]
             self.first_ts = min(times) if times else None
-        chosen = np.ones(len(rows), bool) if selection.per_frame else selection.columns(part, rows, self._notes)
+        chosen = selection.columns(part, rows, self._notes, self.links)
         alone = self.alone
         for i in rows[chosen].tolist():
             found = alone.feed(batch.raw_frame(int(view.p.pos[i])))
