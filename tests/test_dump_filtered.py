@@ -22,10 +22,10 @@ from pd_analyze.cli.base import main
 from pd_analyze.output.display_filter import parse
 from pd_analyze.output.frame_select import views
 from pd_analyze.protocol.dissector import Dissector
+from tests.support import shared_captures, unavailable
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "sample_pcaps"
-REAL = ROOT.parent / "shared" / "captures"
 
 # every operator (==, !=, ~=, ===, <, <=, >, >=, in with sets and ranges, contains, matches, a bare field,
 # and, or, not, brackets) and every field family (frame, link, IPv4, UDP, DCE/RPC, NDR/PNIO status, IOD,
@@ -126,11 +126,10 @@ def test_filter_on_mutated_captures_of_the_fuzz_corpus(tmp_path: Path) -> None:
         differential(path, FILTERS[::3])
 
 
-REAL_FILES = sorted(p for p in REAL.glob("*") if p.suffix in (".pcap", ".pcapng", ".gz", ".cap")) \
-    if REAL.is_dir() else []
-
-
-@pytest.mark.skipif(not REAL_FILES, reason="../shared/captures is absent")
 def test_filter_on_real_captures() -> None:
-    for path in REAL_FILES:
+    real = shared_captures()
+    if not real:
+        unavailable("the shared real-world captures are beside the repository in CI, not in a clone of the "
+                    "project alone")
+    for path in real:
         differential(path, FILTERS[::2])
