@@ -99,9 +99,7 @@ def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None
     if parsed is not None and fmt != "fields" and not field_names and not stdin and \
             not any(r.names[0] in _RECORD_FIELDS for r in parsed.refs):  # the frames a filter selects
         status = EXIT_OK
-        for path in paths:
-            if len(paths) > 1 and fmt == "text":
-                click.echo(dump.safe(f"==> {path} <=="))
+        for path in paths:  # (no file headings: the frames matched, one after the other, as before)
             selection = dump_file.Filtered(parsed, ranges, findings_only)
             status = max(status, _dump_file(path, Settings(profile, rpc_timeout=rpc_timeout), checker, selection,
                                             ranges, findings_only, fmt, lines_out(colour and fmt == "text"), style,
