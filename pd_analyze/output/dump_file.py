@@ -23,6 +23,7 @@ import numpy as np
 from pd_analyze.analysis.capture_run import Settings
 from pd_analyze.analysis.engine.decode import Decoded, Decoder
 from pd_analyze.analysis.engine.view import BatchView
+from pd_analyze.capture import CaptureError
 from pd_analyze.capture.batches import FrameBatch, batches
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.values import PTYPE_REQUEST
@@ -152,11 +153,17 @@ class DumpFrames:
                 for part_batch, view in BatchView.parts(batch, self.checker):
                     self._learn(part_batch, view)
                     yield from self._part(self.odd.decode(part_batch, view), selection)
-        finally:
-            rows, _loose = self.odd.finish(last)
-            self._odd_results([row.raw for row in rows], selection)
-            self._notes.update((n.frame, n) for n in self.facts.notes.upto(1 << 62))
-            yield from self._release(None)
+        except CaptureError:  # the frames before the damage first (not on GeneratorExit: a closed pipe)
+            yield from self._end(last, selection)
+            raise
+        yield from self._end(last, selection)
+
+    def _end(self, last: int, selection: Selection) -> Iterator[FrameResult]:
+        """The frames the per-frame dissector still held, and every result not yet released."""
+        rows, _loose = self.odd.finish(last)
+        self._odd_results([row.raw for row in rows], selection)
+        self._notes.update((n.frame, n) for n in self.facts.notes.upto(1 << 62))
+        yield from self._release(None)
 
     def _part(self, part: Decoded, selection: Selection) -> Iterator[FrameResult]:
         batch, view = part.batch, part.view
