@@ -22,7 +22,8 @@ wait4's ru_maxrss of the children: the largest single process, --jobs workers in
   share       `report -v` once more, untimed: the share of PNIO RPC frames the columns decoded, from its
               stderr line "N of M PNIO RPC frames decoded by the columns" (n/a without it) (--skip-share)
   dumps       issue #24 on dense and fault-rich: `dump -Y` selecting about 1 % of the frames against
-              `tshark -Y ... -V` (both counted: the same frames?), `dump -T fields` of three fields against
+              `tshark -Y ... -V` (both counted: the same frames?), `dump -Y 'pd.addr.pnu == 964'` against
+              `tshark -Y 'pn_io.profidrive.parameter.number == 964' -V`, `dump -T fields` of three fields against
               tshark's, `dump` text of every frame against `tshark -V` (--skip-tshark-v leaves these two out),
               `dump --format json` against `tshark -T json`; `annotate`, `extract --verdict nak`, `params`
               and `audit` against `report` (--skip-dumps)
@@ -77,6 +78,8 @@ TSHARK_FIELDS = ("frame.number", "pn_io.profidrive.parameter.request_reference",
                  "pn_io.profidrive.parameter.error_num")
 DUMP_FIELDS = ("frame.number", "pn_io.profidrive.parameter.request_reference", "pn_io.profidrive.parameter.number")
 ONE_PERCENT = "pn_io.profidrive.parameter.request_reference in {1..5}"  # 5 of 255 references: about 1 %
+ONE_PNU = ("pd.addr.pnu == 964", "pn_io.profidrive.parameter.number == 964")  # the frames of one parameter:
+# judged on the columns first (output.dump_prefilter), tshark's name of the same field
 PD = [sys.executable, "-m", "pd_analyze.cli"]
 DENSE, MIX, FAULT = "dense", "mix", "fault-rich"
 CAPTURES = (DENSE, FAULT, MIX)
@@ -231,6 +234,7 @@ def dumps(b: Bench, r: Run) -> None:
         b.notes[name(cap, "dump -Y")] = note
         mine.unlink()
         theirs.unlink(missing_ok=True)
+        _one_parameter(b, r, cap)
         fields = [x for f in DUMP_FIELDS for x in ("-e", f)]
         b.time(name(cap, "pd-analyze dump -T fields"), [*PD, "dump", path, "-T", "fields", *fields], n)
         if not r.args.skip_tshark_v:
@@ -248,6 +252,23 @@ def dumps(b: Bench, r: Run) -> None:
         annotated.unlink()
         extracted.unlink()
         _params_audit(b, r, cap, 1)
+
+
+def _one_parameter(b: Bench, r: Run, cap: str) -> None:
+    """`dump -Y 'pd.addr.pnu == 964'` against `tshark -Y 'pn_io.profidrive.parameter.number == 964' -V`, both
+    outputs' frames counted."""
+    path, n = str(r.paths[cap]), r.frames[cap]
+    mine, theirs = r.out(cap, "dump-pnu.txt"), r.out(cap, "tshark-pnu.txt")
+    b.time(name(cap, "pd-analyze dump -Y pnu"), [*PD, "dump", path, "-Y", ONE_PNU[0]], n, stdout=mine)
+    printed = len(FRAME_LINE.findall(mine.read_bytes()))
+    note = f"{printed:,} frames"
+    if r.tshark:
+        b.time(name(cap, "tshark -Y pnu -V"), ["tshark", "-r", path, "-Y", ONE_PNU[1], "-V"], n, stdout=theirs)
+        other = len(FRAME_LINE.findall(theirs.read_bytes()))
+        note += f", tshark {other:,}: the same frames {'yes' if other == printed else 'no'}"
+    b.notes[name(cap, "dump -Y pnu")] = note
+    mine.unlink()
+    theirs.unlink(missing_ok=True)
 
 
 def _params_audit(b: Bench, r: Run, cap: str, jobs: int) -> None:

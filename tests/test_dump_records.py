@@ -74,7 +74,9 @@ def test_a_record_cut_short_is_decoded_as_far_as_its_bytes_go(tmp_path: Path) ->
         "  Call",
         "                                      rpc.response_frame = 2",
         "  ! E H5 record_truncated [iod.record_len]: record at index 0xb02e truncated: RecordDataLength 12, 10 bytes "
-        "present (value 10; expected 12)"]
+        "present (value 10; expected 12)",
+        "  ! W T8 txn_failed [txn.verdict]: the transaction of frame 1 failed: malformed: the write request of frame 1 "
+        "cannot be decoded (value malformed; expected ok or nak)"]
     assert record_lines(lines, 5)[11:] == [
         "      Parameter [0]: P2000[0..2] Unsigned32 (cut: 2 of 3 values before the record ends)",
         "        00d8  07                          pd.val[0].format = 0x07 (Unsigned32)",
@@ -85,7 +87,9 @@ def test_a_record_cut_short_is_decoded_as_far_as_its_bytes_go(tmp_path: Path) ->
         "  Call",
         "                                      rpc.response_frame = 6",
         "  ! E H5 record_truncated [iod.record_len]: record at index 0xb02e truncated: RecordDataLength 24, 21 bytes "
-        "present (value 21; expected 24)"]
+        "present (value 21; expected 24)",
+        "  ! W T8 txn_failed [txn.verdict]: the transaction of frame 5 failed: malformed: the write request of frame 5 "
+        "cannot be decoded (value malformed; expected ok or nak)"]
     assert record_lines(lines, 12)[3:] == [  # the response: its blocks are not labelled with the request's addresses
         "      Parameter response header",
         "        00ce  03                          pd.ref = 3",
@@ -102,7 +106,9 @@ def test_a_record_cut_short_is_decoded_as_far_as_its_bytes_go(tmp_path: Path) ->
         "        00d7  02                          pd.val[1].n_values = 2",
         "        00d8  00 00 00                    pd.cut = value 1 cut: 3 of 4 bytes before the record ends",
         "  ! E H5 record_truncated [iod.record_len]: record at index 0xb02e truncated: RecordDataLength 18, 13 bytes "
-        "present (value 13; expected 18)"]
+        "present (value 13; expected 18)",
+        "  ! W T8 txn_failed [txn.verdict]: the transaction of frame 9 failed: malformed: the read response of frame "
+        "12 cannot be decoded (value malformed; expected ok or nak)"]
 
 
 def test_a_filter_finds_the_parameter_of_a_record_cut_short(tmp_path: Path) -> None:
@@ -117,24 +123,17 @@ def test_a_filter_finds_the_parameter_of_a_record_cut_short(tmp_path: Path) -> N
 def test_the_finding_of_a_record_cut_short_is_as_before(tmp_path: Path) -> None:
     path = cut_capture(tmp_path / "cut.pcap")
     lines = dump(path, "--findings-only")
-    assert [line for line in lines if line.startswith("  !") and " H7 " not in line] == [  # H7: the write
-        # responses of this capture mirror the bytes present
-        # and the T8 of each malformed transaction at the PDU that cannot be decoded (protocol.md 6.5)
+    assert [line for line in lines if line.startswith("  !") and " H7 " not in line and " T8 " not in line] == [
+        # H7: the write responses of this capture mirror the bytes present; T8: each transaction is malformed
         "  ! E H5 record_truncated [iod.record_len]: record at index 0xb02e truncated: RecordDataLength 12, 10 bytes "
         "present (value 10; expected 12)",
-        "  ! W T8 txn_failed [txn.verdict]: the transaction of frame 1 failed: malformed: the write request of frame 1 "
-        "cannot be decoded (value malformed; expected ok or nak)",
         "  ! E H5 record_truncated [iod.record_len]: record at index 0xb02e truncated: RecordDataLength 24, 21 bytes "
         "present (value 21; expected 24)",
-        "  ! W T8 txn_failed [txn.verdict]: the transaction of frame 5 failed: malformed: the write request of frame 5 "
-        "cannot be decoded (value malformed; expected ok or nak)",
         "  ! E H5 record_truncated [iod.record_len]: record at index 0xb02e truncated: RecordDataLength 18, 13 bytes "
-        "present (value 13; expected 18)",
-        "  ! W T8 txn_failed [txn.verdict]: the transaction of frame 9 failed: malformed: the read response of frame "
-        "12 cannot be decoded (value malformed; expected ok or nak)"]
+        "present (value 13; expected 18)"]
     records = [json.loads(line) for line in dump(path, "--format", "json")]
     assert {r["frame"]: [f["rule"] for f in r["findings"]] for r in records if r["findings"]} == \
-        {1: ["H5"], 2: ["H7"], 5: ["H5"], 6: ["H7"], 12: ["H5"]}
+        {1: ["H5", "T8"], 2: ["H7"], 5: ["H5", "T8"], 6: ["H7"], 12: ["H5", "T8"]}
     a = analyze(str(path))
     assert list(a.transactions["verdict"].astype(str)) == ["malformed", "malformed", "malformed"]
     assert list(a.parameters["param"].astype(str)) == ["P964[0]", "P2000[0..1]"]  # a cut request is not taken
@@ -155,14 +154,16 @@ def blocks_capture(path: Path) -> Path:
 
 def test_an_error_block_without_values_shows_no_error_number(tmp_path: Path) -> None:
     lines = record_lines(dump(blocks_capture(tmp_path / "blocks.pcap")), 4)
-    assert lines[-4:] == [
+    assert lines[-5:] == [
         "      Parameter [0]: P964[0] (drive unit identification) error block without an error number "
         "(No. of values 0)",
         "        00d2  44                          pd.val[0].format = 0x44 (Error)",
         "        00d3  00                          pd.val[0].n_values = 0  [Q9 error: error block must carry 1 or 2 "
         "values (consumed 2 x m bytes)]",
         "  ! E Q9 error_block_count [pd.val[0].n_values]: error block must carry 1 or 2 values (consumed 2 x m "
-        "bytes) (value 0; expected 1 or 2)"]
+        "bytes) (value 0; expected 1 or 2)",
+        "  ! I T9 txn_refused [txn.verdict]: the drive refused the transaction of frame 1: no error number given "
+        "(value nak; expected ok)"]
     assert not any("error -0x1" in line or "pd.val[0].error" in line for line in lines)
 
 

@@ -96,6 +96,12 @@ class Rows:
                 self.add_table(name, rows_to_batch(name, rows))
                 rows.clear()
 
+    def add_calls(self, requests: Any, answers: Any, decided: Any) -> None:
+        """The RPC calls the engine paired in a batch: the frame of each request and of its first answer
+        (response, fault or reject; numpy int64 arrays), and the frames of PDUs whose interface is not PNIO's
+        that it took as PNIO by their call or activity. Only the dump asks (output.dump_facts: its links are
+        the report's pairing); the tables do not need them."""
+
     def channel_texts(self, ch: tuple) -> tuple[str, str, str, str]:
         """device, controller, ARUUID and index of an engine channel (integers) as text."""
         text = self._channels.get(ch)

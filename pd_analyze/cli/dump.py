@@ -7,6 +7,7 @@ import sys
 from collections.abc import Callable
 
 import click
+import numpy as np
 
 from pd_analyze.analysis.capture_run import Settings
 from pd_analyze.capture import CaptureError
@@ -23,9 +24,14 @@ from pd_analyze.cli.base import (
     profile_option,
     text_style,
 )
-from pd_analyze.output import dump, frame_notes
-from pd_analyze.output.dump_findings import with_transaction_findings
+from pd_analyze.model.rules import Finding
+from pd_analyze.output import dump, dump_facts, dump_file
 from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT, Dissector, dissect
+from pd_analyze.protocol.profidrive_checks import Checker
+
+# fields of a capture record the second pass does not see (it reads frames, not records): -Y naming one
+# takes the per-frame path of -T fields
+_RECORD_FIELDS = frozenset({"frame.iface", "frame.linktype", "frame.caplen"})
 
 DUMP_EXAMPLES = """\b
 Examples:
@@ -88,41 +94,83 @@ def dump_command(captures: tuple[str, ...], read: str | None, frames: str | None
         (lambda n: True)
     colour = sys.stdout.isatty() if color == "auto" and not no_color else color == "always" and not no_color
     style = text_style(colour and fmt == "text")
-    if flt is not None or fmt == "fields" or field_names:  # the frames a filter selects, or -T fields
+    stdin = read == "-" or captures == ("-",)
+    parsed = wireshark.display_filter(flt)
+    if parsed is not None and fmt != "fields" and not field_names and not stdin and \
+            not any(r.names[0] in _RECORD_FIELDS for r in parsed.refs):  # the frames a filter selects
+        status = EXIT_OK
+        for path in paths:  # (no file headings: the frames matched, one after the other, as before)
+            selection = dump_file.Filtered(parsed, ranges, findings_only)
+            status = max(status, _dump_file(path, Settings(profile, rpc_timeout=rpc_timeout), checker, selection,
+                                            ranges, findings_only, fmt, lines_out(colour and fmt == "text"), style,
+                                            time_format))
+        sys.exit(status)
+    if flt is not None or fmt == "fields" or field_names:  # -T fields (and -Y on standard input)
         out = lines_out(colour and fmt == "text")
         sys.exit(wireshark.fields_dump(paths, Settings(profile, rpc_timeout=rpc_timeout), checker, flt, fmt,
                  field_names, field_options, ranges, lambda found: dump.render(found, fmt, out, style, findings_only)))
     status = EXIT_OK
+    out = lines_out(colour and fmt == "text")
     for path in paths:
         if len(paths) > 1 and fmt == "text":
             click.echo(dump.safe(f"==> {path} <=="))
+        if path != "-":  # read twice: the report's findings and pairing first, then the frames it prints
+            selection = dump_file.WithFindings(ranges) if findings_only else dump_file.Selection(ranges)
+            status = max(status, _dump_file(path, Settings(profile, rpc_timeout=rpc_timeout), checker, selection,
+                                            ranges, findings_only, fmt, out, style, time_format))
+            continue
         d = Dissector(annotate=True, rpc_timeout=rpc_timeout, checker=checker)
         clock = dump.Clock(time_format)
         results = clock.watch(dissect(path, dissector=d))
-        notes = None
-        if findings_only and path != "-":  # the analysis' findings too, at their frames (as audit shows them)
-            notes = frame_notes.collect(path, Settings(profile, rpc_timeout=rpc_timeout))
-            results = with_transaction_findings(results, notes)
         results = (r for r in results if wanted(r.frame))
         failed = False
         try:
-            dump.render(results, fmt, lines_out(colour and fmt == "text"), style, findings_only, clock)
+            dump.render(results, fmt, out, style, findings_only, clock)
         except CaptureError as exc:
             click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
             status, failed = EXIT_USAGE, True
-        finally:
-            if notes is not None:
-                notes.close()
         frames_beyond(path, ranges, d.accounting.read, failed)
-        loose = [f for f in d.loose_findings if wanted(f.frame)]
-        if loose and fmt == "text":
-            click.echo("Findings on frames that are not PNIO RPC:")
-            for f in loose:
-                click.echo(f"  frame {f.frame} " + dump.finding_line(f, "", style))
-            if d.loose_dropped:
-                click.echo(f"  ... and {d.loose_dropped} more (only the first {len(d.loose_findings)} are kept)")
-        elif loose:
-            click.echo(f"pd-analyze: {len(loose)} findings on frames that are not PNIO RPC "
-                       "(see --format text)", err=True)
+        _loose([f for f in d.loose_findings if wanted(f.frame)], d.loose_dropped, fmt, style)
         frames_read(path, d.accounting, failed)
     sys.exit(status)
+
+
+def _dump_file(path: str, settings: Settings, checker: Checker, selection: dump_file.Selection,
+               ranges: list[tuple[int, int]], findings_only: bool, fmt: str, out: Callable[[str], None],
+               style: dump.Style, time_format: str) -> int:
+    """One capture file: the report's findings and pairing, then the frames `selection` prints; the exit
+    code. The findings of frames that are not PNIO RPC follow, unless a display filter chose the frames."""
+    try:
+        facts = dump_facts.collect(path, settings, txns=selection.needs_txns)
+    except CaptureError as exc:  # (the analysis records a capture's damage; this is what it could not open)
+        click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
+        return EXIT_USAGE
+    frames = dump_file.DumpFrames(path, settings, checker, facts)
+    clock = dump.Clock(time_format)
+    failed = False
+    try:
+        dump.render(frames.timed(frames.results(selection), clock), fmt, out, style, findings_only, clock)
+    except CaptureError as exc:
+        click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
+        failed = True
+    finally:
+        facts.close()
+    frames_beyond(path, ranges, facts.accounting.read, failed)
+    wanted = dump_file.Selection(ranges).wanted
+    if not isinstance(selection, dump_file.Filtered):  # (as tshark -Y: only the frames the filter matches)
+        _loose([f for f in frames.loose if wanted(np.array([f.frame]))[0]], frames.loose_dropped, fmt, style)
+    frames_read(path, facts.accounting, failed)
+    return EXIT_USAGE if failed else EXIT_OK
+
+
+def _loose(loose: list[Finding], dropped: int, fmt: str, style: dump.Style) -> None:
+    """The findings on frames that are not PNIO RPC, after the frames (text), or how many there are (JSON)."""
+    if loose and fmt == "text":
+        click.echo("Findings on frames that are not PNIO RPC:")
+        for f in loose:
+            click.echo(f"  frame {f.frame} " + dump.finding_line(f, "", style))
+        if dropped:
+            click.echo(f"  ... and {dropped} more (only the first {len(loose)} are kept)")
+    elif loose:
+        click.echo(f"pd-analyze: {len(loose)} findings on frames that are not PNIO RPC "
+                   "(see --format text)", err=True)

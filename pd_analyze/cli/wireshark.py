@@ -168,9 +168,18 @@ def fields_dump(paths: list[str], settings: Settings, checker: Checker, flt: str
     if out_type == "fields" and fmt.header:
         click.echo(frame_select.header_line(names, fmt))
     for path in paths:
-        d = Dissector(annotate=True, rpc_timeout=settings.rpc_timeout, checker=checker)
+        facts = None
         try:
-            views = frame_select.views(path, settings, d, parsed, refs, every_frame=out_type == "fields")
+            facts = frame_select.report_facts(path, settings, parsed, refs)
+        except CaptureError as exc:  # (the per-frame read below reports the damage it meets)
+            click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
+            status = EXIT_USAGE
+            continue
+        d = Dissector(annotate=True, rpc_timeout=settings.rpc_timeout, checker=checker,
+                      links=facts.links if facts is not None else None)
+        try:
+            views = frame_select.views(path, settings, d, parsed, refs, every_frame=out_type == "fields",
+                                       facts=facts)
             if out_type == "fields":
                 write = sys.stdout.write
                 for view in views:

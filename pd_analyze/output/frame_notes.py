@@ -106,13 +106,24 @@ class _NoteRows(Rows):
     on its frame; parameters are handed to `on_parameter` (extract selects by PNU), changes dropped."""
 
     def __init__(self, spool: Spool, on_transaction: Callable[[Any], None] | None,
-                 on_parameter: Callable[[Any], None] | None) -> None:
+                 on_parameter: Callable[[Any], None] | None, on_calls: Callable[..., None] | None = None,
+                 txns: bool = True) -> None:
         super().__init__(transactions=_Sink(self._transaction), parameters=_Sink(on_parameter),  # type: ignore[arg-type]
                          findings=_Sink(self._finding), changes=_Sink(None))  # type: ignore[arg-type]
         self.spool = spool
         self.on_transaction = on_transaction
+        self.on_calls = on_calls
+        self.txns = txns  # False: the transactions are not noted at their frames (the findings only)
+
+    def add_calls(self, requests: Any, answers: Any, decided: Any) -> None:
+        if self.on_calls is not None:
+            self.on_calls(requests, answers, decided)
 
     def _transaction(self, row: Any) -> None:
+        if self.on_transaction is not None:
+            self.on_transaction(row)
+        if not self.txns:
+            return
         frames = {int(x) for x in (row.frames or "").split()}
         opens = row.write_req_frame
         closes = (row.read_res_frame or row.write_res_frame) if row.closed_by in _FINAL_ANSWER else None
@@ -122,8 +133,6 @@ class _NoteRows(Rows):
             role = OPEN if frame == opens else CLOSE if frame == closes else ""
             self.spool.append((_TXN, frame, row.txn, row.verdict or "", role, params, errors, closed_by,
                                row.b5_retries or 0))
-        if self.on_transaction is not None:
-            self.on_transaction(row)
 
     def _finding(self, row: Any) -> None:
         if row.frame is not None:
@@ -191,6 +200,15 @@ class Notes:
         self._next = entry
         return note
 
+    def upto(self, last: int) -> list[FrameNote]:
+        """The notes of the frames up to `last` not read yet, in frame order."""
+        out = []
+        while self._next is not None and self._next[1] <= last:
+            note = self.at(self._next[1])
+            if note is not None:
+                out.append(note)
+        return out
+
     def __iter__(self) -> Iterator[FrameNote]:
         while self._next is not None:
             note = self.at(self._next[1])
@@ -207,13 +225,15 @@ class Notes:
 
 
 def collect(path: str, settings: Settings, on_transaction: Callable[[Any], None] | None = None,
-            on_parameter: Callable[[Any], None] | None = None) -> Notes:
+            on_parameter: Callable[[Any], None] | None = None, on_calls: Callable[..., None] | None = None,
+            txns: bool = True) -> Notes:
     """Analyse one capture (as `report` does) and sort what it says by frame; `on_transaction` and
-    `on_parameter` see the transactions' and parameters' rows as they close."""
+    `on_parameter` see the transactions' and parameters' rows as they close, `on_calls` the calls paired
+    (Rows.add_calls); `txns` False: only the findings are noted at their frames."""
     from pd_analyze.analysis.jobs import run
 
     spool = Spool(_key, _MEMORY_ROWS)
-    rows = _NoteRows(spool, on_transaction, on_parameter)
+    rows = _NoteRows(spool, on_transaction, on_parameter, on_calls, txns)
     try:
         captures = run([path], rows, settings)
     except BaseException:

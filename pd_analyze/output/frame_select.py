@@ -16,13 +16,16 @@ from dataclasses import dataclass
 
 from pd_analyze.analysis.capture_run import Settings
 from pd_analyze.capture.records import CaptureCopy
-from pd_analyze.output import frame_notes
+from pd_analyze.output import dump_facts, frame_notes
 from pd_analyze.output.capture_copy import UsageError, frames
 from pd_analyze.output.display_filter import DisplayFilter, FilterError
 from pd_analyze.output.dump import safe
+from pd_analyze.output.dump_facts import DumpFacts
 from pd_analyze.output.frame_view import ANALYSIS, FieldRef, FrameView, resolve
 from pd_analyze.protocol.dissector import Dissector, dissect
+from pd_analyze.protocol.links import LINK_FIELDS
 
+_FORGET_EVERY = 4_096  # frames between two clean-ups of the links' memory of requests
 _SEPARATORS = {"/t": "\t", "/s": " "}
 _QUOTES = {"d": '"', "s": "'", "n": ""}
 
@@ -86,10 +89,23 @@ def fields_line(view: FrameView, refs: list[FieldRef], fmt: FieldsFormat) -> str
     return fmt.separator.join(cells)
 
 
+def report_facts(path: str, settings: Settings, flt: DisplayFilter | None,
+                 refs: list[FieldRef]) -> DumpFacts | None:
+    """The report's facts of a capture file when the fields or the filter name a link (rpc.request_frame,
+    pd.request_frame ...): the dissector is then told the report's pairing (protocol.links), as the dump's
+    tree is. None for standard input or when no link is named (the dissector's own pairing gives the same
+    links but for odd cases, and reading the capture twice costs a report's time)."""
+    named = {n for r in [*refs, *(flt.refs if flt is not None else ())] for n in r.names}
+    if path == "-" or not named & LINK_FIELDS:
+        return None
+    return dump_facts.collect(path, settings, txns=True)
+
+
 def views(path: str, settings: Settings, dissector: Dissector, flt: DisplayFilter | None,
-          refs: list[FieldRef], every_frame: bool) -> Iterator[FrameView]:
+          refs: list[FieldRef], every_frame: bool, facts: DumpFacts | None = None) -> Iterator[FrameView]:
     """The frames of one capture the filter keeps, in frame order: every frame (`every_frame`) or only
-    PNIO RPC frames. The analysis is read first when the filter or the fields name analysis fields."""
+    PNIO RPC frames. The analysis is read first when the filter or the fields name analysis fields (or
+    given: `facts`, whose links `dissector` was told)."""
     needs_notes = any(r.kind == ANALYSIS for r in refs) or (flt is not None and flt.needs_analysis)
     if path == "-":
         if needs_notes:
@@ -100,12 +116,14 @@ def views(path: str, settings: Settings, dissector: Dissector, flt: DisplayFilte
             if flt is None or flt.matches(view):
                 yield view
         return
-    notes = frame_notes.collect(path, settings) if needs_notes else None
+    notes = facts.notes if facts is not None else frame_notes.collect(path, settings) if needs_notes else None
     try:
         with CaptureCopy(path) as copy:
             for _block, view in frames(copy, dissector, notes):
                 if view is None or (view.result is None and not every_frame):
                     continue
+                if facts is not None and view.number % _FORGET_EVERY == 0:  # what no later frame asks any more
+                    facts.links.forget_before(view.number, view.ts)
                 if flt is None or flt.matches(view):
                     yield view
     finally:

@@ -51,6 +51,7 @@ from pd_analyze.protocol import pnio as rec
 from pd_analyze.protocol import pnio_checks as checks
 from pd_analyze.protocol.frames import Accounting, FrameResult, Layer, Pdu, mark_checks
 from pd_analyze.protocol.hold import HeldFrames
+from pd_analyze.protocol.links import Links, Request
 from pd_analyze.protocol.pnio_checks import CHECKED_FIELDS
 from pd_analyze.protocol.profidrive_checks import Checker
 
@@ -65,8 +66,12 @@ class Dissector:
     """State for one capture: IP and CL reassembly, open calls, the ordered output."""
 
     def __init__(self, annotate: bool = False, rpc_timeout: float = DEFAULT_RPC_TIMEOUT,
-                 checker: Checker | None = None, pairing: bool = True) -> None:
+                 checker: Checker | None = None, pairing: bool = True, links: Links | None = None) -> None:
         self.annotate = annotate
+        # links: the pairing told, not found (the dump of a file shows the report's, protocol.links): no
+        # pairing of its own, and the results leave unmarked (the dump marks them with the report's findings)
+        self.links = links
+        pairing = pairing and links is None
         # pairing=False: a decoder of PDUs for the analysis engine, which pairs calls itself (one
         # implementation of protocol.md 2.4 and 7): no call table, responses decoded with their own opnum,
         # no check that compares a response with its request or its channel's last parameter request
@@ -112,7 +117,7 @@ class Dissector:
         if len(self.loose_findings) > MAX_LOOSE_FINDINGS:
             self.loose_dropped += len(self.loose_findings) - MAX_LOOSE_FINDINGS
             del self.loose_findings[MAX_LOOSE_FINDINGS:]
-        return self._marked(self.hold.release(out, self._now)) if self.hold is not None else out
+        return self._leaving(self.hold.release(out, self._now)) if self.hold is not None else out
 
     def advance(self, now: float) -> None:
         """Capture time reached `now` on frames this dissector did not see (the report path): the calls
@@ -177,7 +182,7 @@ class Dissector:
             self.calls.open.pop(key)
             self._unanswered(call, key, out, "end of capture")
         self.loose_findings += self.calls.finish()
-        return self._marked(self.hold.finish(out, self._now)) if self.hold is not None else out
+        return self._leaving(self.hold.finish(out, self._now)) if self.hold is not None else out
 
     # --- UDP payload to PNIO RPC ------------------------------------------------------------
     def _udp(self, number: int, ts: float, linktype: int, data: bytes,
@@ -220,6 +225,7 @@ class Dissector:
                 # decode what is present, so the transaction it belongs to is known (and malformed)
                 self._data_pdu(res, hdr, dgram, body, base + rpc.HEADER_SIZE)
                 res.summary += " [truncated]"
+                self._answered_in(res, hdr)
             else:
                 res.summary = f"{_pdu_name(hdr)} [truncated]"
             if res.pdu is None:
@@ -230,11 +236,20 @@ class Dissector:
         self.accounting.decoded += 1
         if hdr.ptype in (PTYPE_REQUEST, PTYPE_RESPONSE):
             self._data_pdu(res, hdr, dgram, body, base + rpc.HEADER_SIZE)
+            self._answered_in(res, hdr)
         elif hdr.ptype in (PTYPE_FAULT, PTYPE_REJECT):
             self._fault(res, hdr, dgram, body, base + rpc.HEADER_SIZE)
         else:
             self._control(res, hdr, dgram)
         return res
+
+    def _answered_in(self, res: FrameResult, hdr: rpc.Header) -> None:
+        """With links: a request's forward link to its answer, after its layers (where the hold puts it)."""
+        if self.links is not None and hdr.ptype == PTYPE_REQUEST and res.pdu is not None:
+            self.links.request_seen(res)
+            answer = self.links.answer(res.frame)
+            if answer:
+                res.layers.append(Layer("Call", 0, [derived("rpc.response_frame", answer)]))
 
     def _skip_udp(self, number: int, dgram: link.Datagram, reason: str) -> None:
         self.accounting.skipped[reason] += 1
@@ -303,10 +318,12 @@ class Dissector:
         res.pdu = pdu
         if frames or dgram.fragments:
             self._first_frame(pdu, dgram, frames, whole_ts if frames else None)
+        linked = None
         if not self.pairing:
             pdu.digest = (zlib.crc32(body), len(body))
             if response:
                 self.frags.drop_call(key, res.frame, res.findings)
+                linked = self._request_link(res) if self.links is not None else None
             elif hdr.opnum in RECORD_SERVICES and hdr.interface[3] != 1:
                 res.findings.append(_other_interface(hdr, res.frame))
         elif response:
@@ -320,6 +337,8 @@ class Dissector:
         opnum = pdu.request.opnum if response and pdu.request is not None else hdr.opnum
         if response and self.force_opnum is not None:
             opnum = self.force_opnum
+        if linked is not None:
+            opnum = linked.opnum
         pdu.opnum = opnum
         stub = rec.parse_stub(body, hdr.little, response, opnum, number, res.findings)
         pdu.stub = stub
@@ -337,6 +356,14 @@ class Dissector:
         if self.annotate:
             res.summary = pnio_view.pdu_summary(hdr.ptype, hdr.seq, stub, len(frames), opnum)
             res.layers += pnio_view.stub_layers(stub, body, stub_base, opnum, response, self.checker)
+
+    def _request_link(self, res: FrameResult) -> Request | None:
+        """With links: the request an answer answers, as the report pairs it (its Call layer added)."""
+        request = self.links.request(res.frame)  # type: ignore[union-attr]
+        if request is not None:
+            res.layers.append(Layer("Call", 0, [derived("rpc.request_frame", request.frame),
+                                                derived("rpc.rtt", round(res.ts - request.ts, 9))]))
+        return request
 
     def _first_frame(self, pdu: Pdu, dgram: link.Datagram, cl_frames: tuple[int, ...],
                      cl_first_ts: float | None) -> None:
@@ -406,8 +433,10 @@ class Dissector:
                 self.hold.link_response(call.frame, res.frame)
         if self.annotate:
             fields = layout.annotate(body, 0, (status,), body_base) if status is not None else []
-            if call is not None:
-                fields += [derived("rpc.request_frame", call.frame), derived("rpc.rtt", round(res.ts - call.ts, 9))]
+            told = self.links.request(res.frame) if self.links is not None else None
+            if call is not None or told is not None:
+                frame, ts = (call.frame, call.ts) if call is not None else (told.frame, told.ts)  # type: ignore[union-attr]
+                fields += [derived("rpc.request_frame", frame), derived("rpc.rtt", round(res.ts - ts, 9))]
             res.layers.append(Layer(f"{name.capitalize()} body", 0, fields))
 
     def _control(self, res: FrameResult, hdr: rpc.Header, dgram: link.Datagram) -> None:
@@ -426,6 +455,10 @@ class Dissector:
             res.findings.append(finding("rpc_cancel", res.frame, "rpc.seq", hdr.seq, "", "client cancelled the call"))
         if call is not None:
             res.summary += f" (call of frame {call.frame})"
+        elif self.links is not None:
+            request = self.links.open_call(hdr.activity, hdr.seq, res.frame, res.ts)
+            if request:
+                res.summary += f" (call of frame {request})"
         del dgram
 
     # --- records ----------------------------------------------------------------------------
@@ -458,6 +491,9 @@ class Dissector:
             key = _channel(dgram, v, block.target_ar, response)
             if response:
                 request, request_frame = self._pd_requests.get(key, (None, 0)) if self.pairing else (None, 0)
+                if self.links is not None:
+                    told = self.links.parameter_request(number, block)
+                    request_frame, request = told if told is not None else (0, None)
                 parsed = profidrive.parse_response(block.record, number, res.findings, self.checker.ids)
                 res.findings += self.checker.response(parsed, number, request)
                 block.pd = (parsed, request)
@@ -487,11 +523,12 @@ class Dissector:
         for key, call in self.calls.expire(self._now, self.rpc_timeout):
             self._unanswered(call, key, out, rpc_calls.NO_RESPONSE)
 
-    @staticmethod
-    def _marked(results: list[FrameResult]) -> list[FrameResult]:
-        """Annotated results as they leave: every field's check says ok or names its finding."""
-        for res in results:
-            mark_checks(res, CHECKED_FIELDS)
+    def _leaving(self, results: list[FrameResult]) -> list[FrameResult]:
+        """Annotated results as they leave: every field's check says ok or names its finding (with links, the
+        dump marks them with the report's findings instead)."""
+        if self.links is None:
+            for res in results:
+                mark_checks(res, CHECKED_FIELDS)
         return results
 
 

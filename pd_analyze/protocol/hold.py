@@ -54,6 +54,10 @@ class HeldFrames:
             if held is not None and fragment_frame != completing:
                 held.layers.append(Layer("Fragment", 0, [derived("rpc.reassembled_in", completing)]))
 
+    def first_held(self) -> int:
+        """The frame of the first result still held (0: none): every result released comes before it."""
+        return self._held[0].frame if self._held else 0
+
     def find(self, frame: int) -> FrameResult | None:
         """The held result of `frame`, for a finding discovered later (it then waits no longer)."""
         return self._waiting.pop(frame, None) or self._index.get(frame)

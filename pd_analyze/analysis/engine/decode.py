@@ -89,6 +89,10 @@ class Decoder:
         for part, view in BatchView.parts(batch, self.d.checker):
             yield self._decode(part, view)
 
+    def decode(self, batch: FrameBatch, view: BatchView) -> Decoded:
+        """One part of `BatchView.parts` (the caller reads its columns before its odd frames are dissected)."""
+        return self._decode(batch, view)
+
     def _decode(self, batch: FrameBatch, view: BatchView) -> Decoded:
         p = view.p
         f = view.decoded.frames

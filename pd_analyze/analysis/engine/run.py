@@ -31,6 +31,7 @@ from pd_analyze.analysis.engine.take import EMPTY, Costs, VectorTake, given_back
 from pd_analyze.analysis.engine.txn import Txn
 from pd_analyze.analysis.engine.txncols import TxnCols, of_episodes
 from pd_analyze.analysis.engine.vector import Calls, Episodes
+from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.schema import arrow_text
 from pd_analyze.analysis.stations import names_in_batch
@@ -38,12 +39,13 @@ from pd_analyze.capture import CaptureError
 from pd_analyze.capture.batches import BATCH_FRAMES, FrameBatch, frame_batches
 from pd_analyze.capture.raw import RawFrame
 from pd_analyze.model.capped import CHANNEL_REQUESTS, CappedTable
-from pd_analyze.model.values import PTYPE_REQUEST, PTYPE_RESPONSE
+from pd_analyze.model.values import PTYPE_FAULT, PTYPE_REJECT, PTYPE_REQUEST, PTYPE_RESPONSE
 from pd_analyze.protocol import rpc
 from pd_analyze.protocol.dissector import Dissector, truncated_elsewhere
 from pd_analyze.protocol.frames import Accounting
 
 _NEVER = -(1 << 62)
+_ANSWERS = (PTYPE_RESPONSE, PTYPE_FAULT, PTYPE_REJECT)  # what answers a call (the dump links it to its request)
 
 
 class EngineRun:
@@ -150,6 +152,7 @@ class EngineRun:
         keep[rejected] = False
         self._last_requests(view, calls, ep, keep & ~marked, records)
         done_calls, ep = given_back(calls, ep, keep)
+        self._calls_paired(view, done_calls, accepted)
         cols = of_episodes(view, done_calls, ep) if len(ep.w) else None
         result = self.results[-1]
         result.vector_pdus += 2 * len(done_calls.q)
@@ -173,6 +176,16 @@ class EngineRun:
             self.rows.add_finding(self.capture_of(f.frame), f)
         self._settle(view, records, cols)
         self._close_part(view, batch, records, accepted)
+
+    def _calls_paired(self, view: BatchView, calls: Calls, accepted: list[Pdu]) -> None:
+        """The part's paired calls (the vector path's and the loop's) and the PDUs the loop took as PNIO by
+        their call, to `rows.add_calls` (the dump's links)."""
+        answered = [(row.call.frame, row.frame) for row in accepted
+                    if row.call is not None and not row.copy and row.whole and row.ptype in _ANSWERS]
+        loop = np.array(answered, np.int64).reshape(-1, 2)
+        self.rows.add_calls(np.concatenate([view.frame_no[calls.q], loop[:, 0]]),
+                            np.concatenate([view.frame_no[calls.s], loop[:, 1]]),
+                            [row.frame for row in accepted if row.decide])
 
     # --- the vector path -------------------------------------------------------------------------------
     def _loop(self, dec: Decoded, stream: list[Pdu], calls: Calls, ep: Episodes, runmax_all: np.ndarray,
