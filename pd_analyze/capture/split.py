@@ -73,6 +73,9 @@ def _walk(stream: io.BufferedIOBase, caplen_at: object, piece_bytes: int, piece_
                 piece_start, piece_frame = at, frame
         base, number, buf = base + starts[complete], number + complete, buf[starts[complete]:]
         if not data:
+            if not buf and len(out) > 1 and out[-1].start == base:  # (a cut at the end of the file: no piece)
+                out.pop()
+                out[-1] = out[-1]._replace(end=None)
             return out
 
 
