@@ -19,6 +19,8 @@ import struct
 from collections.abc import Iterator
 from typing import NamedTuple
 
+import numpy as np
+
 from pd_analyze.capture.batches import BATCH_FRAMES, FrameBatch, _pcap_batches, _record_starts
 from pd_analyze.capture.pcap import pcap_header
 from pd_analyze.capture.raw import MAX_CAPLEN, CaptureError, CaptureInfo
@@ -54,29 +56,37 @@ def pieces(path: str, piece_bytes: int = PIECE_BYTES, piece_frames: int = 0) -> 
 def _walk(stream: io.BufferedIOBase, caplen_at: object, piece_bytes: int, piece_frames: int) -> list[Piece]:
     out = [Piece(24, None, 1)]
     base, number, buf = 24, 1, b""  # base: file offset of buf[0], a record's start; number: its frame
-    piece_start, piece_frame = 24, 1
     while True:
         data = stream.read(_WALK)
-        buf += data
-        starts = _record_starts(buf, caplen_at).tolist()  # type: ignore[arg-type]
-        complete = 0
-        for k in range(len(starts) - 1):
-            if starts[k + 1] - starts[k] - 16 > MAX_CAPLEN:
-                return out  # a record claims more than MAX_CAPLEN: no cut after it (nor is the rest read)
-            if starts[k + 1] > len(buf):
-                break
-            complete = k + 1
-            at, frame = base + starts[k + 1], number + k + 1
-            if (at - piece_start >= piece_bytes) if not piece_frames else (frame - piece_frame >= piece_frames):
-                out[-1] = out[-1]._replace(end=at)
-                out.append(Piece(at, None, frame))
-                piece_start, piece_frame = at, frame
-        base, number, buf = base + starts[complete], number + complete, buf[starts[complete]:]
+        buf = buf + data if buf else data
+        starts = _record_starts(buf, caplen_at)  # type: ignore[arg-type]
+        ends = starts[1:]
+        too_long = np.flatnonzero(ends - starts[:-1] - 16 > MAX_CAPLEN)
+        good = int(too_long[0]) if too_long.size else len(ends)
+        complete = min(good, int(np.searchsorted(ends, len(buf), "right")))  # records wholly in buf, undamaged
+        _cut(out, base + ends[:complete], number + 1, piece_bytes, piece_frames)
+        if too_long.size and complete == good:
+            return out  # a record claims more than MAX_CAPLEN: no cut after it (nor is the rest read)
+        at = int(starts[complete])
+        base, number, buf = base + at, number + complete, buf[at:]
         if not data:
             if not buf and len(out) > 1 and out[-1].start == base:  # (a cut at the end of the file: no piece)
                 out.pop()
                 out[-1] = out[-1]._replace(end=None)
             return out
+
+
+def _cut(out: list[Piece], ends: np.ndarray, first: int, piece_bytes: int, piece_frames: int) -> None:
+    """Cuts at the ends of records (file offsets `ends`, the first record's end being frame `first`'s
+    start) wherever the piece begun last has reached its size."""
+    while len(ends):
+        start, frame = out[-1].start, out[-1].first
+        k = frame + piece_frames - first if piece_frames else int(np.searchsorted(ends, start + piece_bytes))
+        if k >= len(ends) or k < 0:
+            return
+        at = int(ends[k])
+        out[-1] = out[-1]._replace(end=at)
+        out.append(Piece(at, None, first + k))
 
 
 def piece_batches(path: str, piece: Piece, size: int = BATCH_FRAMES) -> Iterator[FrameBatch]:
