@@ -26,7 +26,7 @@ from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.capture import CaptureError
 from pd_analyze.capture.batches import BATCH_FRAMES, FrameBatch, batches
-from pd_analyze.capture.split import Piece, piece_batches, pieces
+from pd_analyze.capture.split import PIECE_BYTES, Piece, piece_batches, pieces
 from pd_analyze.protocol.frames import Accounting
 from pd_analyze.protocol.profidrive_checks import Checker
 
@@ -53,7 +53,8 @@ def decoded(path: str, settings: Settings, submit: Callable[..., Future], window
             piece_bytes: int | None = None, piece_frames: int = 0) -> Iterator[Decoded]:
     """The capture's batches with their column decode, in frame order, the decode made by `submit`'s
     workers (at most `window` tasks on their way); then the capture's CaptureError, if any."""
-    cut = pieces(path, **({"piece_bytes": piece_bytes} if piece_bytes else {}), piece_frames=piece_frames)
+    size = settings.batch_frames or BATCH_FRAMES
+    cut = pieces(path, piece_bytes or PIECE_BYTES, piece_frames, size)
     if cut is not None and len(cut) > 1:
         yield from in_order((submit(decode_piece, path, piece, settings) for piece in cut), window)
     else:

@@ -1,126 +1,122 @@
-"""One classic pcap cut into pieces at record boundaries, each read on its own (by another process, or a
-Dask worker) with the frames, numbers and errors `batches` gives for the same records.
+"""One classic pcap cut into pieces, each read on its own (by another process, or a Dask worker) into
+exactly the batches one reader of the whole file (`batches`) makes of the same frames.
 
-The cut points come from a sequential walk of the record headers (`pieces`: one unpack a record, about
-0.1 us, no frame decoded), so every cut is a record boundary by construction, never a guess from bytes
-that look like a header. The walk stops cutting at the first record that is cut short or claims more
-than MAX_CAPLEN bytes: the last piece runs to the end of the file, and its reader meets that damage and
-raises the error one reader of the whole file raises there (same text, same file offset).
+The cut points are batch boundaries of that reader, found by a walk of the file that reads it chunk for
+chunk as `batches` does (the same 8 MiB reads from the same offsets, the record headers chained by their
+lengths, no frame decoded): every cut is a record boundary by construction, never a guess from bytes that
+look like a header, and a piece's reader starts with the chunk `batches` reads there, holding the same
+bytes of the record that chunk begins with, so its chunks, batches, frame numbers and times are those of
+`batches`, batch for batch. What follows the pieces (the engine) therefore sees the very batches of one
+process. The walk stops cutting at the first damaged record (cut short, or longer than MAX_CAPLEN): the
+last piece runs to the end of the file, and its reader meets that damage and raises the error `batches`
+raises there (same text, same file offset).
 
 pcapng and gzip-compressed captures are not cut here (a gzip stream cannot be entered in its middle; a
 pcapng piece would need the section and interface blocks before it): `pieces` returns None for them, and
-the caller reads them in one process (analysis.split decodes their batches in parallel all the same).
+the caller reads them in one process (analysis.split has their batches decoded in parallel all the same).
 """
 
 from __future__ import annotations
 
-import io
 import struct
-from collections.abc import Iterator
-from typing import NamedTuple
+from collections.abc import Callable, Iterator
+from typing import BinaryIO, NamedTuple
 
 import numpy as np
 
+from pd_analyze.capture import pcap
 from pd_analyze.capture.batches import BATCH_FRAMES, FrameBatch, _pcap_batches, _record_starts
+from pd_analyze.capture.chunks import PIECES
 from pd_analyze.capture.pcap import pcap_header
 from pd_analyze.capture.raw import MAX_CAPLEN, CaptureError, CaptureInfo
 from pd_analyze.capture.reader import opened
 
 PIECE_BYTES = 8 << 20  # a piece is about one chunk of the batch reader: one worker's task, decoded at once
-_WALK = 8 << 20  # bytes of record headers walked at a time
 
 
 class Piece(NamedTuple):
-    """Records `start`..`end` (file offsets; `end` None: to the end of the file), the first numbered `first`."""
+    """Frames `first` .. `stop` - 1 (`stop` None: to the end of the file), which begin in the chunk `batches`
+    reads at file offset `at` holding `lead` bytes of the record there, frame `number`."""
 
-    start: int
-    end: int | None
     first: int
+    stop: int | None
+    at: int
+    lead: int
+    number: int
 
 
-def pieces(path: str, piece_bytes: int = PIECE_BYTES, piece_frames: int = 0) -> list[Piece] | None:
-    """The pieces of a plain (uncompressed) pcap, each about `piece_bytes` (or `piece_frames` records when
-    given, for tests that cut everywhere); None for any other capture, or one that cannot be opened."""
+class _Chunk(NamedTuple):
+    at: int  # where `batches` reads it
+    lead: int  # bytes of its first record it held before the read
+    number: int  # its first frame
+    starts: np.ndarray  # file offsets of the starts of its batches
+
+
+def pieces(path: str, piece_bytes: int = PIECE_BYTES, piece_frames: int = 0,
+           size: int = BATCH_FRAMES) -> list[Piece] | None:
+    """The pieces of a plain (uncompressed) pcap read in batches of `size` frames, each about `piece_bytes`
+    (or, when given, `piece_frames` frames or the next batch boundary after them: tests cut everywhere);
+    None for any other capture, or one that cannot be opened."""
     info = CaptureInfo(path)
     try:
         with opened(path, info) as (stream, fmt):
             if fmt != "pcap" or info.compressed:
                 return None
-            head = stream.read(24)
-            little = pcap_header(path, head)[0]
-            return _walk(stream, struct.Struct("<8xI" if little else ">8xI").unpack_from, piece_bytes, piece_frames)
+            little = pcap_header(path, stream.read(24))[0]
+            chunks = _chunks(stream, struct.Struct("<8xI" if little else ">8xI").unpack_from, size)
     except (CaptureError, OSError):
         return None  # (its error is reported where it is read: in one process)
+    return _cut(chunks, piece_bytes, piece_frames, size)
 
 
-def _walk(stream: io.BufferedIOBase, caplen_at: object, piece_bytes: int, piece_frames: int) -> list[Piece]:
-    out = [Piece(24, None, 1)]
-    base, number, buf = 24, 1, b""  # base: file offset of buf[0], a record's start; number: its frame
+def _chunks(stream: BinaryIO, caplen_at: Callable, size: int) -> list[_Chunk]:
+    """The chunks `batches` reads (batches._pcap_batches with chunks.ChunkReads on a seekable file), as far
+    as no record is damaged; in each, where its batches begin."""
+    out: list[_Chunk] = []
+    want = PIECES * pcap._CHUNK
+    at, rest, number = 24, 0, 1
     while True:
-        data = stream.read(_WALK)
-        buf = buf + data if buf else data
-        starts = _record_starts(buf, caplen_at)  # type: ignore[arg-type]
-        ends = starts[1:]
-        too_long = np.flatnonzero(ends - starts[:-1] - 16 > MAX_CAPLEN)
-        good = int(too_long[0]) if too_long.size else len(ends)
-        complete = min(good, int(np.searchsorted(ends, len(buf), "right")))  # records wholly in buf, undamaged
-        _cut(out, base + ends[:complete], number + 1, piece_bytes, piece_frames)
-        if too_long.size and complete == good:
-            return out  # a record claims more than MAX_CAPLEN: no cut after it (nor is the rest read)
-        at = int(starts[complete])
-        base, number, buf = base + at, number + complete, buf[at:]
-        if not data:
-            if not buf and len(out) > 1 and out[-1].start == base:  # (a cut at the end of the file: no piece)
-                out.pop()
-                out[-1] = out[-1]._replace(end=None)
+        stream.seek(at)
+        buf = stream.read(rest + want)
+        starts = _record_starts(buf, caplen_at)
+        complete = int(np.searchsorted(starts, len(buf), "right")) - 1
+        too_long = np.flatnonzero(np.diff(starts[:complete + 1]) - 16 > MAX_CAPLEN)
+        good = int(too_long[0]) if too_long.size else complete
+        if good:
+            out.append(_Chunk(at, rest, number, at + starts[:good:size]))
+        pos = int(starts[complete])
+        if too_long.size or len(buf) < rest + want or not complete:
+            return out  # damage, or the end of the data: the last piece reads on from here as `batches` does
+        if len(buf) - pos >= 16 and caplen_at(buf, pos)[0] > MAX_CAPLEN:
             return out
+        at, rest, number = at + pos, len(buf) - pos, number + complete
 
 
-def _cut(out: list[Piece], ends: np.ndarray, first: int, piece_bytes: int, piece_frames: int) -> None:
-    """Cuts at the ends of records (file offsets `ends`, the first record's end being frame `first`'s
-    start) wherever the piece begun last has reached its size."""
-    while len(ends):
-        start, frame = out[-1].start, out[-1].first
-        k = frame + piece_frames - first if piece_frames else int(np.searchsorted(ends, start + piece_bytes))
-        if k >= len(ends) or k < 0:
-            return
-        at = int(ends[k])
-        out[-1] = out[-1]._replace(end=at)
-        out.append(Piece(at, None, first + k))
+def _cut(chunks: list[_Chunk], piece_bytes: int, piece_frames: int, size: int) -> list[Piece]:
+    """Pieces of whole batches: a cut at the first batch start past the size of the piece begun last."""
+    out = [Piece(1, None, 24, 0, 1)]
+    begun = 24  # the file offset of the piece begun last
+    for chunk in chunks:
+        for k, offset in enumerate(chunk.starts.tolist()):
+            frame = chunk.number + k * size
+            if frame > 1 and ((frame - out[-1].first >= piece_frames) if piece_frames else
+                              (offset - begun >= piece_bytes // 2)):
+                out[-1] = out[-1]._replace(stop=frame)
+                out.append(Piece(frame, None, chunk.at, chunk.lead, chunk.number))
+                begun = offset
+    return out
 
 
 def piece_batches(path: str, piece: Piece, size: int = BATCH_FRAMES) -> Iterator[FrameBatch]:
-    """The frames of `piece` in batches of at most `size` frames (the last piece: then its CaptureError,
-    if the file is damaged there, as `batches` raises it)."""
+    """The batches of `piece`, those `batches(path, size)` makes of its frames (the last piece: then its
+    CaptureError, if the file is damaged there, as `batches` raises it)."""
     info = CaptureInfo(path)
     with opened(path, info) as (stream, _fmt):
         head = stream.read(24)
-        stream.seek(piece.start)
-        bounded = stream if piece.end is None else _Bounded(stream, piece.end)
-        for _base, batch in _pcap_batches(path, bounded, info, size, head, piece.start, piece.first):  # type: ignore[arg-type]
-            yield batch
-
-
-class _Bounded(io.RawIOBase):
-    """A seekable stream that ends at file offset `end` (a piece's last record ends there)."""
-
-    def __init__(self, stream: io.BufferedIOBase, end: int) -> None:
-        super().__init__()
-        self.stream = stream
-        self.end = end
-
-    def seekable(self) -> bool:
-        return True
-
-    def readable(self) -> bool:
-        return True
-
-    def tell(self) -> int:
-        return self.stream.tell()
-
-    def seek(self, offset: int, whence: int = 0) -> int:
-        return self.stream.seek(offset, whence)
-
-    def read(self, size: int = -1) -> bytes:
-        left = max(0, self.end - self.stream.tell())
-        return self.stream.read(left if size is None or size < 0 else min(size, left))
+        stream.seek(piece.at)
+        for _base, batch in _pcap_batches(path, stream, info, size, head, 24, piece.number, piece.at, piece.lead):
+            first = int(batch.number[0])
+            if piece.stop is not None and first >= piece.stop:
+                return
+            if first >= piece.first:
+                yield batch
