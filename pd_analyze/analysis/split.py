@@ -10,7 +10,7 @@ piece's batches need not be those of one reader of the whole file.
 
 A plain pcap is cut into pieces at record boundaries (capture.split) that the workers read themselves;
 any other capture (pcapng, gzip) is read here, as one process reads it, and its batches are sent to the
-workers for their decode. Either way at most `jobs + 1` pieces or batches are on their way at once
+workers for their decode. Either way at most `jobs` pieces or batches are on their way at once
 (memory), and a damaged file's error comes after every good frame, as one process reports it.
 """
 
@@ -44,7 +44,7 @@ def analyze_file(path: str, settings: Settings, jobs: int, progress: Progress | 
     rows = Rows() if rows is None else rows
     result = CaptureResult(path, Accounting())
     with ProcessPoolExecutor(max_workers=max(1, jobs - 1)) as pool:
-        source = decoded(path, settings, pool.submit, jobs + 1, piece_bytes, piece_frames)
+        source = decoded(path, settings, pool.submit, jobs, piece_bytes, piece_frames)
         result.accounting = run_batches(source, settings, rows, lambda _frame: path, [result], progress, offset)
     return rows, result
 
