@@ -142,8 +142,8 @@ def _jobs(b: Any, caps: list[str], args: argparse.Namespace) -> list[list[str]]:
                          measured, _met(_at_least(r, 1.7), None if same is None else same == "yes")])
     # the mutated capture and the floods: output identical (bench.jobs' _jobs_pair)
     for key, same in b.notes.items():
-        if key.endswith(": report --jobs identical"):
-            cap = key.split(":")[0]
+        cap = key.split(":")[0]
+        if key.endswith(": report --jobs identical") and cap not in ("dense", "fault-rich"):  # (those: above)
             rows.append([f"{cap}: `report --jobs {max(n, 2)}` output identical to one process", same,
                          _met(same == "yes")])
     return rows
