@@ -29,7 +29,9 @@ wait4's ru_maxrss of the children: the largest single process, --jobs workers in
               and `audit` against `report` (--skip-dumps)
   jobs        issue #25 on dense and fault-rich: `report`, `audit` and `params` with --jobs N (--jobs, 2 by
               default; 1 leaves the step out) against one process, their output files and stdout compared
-              byte for byte
+              byte for byte; then `report` against `report --jobs N` (compared likewise) on a capture of
+              --frames frames, 30 % of them mutated (devtools.fuzz.capture: time goes backwards where one
+              seed follows another) and on each flood of devtools.hostile (--flood-frames)
   scale       `report` on a dense and a fault-rich capture of 4x the frames, `params` and `audit` on the
               dense one (--skip-scale)
   floods      each of devtools.hostile's floods (--flood-frames, 300,000 by default): never-answered calls,
@@ -68,6 +70,7 @@ import pcapfiles
 
 sys.path.insert(1, str(Path(__file__).resolve().parent.parent))  # the repository root: devtools/ is not installed
 from devtools import hostile
+from devtools.fuzz.capture import mutated_capture
 from devtools.synth.fault_rich import make_fault_rich
 from devtools.synth.mixed_capture import make_capture
 
@@ -303,6 +306,29 @@ def jobs(b: Bench, r: Run) -> None:
             b.notes[name(cap, f"{what} --jobs identical")] = "yes" if same else "no"
             print(f"  {cap}: {what} --jobs {n_jobs} output identical to one process: {'yes' if same else 'no'}",
                   flush=True)
+    mutated = r.tmp / "mutated.pcap"
+    _jobs_pair(b, r, "mutated", mutated, mutated_capture(mutated, r.args.frames), n_jobs)
+    for kind in hostile.ALL_KINDS:
+        path = r.tmp / f"flood-{kind}.pcap"
+        _jobs_pair(b, r, f"flood of {kind}", path, hostile.write_pcap(kind, r.args.flood_frames, path), n_jobs)
+
+
+def _jobs_pair(b: Bench, r: Run, cap: str, path: Path, n: int, n_jobs: int) -> None:
+    """`report` of a capture in one process and in `n_jobs`, timed once each, output compared; the capture
+    and the outputs removed after."""
+    outs = []
+    for jobs_ in (1, n_jobs):
+        out = r.out(cap, f"jobs-report-{jobs_}")
+        more = [] if jobs_ == 1 else ["--jobs", str(jobs_)]
+        b.time(name(cap, f"pd-analyze report{' --jobs ' + str(jobs_) if more else ''}"),
+               [*PD, "report", str(path), "--out", str(out), *more], n, rounds=1, stdout=out.with_suffix(".stdout"))
+        outs.append(out)
+    same = _same_output(*outs) and _same_output(*(o.with_suffix(".stdout") for o in outs))
+    b.notes[name(cap, "report --jobs identical")] = "yes" if same else "no"
+    print(f"  {cap}: report --jobs {n_jobs} output identical to one process: {'yes' if same else 'no'}", flush=True)
+    path.unlink()
+    for out in outs:
+        shutil.rmtree(out, ignore_errors=True)
 
 
 def scale(b: Bench, r: Run) -> None:

@@ -140,6 +140,12 @@ def _jobs(b: Any, caps: list[str], args: argparse.Namespace) -> list[list[str]]:
             measured = f"{_x(r, '--jobs 1')}; identical: {same}" if same else "n/a (--jobs 1)"
             rows.append([f"{cap}: `{what} --jobs {max(n, 2)}` >= 1.7x faster than one process, output identical",
                          measured, _met(_at_least(r, 1.7), None if same is None else same == "yes")])
+    # the mutated capture and the floods: output identical (bench.jobs' _jobs_pair)
+    for key, same in b.notes.items():
+        cap = key.split(":")[0]
+        if key.endswith(": report --jobs identical") and cap not in ("dense", "fault-rich"):  # (those: above)
+            rows.append([f"{cap}: `report --jobs {max(n, 2)}` output identical to one process", same,
+                         _met(same == "yes")])
     return rows
 
 

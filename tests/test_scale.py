@@ -108,8 +108,8 @@ def test_dask_api_on_a_local_two_worker_cluster():
 
 
 def test_jobs_on_one_large_capture_gives_the_tables_of_one_process(tmp_path):
-    """One file is read in one process whatever --jobs says (its calls, transactions and values read run
-    through it in order): the tables and the accounting are those of --jobs 1."""
+    """A file under PARALLEL_MIN_BYTES is analysed in one process whatever --jobs says; one over it has its
+    decode split (tests/test_split.py): either way the tables and the accounting are those of --jobs 1."""
     from devtools.synth.mixed_capture import make_capture
 
     path = tmp_path / "mixed.pcap"

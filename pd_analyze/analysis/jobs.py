@@ -1,5 +1,6 @@
-"""Which way a set of captures goes: one process or files in parallel processes, or a chain of files read
-as one capture. Every capture goes through the one engine (analysis.engine), batch by batch.
+"""Which way a set of captures goes: one process, files in parallel processes, one file's decode in parallel
+processes (analysis.split), or a chain of files read as one capture. Every capture goes through the one
+engine (analysis.engine), batch by batch.
 
 `run` is the one way in for `analyze()` and the streamed report alike (lists or spools as `Rows`), so
 their tables cannot differ.
@@ -21,8 +22,9 @@ def run(files: list[str], rows: Rows, settings: Settings, progress: Progress | N
     """The pipeline over capture files, every row handed to `rows` (lists for `analyze()`, spools for
     the streaming report).
 
-    One process streams frame by frame; the parallel paths (`jobs` > 1) get each file's or part's rows
-    from the workers and hand them on in order."""
+    One process streams frame by frame; with `jobs` > 1 several files are analysed in parallel (each
+    file's rows come back from its worker and are handed on in order), and one file has its batches
+    decoded by `jobs` - 1 workers while this process runs the engine over them in frame order."""
     if chain:
         return engine.analyze_chain(files, settings, progress, rows)
     if jobs > 1 and ("-" in files or _input_bytes(files) < PARALLEL_MIN_BYTES):
@@ -38,6 +40,11 @@ def run(files: list[str], rows: Rows, settings: Settings, progress: Progress | N
                 rows.extend(part_rows, sum(r.transactions for r in results))
                 results.append(result)
         return results
+    if jobs > 1:  # one file
+        from pd_analyze.analysis import split
+
+        _, result = split.analyze_file(files[0], settings, jobs, progress, rows)
+        return [result]
     for path in files:
         _, result = analyze_file(path, settings, progress, rows, sum(r.transactions for r in results))
         results.append(result)

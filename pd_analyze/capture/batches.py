@@ -119,9 +119,11 @@ def batches(path: str, size: int = BATCH_FRAMES, info: CaptureInfo | None = None
 
 
 def _pcap_batches(path: str, stream: BinaryIO, info: CaptureInfo, size: int, head: bytes, origin: int,
-                  number: int) -> Iterator[tuple[int, FrameBatch]]:
+                  number: int, begin: int | None = None, lead: int = 0) -> Iterator[tuple[int, FrameBatch]]:
     """Batches of a classic pcap whose records begin at byte `origin` (where `stream` stands), each with
-    the file offset of its buf.
+    the file offset of its buf. `begin` (where `stream` then stands), `number` and `lead`: begin with the
+    chunk a reader from `origin` reads at `begin`, where it holds `lead` bytes of the record there (capture.split:
+    a piece read as the whole file's reader reads it, chunk for chunk).
 
     A chunk's records are found by a loop of one unpack and one append each, its complete records
     yielded, the incomplete rest carried into the next chunk. Damage is told exactly as pcap_frames tells
@@ -131,8 +133,9 @@ def _pcap_batches(path: str, stream: BinaryIO, info: CaptureInfo, size: int, hea
     info.linktypes = [linktype]
     caplen_at = struct.Struct("<8xI" if little else ">8xI").unpack_from
     word = np.dtype("<u4" if little else ">u4")
-    reads = ChunkReads(path, stream, origin)
-    buf, base = b"", origin  # base: the file offset of buf[0], always a record's start
+    start = origin if begin is None else begin
+    reads = ChunkReads(path, stream, start)
+    buf, base = stream.read(lead) if lead else b"", start  # base: the file offset of buf[0], always a record's start
     while True:
         starts = _record_starts(buf, caplen_at)
         complete = int(np.searchsorted(starts, len(buf), "right")) - 1  # records whose end is in buf

@@ -17,6 +17,9 @@ class CaptureError(Exception):
         where = f"byte {offset}: " if offset is not None else ""
         super().__init__(f"{path}: {where}{message}")
 
+    def __reduce__(self) -> tuple:
+        return CaptureError, (self.path, self.reason, self.offset)  # (raised in a worker, re-raised here)
+
 
 class RawFrame(NamedTuple):
     """A frame; or, from an `ip_only` reader, a run of `run` skipped frames ending at `number`."""

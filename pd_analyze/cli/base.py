@@ -198,8 +198,9 @@ def capture_files(captures: tuple[str, ...], read: str | None, profile: str) -> 
 def run_options(func: Callable) -> Callable:
     """--jobs and --chain, and the timeouts."""
     func = click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
-                        help="Analyse files in N parallel processes (same tables as one process; each worker "
-                             "returns its file's rows whole). One file is always one process.")(func)
+                        help="Use N processes: several files in parallel (each worker returns its file's "
+                             "rows whole), or one file of 8 MB or more with its batches decoded by N-1 workers "
+                             "and analysed here in order. Output identical to one process.")(func)
     func = click.option("--chain", is_flag=True,
                         help="The files continue one another (ring buffer): pair across file boundaries.")(func)
     return timeout_options(func)

@@ -84,9 +84,11 @@ class Decoder:
     def accounting(self) -> Accounting:
         return self.d.accounting
 
-    def parts(self, batch: FrameBatch) -> Iterator[Decoded]:
-        """The batch decoded, in consecutive parts when its records declare very many parameters (memory)."""
-        for part, view in BatchView.parts(batch, self.d.checker):
+    def parts(self, batch: FrameBatch, views: list[tuple[FrameBatch, BatchView]] | None = None) -> Iterator[Decoded]:
+        """The batch decoded, in consecutive parts when its records declare very many parameters (memory).
+        `views`: the batch's `BatchView.parts` made elsewhere (the column decode needs no state across
+        batches: another process may make it), or None."""
+        for part, view in views if views is not None else BatchView.parts(batch, self.d.checker):
             yield self._decode(part, view)
 
     def decode(self, batch: FrameBatch, view: BatchView) -> Decoded:

@@ -87,12 +87,13 @@ class EngineRun:
         self.take = VectorTake(self.vector, self.pairing, self.machine, self.numbering, self.costs)
 
     # --- the loop -----------------------------------------------------------------------------------
-    def feed(self, batch: FrameBatch) -> None:
-        """The next batch of frames."""
+    def feed(self, batch: FrameBatch, views: list[tuple[FrameBatch, BatchView]] | None = None) -> None:
+        """The next batch of frames; `views`: its column decode made elsewhere (`BatchView.parts` of the
+        batch in another process: analysis.split), or None to make it here."""
         if not len(batch):
             return
         self.last_frame = int(batch.number[-1])
-        for decoded in self.decoder.parts(batch):
+        for decoded in self.decoder.parts(batch, views):
             self._part(decoded)
             del decoded  # (the next part's decode does not wait for this one's memory)
         if self.results:  # (the file being read: a chain appends each file's result before its batches)
@@ -412,15 +413,19 @@ def _merged(columns: list[Pdu], odd: list[Pdu]) -> list[Pdu]:
     return out
 
 
-def run_batches(source: Iterable[FrameBatch], settings: Settings, rows: Rows, capture_of: Callable[[int], str],
-                results: list[CaptureResult], progress: Progress | None, offset: int = 0) -> Accounting:
-    """The loop over batches; the frames' accounting when done (also after a CaptureError, which is
-    recorded in the last result)."""
+def run_batches(source: Iterable[FrameBatch] | Iterable[tuple[FrameBatch, list[tuple[FrameBatch, BatchView]]]],
+                settings: Settings, rows: Rows, capture_of: Callable[[int], str], results: list[CaptureResult],
+                progress: Progress | None, offset: int = 0) -> Accounting:
+    """The loop over batches (or batches with their column decode made elsewhere: analysis.split); the
+    frames' accounting when done (also after a CaptureError, which is recorded in the last result)."""
     as_rows = not all(arrow_text(r.path) for r in results)
     run = EngineRun(settings, rows, capture_of, results, progress, offset, as_rows)
     try:
-        for batch in source:
-            run.feed(batch)
+        for item in source:
+            if isinstance(item, tuple):
+                run.feed(*item)
+            else:
+                run.feed(item)
     except CaptureError as exc:
         results[-1].error = error_text(exc)
     run.finish()
