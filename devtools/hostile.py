@@ -46,7 +46,7 @@ from pd_analyze.capture import RawFrame
 KINDS = ("ip", "cl", "calls", "mixed")  # the memory bounds' floods (tests/test_columnar.py runs each)
 TRANSACTION_KINDS = ("txns", "changes40")  # issue #23's transaction floods (tests/test_floods.py)
 ALL_KINDS = KINDS + TRANSACTION_KINDS
-LIMIT_MB = 200
+LIMIT_MB = 300  # the peak RSS a flood may take in one process (issue #23: 300 MiB)
 _EPOCH = 1_767_225_600.0
 
 
@@ -277,7 +277,7 @@ def run_isolated(kind: str, count: int, dump: bool = False, seed: int = 1, table
     cmd = [sys.executable, "-m", "devtools.hostile", "--kind", kind, "--frames", str(count), "--seed", str(seed),
            "--json", "--inline"] + (["--dump"] if dump else []) + (["--tables"] if tables else [])
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=3600)
-    if out.returncode or not out.stdout.strip():
+    if out.returncode not in (0, 1) or not out.stdout.strip():  # (1: over LIMIT_MB, which the result says)
         raise RuntimeError(f"{' '.join(cmd)} failed ({out.returncode}): {out.stderr[-2000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
 
