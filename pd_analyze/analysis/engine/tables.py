@@ -9,6 +9,7 @@ or a request of an earlier batch) has its rows made by `analysis.rows.Rows.add`,
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 
 import numpy as np
@@ -38,9 +39,14 @@ def _hex_table() -> list[str]:
 
 
 _HEX = _hex_table()
-# the format and attribute cells by code (the format's shifted by one: "" for a row without a value block)
-_FORMAT_CELLS = pa.array(["", *(pt.FORMAT_NAME.get(v) or _HEX[v] for v in range(256))], pa.large_string())
-_ATTRIBUTE_CELLS = pa.array([pt.ATTRIBUTE.get(v) or _HEX[v] for v in range(256)], pa.large_string())
+
+
+@functools.cache
+def _cells() -> tuple[pa.Array, pa.Array]:
+    """The format and attribute cells by code (the format's shifted by one: "" for a row without a value
+    block); made on first use, as making an Arrow array loads pandas (a dump never needs them)."""
+    return (pa.array(["", *(pt.FORMAT_NAME.get(v) or _HEX[v] for v in range(256))], pa.large_string()),
+            pa.array([pt.ATTRIBUTE.get(v) or _HEX[v] for v in range(256)], pa.large_string()))
 
 
 def _hex(value: int) -> str:
@@ -179,8 +185,8 @@ class TableBuilder:
             pa.array(numbers[owner], pa.int64()), captures.take(owner_idx), device_of.take(owner_idx),
             pa.array(t.do[owner], pa.int64()), label_cells,
             pa.array(pnu, pa.int64()), _pnu_names(pnu, self.names), pa.array(sub, pa.int64()),
-            pa.array(elems, pa.int64()), _ATTRIBUTE_CELLS.take(pa.array(attr)),
-            _FORMAT_CELLS.take(pa.array(fmt_cell + 1)),
+            pa.array(elems, pa.int64()), _cells()[1].take(pa.array(attr)),
+            _cells()[0].take(pa.array(fmt_cell + 1)),
             written, read, pa.array(err_hex.tolist(), pa.large_string()),
             pa.array(err_text.tolist(), pa.large_string()),
             pa.array(err_sub, pa.int64(), mask=err_sub < 0),
