@@ -30,7 +30,7 @@ wait4's ru_maxrss of the children: the largest single process, --jobs workers in
   jobs        issue #25 on dense and fault-rich: `report`, `audit` and `params` with --jobs N (--jobs, 2 by
               default; 1 leaves the step out) against one process, their output files and stdout compared
               byte for byte; then `report` against `report --jobs N` (compared likewise) on a capture of
-              --frames frames, 30 % of them mutated (devtools.fuzz.capture: time goes backwards where one
+              --frames frames, 30 % of them mutated (devtools.fuzz.mutated: time goes backwards where one
               seed follows another) and on each flood of devtools.hostile (--flood-frames)
   scale       `report` on a dense and a fault-rich capture of 4x the frames, `params` and `audit` on the
               dense one (--skip-scale)
@@ -70,7 +70,7 @@ import pcapfiles
 
 sys.path.insert(1, str(Path(__file__).resolve().parent.parent))  # the repository root: devtools/ is not installed
 from devtools import hostile
-from devtools.fuzz.capture import mutated_capture
+from devtools.fuzz.mutated import mutated_capture
 from devtools.synth.fault_rich import make_fault_rich
 from devtools.synth.mixed_capture import make_capture
 

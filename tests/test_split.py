@@ -91,8 +91,8 @@ def test_fuzz_corpus_capture_split_anywhere(fuzz_capture: Path) -> None:
 
 
 def test_mutated_capture_split(tmp_path: Path) -> None:
-    """devtools.fuzz.capture's capture (the benchmark's, small): 30 % of the seeds' frames mutated."""
-    from devtools.fuzz.capture import mutated_capture
+    """devtools.fuzz.mutated's capture (the benchmark's, small): 30 % of the seeds' frames mutated."""
+    from devtools.fuzz.mutated import mutated_capture
 
     path = tmp_path / "mutated.pcap"
     assert mutated_capture(path, 4000) == 4000
