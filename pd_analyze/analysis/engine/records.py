@@ -47,11 +47,7 @@ class Records:
         if isinstance(record, Carried):
             n = record.data[3]
             return list(_ADDRESSES.iter_unpack(record.data[4:4 + 6 * n]))
-        rc, a = self.view.records.records, self.view.records.addresses  # type: ignore[union-attr]
-        first = int(rc.first_addr[record])
-        rows = slice(first, first + int(rc.n_addr[record]))
-        return list(zip(a.attr[rows].tolist(), a.n_elems[rows].tolist(), a.pnu[rows].tolist(),
-                        a.subindex[rows].tolist(), strict=True))
+        return list(map(tuple, self.address_array(record).tolist()))
 
     def address_array(self, record: Record) -> np.ndarray:
         """`addresses` as an (n, 4) int64 array."""

@@ -203,14 +203,15 @@ class TableBuilder:
         self._refused(t, fails, owner[failed].tolist(), labels, whole,
                       _at(bc.error, np.where(whole, first_res, -1), -1))
         # --- changes: one row per value block written ---------------------------------------------------
+        start_times = _times(t.t_start)
         changes = np.flatnonzero(wb >= 0)
         if len(changes):
             out["changes"].append(self._changes(t, changes, owner, label_cells, pnu, sub, written, err, numbers,
-                                                captures, device_of, starts))
+                                                captures, device_of, starts, start_times))
         # --- transactions ---------------------------------------------------------------------------------
         resp_id = [_HEX[int(i)] if h else "" for i, h in zip(rc.ident[s].tolist(), has_res.tolist(), strict=True)]
         out["transactions"].append(self._transactions(t, numbers, captures, texts, params,
-                                                      [" ".join(e) for e in errors], resp_id))
+                                                      [" ".join(e) for e in errors], resp_id, start_times))
         cap = captures.to_pylist() if t.findings else []
         found = [finding_row(cap[k], f, int(numbers[k])) for k, fs in t.findings.items() for f in fs]
         if found:
@@ -236,13 +237,13 @@ class TableBuilder:
 
     def _changes(self, t: TxnCols, rows: np.ndarray, owner: np.ndarray, labels: pa.Array, pnu: np.ndarray,
                  sub: np.ndarray, written: pa.Array, err: np.ndarray, numbers: np.ndarray, captures: pa.Array,
-                 devices: pa.Array, starts: np.ndarray) -> pa.Table:
+                 devices: pa.Array, starts: np.ndarray, start_times: pa.Array) -> pa.Table:
         """One row per value block written (`rows`: among the parameter rows, transaction after transaction),
         a column at a time."""
         k = owner[rows]
         taken = pa.array(rows)
         kept = pa.array(k)
-        starts_at = _times(t.t_start).take(kept)
+        starts_at = start_times.take(kept)
         errs = err[rows]
         verdicts = np.array(t.verdict, object)
         result = np.where(np.isin(verdicts, list(ANSWERED)), "ok", verdicts)[k]
@@ -262,7 +263,7 @@ class TableBuilder:
 
     @staticmethod
     def _transactions(t: TxnCols, numbers: np.ndarray, captures: pa.Array, texts: list[tuple],
-                      params: pa.Array, errors: list[str], resp_id: list[str]) -> pa.Table:
+                      params: pa.Array, errors: list[str], resp_id: list[str], start_times: pa.Array) -> pa.Table:
         """The transactions' rows, a column at a time (the cells Rows.add makes)."""
         text, integer = pa.large_string(), pa.int64()
         channel = t.channel
@@ -281,7 +282,7 @@ class TableBuilder:
             pa.array(t.write_frame, integer), pa.array(t.write_res_frame, integer, mask=t.write_res_frame == 0),
             _joined(t.read_frames, t.read_offsets), pa.array(t.read_res_frame, integer, mask=t.read_res_frame == 0),
             _joined(t.frames, t.frame_offsets),
-            _times(start),
+            start_times,
             _seconds(t.t_write_res, start), _seconds(t.t_done, start), _seconds(t.t_done, t.t_last_read),
             _seconds(t.t_first_read, t.t_write_res), _seconds(t.t_last_read, start),
             pa.array(t.capture_ended, pa.bool_()), pa.array(t.closed_by, text),
