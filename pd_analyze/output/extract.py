@@ -16,11 +16,17 @@ blocks as they are): times, lengths and bytes are the input's.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from pd_analyze.analysis.capture_run import Settings
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from pd_analyze.analysis.capture_run import CaptureResult, Settings
+from pd_analyze.analysis.rows import Rows
+from pd_analyze.analysis.table_batches import rows_to_batch
 from pd_analyze.capture import CaptureError
 from pd_analyze.capture.records import CaptureCopy
 from pd_analyze.model.verdicts import VERDICTS
@@ -71,61 +77,178 @@ def _items(text: str) -> list[str]:
 
 
 def extract(capture: str, out: str, settings: Settings, selection: Selection) -> Copied:
-    """Write the frames of the selected transactions of `capture` to `out`."""
+    """Write the frames of the selected transactions of `capture` to `out`: one analysis names them (the
+    transactions table's `frames`), then the records are copied, none dissected; a display filter reads
+    the capture once more, judging only the frames of transactions the other criteria keep."""
     check_paths(capture, out)
-    chosen = _chosen(capture, settings, selection)
-    result = Copied(out, transactions=len(chosen))
-    notes = frame_notes.collect(capture, settings)
-    try:
-        with CaptureCopy(capture) as copy, output(out) as stream:
-            stream.write(copy.header)
-            try:
-                for block, view in frames(copy, dissector_for(settings, None, always=True), notes):
-                    if view is None:
-                        stream.write(block.raw)
-                        continue
-                    if view.note is None or not any(t.txn in chosen for t in view.note.txns):
-                        continue
+    chosen, captures = _chosen(capture, settings, selection)
+    wanted = chosen.frames()
+    result = Copied(out, transactions=chosen.count())
+    with CaptureCopy(capture) as copy, output(out) as stream:
+        stream.write(copy.header)
+        at, end = 0, len(wanted)
+        try:
+            for block in copy.blocks():
+                number = block.number
+                if not number:  # a pcapng's section, interface and other blocks
+                    stream.write(block.raw)
+                    continue
+                while at < end and wanted[at] < number:
+                    at += 1
+                if at < end and wanted[at] == number:
                     stream.write(block.raw)
                     result.frames += 1
-            except CaptureError as exc:
-                result.errors.append(str(exc))
-    finally:
-        notes.close()
-    result.errors += notes.errors_besides(result.errors)
+        except CaptureError as exc:
+            result.errors.append(str(exc))
+    known = result.errors
+    result.errors += [e for e in (f"{c.path}: {c.error}" for c in captures if c.error) if e not in known]
     return result
 
 
-def _chosen(capture: str, settings: Settings, selection: Selection) -> set[int]:
-    """The numbers of the selected transactions: the tables' criteria in one analysis; with a display
-    filter, those of them with a matching frame, read in a second pass. Only numbers are held."""
-    passing: set[int] = set()
-    with_pnu: set[int] = set()
+class _Chosen:
+    """The transactions the tables' criteria keep, as they close: each kept transaction's frames (its
+    `frames` cell with the frames that open and close it), as two flat integer columns (frame, txn), and
+    the transactions with a parameter of a chosen PNU. Memory: 16 bytes a frame of a kept transaction."""
 
-    def on_parameter(row: Any) -> None:
-        if row.pnu is not None and int(row.pnu) in selection.pnus:
-            with_pnu.add(row.txn)
+    def __init__(self, selection: Selection) -> None:
+        self.selection = selection
+        self._frames: list[np.ndarray] = []
+        self._txns: list[np.ndarray] = []
+        self._with_pnu: list[np.ndarray] = []
+        self._only: np.ndarray | None = None  # the transactions a display filter kept (None: no filter)
 
-    def on_transaction(row: Any) -> None:
-        if selection.row_passes(row):
-            passing.add(row.txn)
+    def table(self, name: str, table: pa.Table) -> None:
+        if name == "transactions":
+            self._transactions(table)
+        elif name == "parameters" and self.selection.pnus:
+            kept = table.filter(pc.is_in(table.column("pnu"), pa.array(sorted(self.selection.pnus), pa.int64())))
+            self._with_pnu.append(kept.column("txn").to_numpy(zero_copy_only=False))
 
-    notes = frame_notes.collect(capture, settings, on_transaction, on_parameter if selection.pnus else None)
+    def _transactions(self, table: pa.Table) -> None:
+        s = self.selection
+        mask = None
+        for column, chosen in (("verdict", s.verdicts), ("device", s.devices), ("txn", s.txns)):
+            if chosen:
+                values = pa.array(sorted(chosen), table.schema.field(column).type)
+                test = pc.fill_null(pc.is_in(table.column(column), values), False)
+                mask = test if mask is None else pc.and_(mask, test)
+        if mask is not None:
+            table = table.filter(mask)
+        if not table.num_rows:
+            return
+        cells = pc.split_pattern(pc.fill_null(table.column("frames"), ""), " ")
+        flat = pc.list_flatten(cells)
+        owner = pc.list_parent_indices(cells).to_numpy()
+        nonempty = pc.greater(pc.utf8_length(flat), 0)
+        frames = pc.cast(flat.filter(nonempty), pa.int64()).to_numpy()
+        txn = table.column("txn").to_numpy(zero_copy_only=False)
+        owner = owner[nonempty.to_numpy(zero_copy_only=False)]
+        # the frames that open and close it, as its notes have them (frame_notes), should a cell lack them
+        closes = pc.if_else(pc.is_in(table.column("closed_by"), pa.array(sorted(frame_notes.FINAL_ANSWER))),
+                            pc.coalesce(table.column("read_res_frame"), table.column("write_res_frame")), None)
+        ends = [table.column("write_req_frame").to_numpy(zero_copy_only=False).astype(float),
+                closes.to_numpy(zero_copy_only=False).astype(float)]
+        end_frames = np.concatenate(ends)
+        end_owner = np.tile(np.arange(table.num_rows), 2)
+        known = ~np.isnan(end_frames)
+        self._frames += [frames, end_frames[known].astype(np.int64)]
+        self._txns += [txn[owner], txn[end_owner[known]]]
+
+    def rows(self, rows: Rows) -> None:
+        """Rows made one by one (a capture name Arrow cannot hold): as a table each."""
+        for name in ("transactions", "parameters"):
+            made = getattr(rows, name)
+            if made:
+                self.table(name, _as_table(name, made))
+                made.clear()
+
+    def row(self, name: str) -> Callable[[Any], None]:
+        """A row made one by one, as a table of one row."""
+        return lambda row: self.table(name, _as_table(name, [row]))
+
+    def keep_only(self, txns: set[int]) -> None:
+        self._only = np.fromiter(txns, np.int64, len(txns))
+
+    def _kept(self) -> tuple[np.ndarray, np.ndarray]:
+        frames = np.concatenate(self._frames) if self._frames else np.zeros(0, np.int64)
+        txns = np.concatenate(self._txns) if self._txns else np.zeros(0, np.int64)
+        keep = np.ones(len(txns), bool)
+        if self.selection.pnus:
+            keep &= np.isin(txns, np.concatenate(self._with_pnu) if self._with_pnu else np.zeros(0, np.int64))
+        if self._only is not None:
+            keep &= np.isin(txns, self._only)
+        return frames[keep], txns[keep]
+
+    def frames(self) -> np.ndarray:
+        """The frames to write, sorted, each once."""
+        return np.unique(self._kept()[0])
+
+    def candidates(self) -> dict[int, list[int]]:
+        """The transactions each frame of a kept transaction belongs to (what a display filter judges)."""
+        out: dict[int, list[int]] = {}
+        for frame, txn in zip(*(a.tolist() for a in self._kept()), strict=True):
+            out.setdefault(frame, []).append(txn)
+        return out
+
+    def count(self) -> int:
+        return len(np.unique(self._kept()[1]))
+
+
+def _as_table(name: str, rows: list) -> pa.Table:
+    """Rows made one by one as a table (the capture's name left out: Arrow may not hold it, and no
+    criterion reads it)."""
+    return rows_to_batch(name, [row._replace(capture="") for row in rows])
+
+
+class _ChosenRows(Rows):
+    """The analysis's rows handed to `_Chosen` as they come, nothing held (findings and changes dropped)."""
+
+    def __init__(self, chosen: _Chosen) -> None:
+        super().__init__()
+        self.chosen = chosen
+
+    def add_table(self, name: str, table: object) -> None:
+        self.chosen.table(name, table)  # type: ignore[arg-type]
+
+    def batch_done(self) -> None:
+        super().batch_done()
+        self.chosen.rows(self)
+        self.findings.clear()
+        self.changes.clear()
+
+
+def _chosen(capture: str, settings: Settings, selection: Selection) -> tuple[_Chosen, list[CaptureResult]]:
+    """The selected transactions: the tables' criteria in one analysis; with a display filter, those of
+    them with a frame it matches, read in a second pass that judges only their frames."""
+    from pd_analyze.analysis.jobs import run
+
+    chosen = _Chosen(selection)
+    flt = selection.flt
+    if flt is not None and flt.needs_analysis:  # txn.* and finding.* need the notes of every frame
+        notes = frame_notes.collect(capture, settings, chosen.row("transactions"), chosen.row("parameters"),
+                                    on_table=chosen.table)
+        captures = notes.captures
+    else:
+        captures = run([capture], _ChosenRows(chosen), settings)
+        notes = None
     try:
-        chosen = passing & with_pnu if selection.pnus else passing
-        return chosen if selection.flt is None else chosen & _matching(capture, settings, selection.flt, notes)
+        if flt is not None:
+            chosen.keep_only(_matching(capture, settings, flt, notes, chosen.candidates()))
+        return chosen, captures
     finally:
-        notes.close()
+        if notes is not None:
+            notes.close()
 
 
-def _matching(capture: str, settings: Settings, flt: DisplayFilter, notes: frame_notes.Notes) -> set[int]:
-    """Transactions with a frame the filter matches."""
+def _matching(capture: str, settings: Settings, flt: DisplayFilter, notes: frame_notes.Notes | None,
+              candidates: dict[int, list[int]]) -> set[int]:
+    """Transactions with a frame the filter matches, among `candidates` (frame: its kept transactions)."""
     found: set[int] = set()
     with CaptureCopy(capture) as copy:
         try:
             for _block, view in frames(copy, dissector_for(settings, flt), notes):
-                if view is not None and view.note is not None and flt.matches(view):
-                    found.update(t.txn for t in view.note.txns)
+                if view is not None and view.number in candidates and flt.matches(view):
+                    found.update(candidates[view.number])
         except CaptureError:
             pass  # the copy pass reports it
     return found

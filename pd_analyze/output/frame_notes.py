@@ -24,7 +24,7 @@ OPEN, CLOSE = "open", "close"
 _TXN, _FINDING = "t", "f"
 _SEV_LETTER = {"error": "E", "warning": "W", "info": "I"}
 _MEMORY_ROWS = 4096  # notes held before the sort spills to disk
-_FINAL_ANSWER = frozenset({"response", "pnio_error"})  # closed_by values whose closing frame is an answer
+FINAL_ANSWER = frozenset({"response", "pnio_error"})  # closed_by values whose closing frame is an answer
 
 
 class TxnNote(NamedTuple):
@@ -107,13 +107,14 @@ class _NoteRows(Rows):
 
     def __init__(self, spool: Spool, on_transaction: Callable[[Any], None] | None,
                  on_parameter: Callable[[Any], None] | None, on_calls: Callable[..., None] | None = None,
-                 txns: bool = True) -> None:
+                 txns: bool = True, on_table: Callable[[str, Any], None] | None = None) -> None:
         super().__init__(transactions=_Sink(self._transaction), parameters=_Sink(on_parameter),  # type: ignore[arg-type]
                          findings=_Sink(self._finding), changes=_Sink(None))  # type: ignore[arg-type]
         self.spool = spool
         self.on_transaction = on_transaction
         self.on_calls = on_calls
         self.txns = txns  # False: the transactions are not noted at their frames (the findings only)
+        self.on_table = on_table  # the engine's tables as they come (its rows then reach the notes only)
 
     def add_calls(self, requests: Any, answers: Any, decided: Any) -> None:
         if self.on_calls is not None:
@@ -126,7 +127,7 @@ class _NoteRows(Rows):
             return
         frames = {int(x) for x in (row.frames or "").split()}
         opens = row.write_req_frame
-        closes = (row.read_res_frame or row.write_res_frame) if row.closed_by in _FINAL_ANSWER else None
+        closes = (row.read_res_frame or row.write_res_frame) if row.closed_by in FINAL_ANSWER else None
         frames.update(f for f in (opens, closes) if f is not None)
         params, errors, closed_by = row.params or "", row.errors or "", row.closed_by or ""
         for frame in sorted(frames):
@@ -142,13 +143,23 @@ class _NoteRows(Rows):
 
     def add_table(self, name: str, table: object) -> None:
         """The columnar path's rows as pyarrow tables: read row by row as the per-frame path gives them."""
+        if self.on_table is not None:
+            self.on_table(name, table)
+            if name == "parameters" or (name == "transactions" and not self.txns):
+                return  # nothing of theirs is noted at a frame
         row_type = {"transactions": TransactionRow, "parameters": ParameterRow, "findings": FindingRow}.get(name)
         if row_type is None:
             return
         columns = [table.column(f).to_pylist() for f in row_type._fields]  # type: ignore[attr-defined]
         sink = getattr(self, name)
-        for values in zip(*columns, strict=True):
-            sink.append(row_type._make(values))
+        take = self.on_transaction
+        if self.on_table is not None and name == "transactions":
+            self.on_transaction = None  # on_table had them
+        try:
+            for values in zip(*columns, strict=True):
+                sink.append(row_type._make(values))
+        finally:
+            self.on_transaction = take
 
     def extend(self, other: Rows, offset: int) -> None:  # pragma: no cover - one capture, one process
         raise NotImplementedError("frame notes are collected in one process")
@@ -226,14 +237,15 @@ class Notes:
 
 def collect(path: str, settings: Settings, on_transaction: Callable[[Any], None] | None = None,
             on_parameter: Callable[[Any], None] | None = None, on_calls: Callable[..., None] | None = None,
-            txns: bool = True) -> Notes:
+            txns: bool = True, on_table: Callable[[str, Any], None] | None = None) -> Notes:
     """Analyse one capture (as `report` does) and sort what it says by frame; `on_transaction` and
-    `on_parameter` see the transactions' and parameters' rows as they close, `on_calls` the calls paired
+    `on_parameter` see the transactions' and parameters' rows as they close (with `on_table`, only those
+    made one by one: `on_table` has the engine's tables whole), `on_calls` the calls paired
     (Rows.add_calls); `txns` False: only the findings are noted at their frames."""
     from pd_analyze.analysis.jobs import run
 
     spool = Spool(_key, _MEMORY_ROWS)
-    rows = _NoteRows(spool, on_transaction, on_parameter, on_calls, txns)
+    rows = _NoteRows(spool, on_transaction, on_parameter, on_calls, txns, on_table)
     try:
         captures = run([path], rows, settings)
     except BaseException:
