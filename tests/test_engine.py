@@ -177,6 +177,24 @@ def test_floods_are_the_same_in_any_batches(kind: str) -> None:
         pd.testing.assert_frame_equal(got[0][name], want[0][name], obj=name)
 
 
+def test_late_copies_are_counted_and_noted_as_in_one_batch(tmp_path: Path) -> None:
+    """devtools.fuzz.mutated's capture (seeds repeated, so activity/sequence numbers come back; the clock
+    steps back): a request under a known key with another body is a frame of its call's transaction, not one
+    more retransmission, and a copy met after its transaction's rows were made has its findings noted with
+    that transaction, in any batches (the loop alone: the reference)."""
+    from devtools.fuzz.mutated import mutated_capture
+
+    path = tmp_path / "mutated.pcap"
+    mutated_capture(path, 2000)
+    want = analysed(str(path), vector=False)
+    row = want.transactions.set_index("txn").loc[46]
+    assert (row["frames"], row["rpc_retransmissions"]) == ("431 432 1180 1181", 0)
+    at = want.findings[want.findings.frame == 1200]
+    assert at[["txn", "rule", "name"]].values.tolist() == [[52, "R7", "rpc_key_reused"], [52, "H4", "padding_nonzero"]]
+    for size in (7, 1000):
+        assert_same(analysed(str(path), size, vector=False), want)
+
+
 def test_analyze_is_the_engine(generated: dict[str, Path]) -> None:
     """pd_analyze.analyze() reads captures through the same engine, whatever their size."""
     assert_same(pd_analyze.analyze(str(generated["mix"])), analysed(str(generated["mix"])))

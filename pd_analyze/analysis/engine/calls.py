@@ -162,7 +162,7 @@ class Pairing:
                 call = self.open.get(row.key)
                 if call is not None:
                     call.copies += 1
-                    row.call, row.copy = call, True  # (its frame is the call's transactions')
+                    row.call, row.copy, row.resent = call, True, True  # (its frame is the call's transactions')
             return
         ptype = row.ptype
         if ptype == PTYPE_REQUEST:
@@ -178,6 +178,7 @@ class Pairing:
         if known is not None:
             if known.digest == row.digest:
                 known.copies += 1
+                row.resent = True
                 row.findings.append(rules.finding(
                     "rpc_retransmission", row.frame, "rpc.seq", key[2], "a new sequence number",
                     f"request retransmitted (copy {known.copies} of frame {known.frame})"))

@@ -71,7 +71,7 @@ class Pdu:
 
     __slots__ = ("answer", "call", "col", "copy", "cut", "decide", "digest", "dst", "findings", "first", "first_ts",
                  "frame", "frames", "ifc", "key", "malformed", "odd", "opnum", "owner", "part", "ptype", "q7", "raw",
-                 "read", "src", "ts", "whole", "writes")
+                 "read", "resent", "src", "ts", "whole", "writes")
 
     def __init__(self, frame: int, ts: int, ptype: int) -> None:
         self.frame, self.ts, self.ptype = frame, ts, ptype
@@ -91,6 +91,7 @@ class Pdu:
         self.answer: Answer | None = None
         self.call = None  # set by the pairing: the call it opens, repeats or answers (calls.Call)
         self.copy = False  # a copy of a call's request, or a second answer (pairing)
+        self.resent = False  # a copy of the request's own body: one of its call's copies (a retransmission)
         self.digest: tuple[int, int] = (0, 0)  # a request's body: CRC-32 and size
         self.raw = None  # per-frame rows: the dissector's FrameResult
         self.cut = False  # a write request cut before its first IOD header (protocol.md 7.3 step 1)

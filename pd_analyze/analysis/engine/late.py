@@ -59,16 +59,17 @@ class LateCopies:
         self._held.append(_Held(now + self.timeout, tables, calls, count))
         self._count += count
 
-    def copy(self, call_frame: int, frames: tuple[int, ...], request: bool) -> int | None:
+    def copy(self, call_frame: int, frames: tuple[int, ...], resent: bool) -> int | None:
         """A copy (its `frames`) of the call whose request is at `call_frame`: the number of the held transaction
-        it belongs to (the first, for a Write-Multiple's), None when none is held."""
+        it belongs to (the first, for a Write-Multiple's), None when none is held; `resent`: a retransmission of its
+        request (a request with another body under the same key is a frame of it, not a retransmission)."""
         numbers = self._txn_of.get(call_frame)
         if not numbers:
             return None
         for n in numbers:
             extra = self._extra.setdefault(n, _Extra())
             extra.frames += frames
-            extra.copies += request
+            extra.copies += resent
         return numbers[0]
 
     def release(self, now: int, everything: bool = False) -> list[dict[str, list[pa.Table]]]:

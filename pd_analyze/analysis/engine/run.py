@@ -139,13 +139,12 @@ class EngineRun:
                 row.findings += dec.dropped[row.col]
         accepted, rejected, marked = self._loop(dec, stream, calls, ep, runmax_all, runmax_pnio)
         self.numbering.note_cuts(accepted)
-        for row in accepted:  # a copy of a call whose transaction's rows were made already
+        late: dict[int, int] = {}  # a copy of a call whose transaction's rows were made already: its number
+        for row in accepted:
             if row.copy and row.owner is None and row.call is not None:
-                number = self.late.copy(row.call.frame, row.frames or (row.frame,), row.ptype == PTYPE_REQUEST)
-                if number is not None:  # its findings are its transaction's, as those of a copy met before
-                    for f in row.findings:
-                        self.rows.add_finding(self.capture_of(f.frame), f, number)
-                    row.findings = []
+                number = self.late.copy(row.call.frame, row.frames or (row.frame,), row.resent)
+                if number is not None:
+                    late[id(row)] = number
         self.now_all = max(self.now_all, int(runmax_all[-1]))
         self.now_pnio = max(self.now_pnio, int(runmax_pnio[-1]))
         self.pairing.tick(self.now_all)
@@ -166,7 +165,12 @@ class EngineRun:
         loose += self.findings.loop(dec, accepted, self.part)
         for row in accepted:
             if row.findings:
-                (row.owner.findings if row.owner is not None else loose).extend(row.findings)
+                number = late.get(id(row)) if late else None
+                if number is not None:  # its findings are its transaction's, as those of a copy met before
+                    for f in row.findings:
+                        self.rows.add_finding(self.capture_of(f.frame), f, number)
+                else:
+                    (row.owner.findings if row.owner is not None else loose).extend(row.findings)
             # what a call still open keeps of its request's row: its frames and times (no findings, no
             # records: those went to the transaction), so open calls cost what the caps count
             row.findings, row.q7, row.owner, row.writes, row.read, row.answer = [], None, None, None, None, None
