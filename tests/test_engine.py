@@ -195,6 +195,23 @@ def test_late_copies_are_counted_and_noted_as_in_one_batch(tmp_path: Path) -> No
         assert_same(analysed(str(path), size, vector=False), want)
 
 
+def test_a_key_the_loop_meets_is_never_the_vector_paths(tmp_path: Path) -> None:
+    """The mutated capture's seeds come back after some 11,500 frames with their activity/sequence numbers, the
+    clock stepped back: frame 14004 repeats the key of the call answered at 2555, after a cut write request
+    (the vector path's horizon). The loop must know that call when it meets the copy: the vector path leaves
+    every call of a key the loop meets to the loop, and one batch, small batches and the loop alone agree."""
+    from devtools.fuzz.mutated import mutated_capture
+
+    path = tmp_path / "mutated.pcap"
+    mutated_capture(path, 14100)
+    want = analysed(str(path), vector=False)
+    txns = want.transactions.set_index("txn")
+    assert (txns.loc[385, "frames"], txns.loc[385, "rpc_retransmissions"]) == ("2552 2553 2554 2555 14004 14005", 1)
+    assert txns.loc[1153, ["frames", "verdict", "closed_by"]].tolist() == ["14002", "timeout", "capture_end"]
+    for size in (0, 1000):
+        assert_same(analysed(str(path), size), want)
+
+
 def test_analyze_is_the_engine(generated: dict[str, Path]) -> None:
     """pd_analyze.analyze() reads captures through the same engine, whatever their size."""
     assert_same(pd_analyze.analyze(str(generated["mix"])), analysed(str(generated["mix"])))

@@ -79,6 +79,10 @@ class VectorTake:
         horizon = cut_horizon(view, rows, dec.odd_rows)
         if horizon is not None:
             excluded |= view.frame_no[rows] >= horizon
+        if excluded.any():  # a key the loop meets stays whole the loop's: it must know every call under it
+            # (a call taken here is known to the pairing only after the loop ran over the part)
+            hashed = key_hash(p.act_hi[rows], p.act_lo[rows], p.seq[rows])
+            excluded |= np.isin(hashed, hashed[excluded])
         pairing = self.pairing
         self.first = self.first_seen(view, rows)
         if len(pairing.activities) + len(self.first) >= KNOWN_ACTIVITIES.count:
