@@ -25,7 +25,7 @@ from pd_analyze.analysis.engine.findings import Findings, response_channel, writ
 from pd_analyze.analysis.engine.late import LateCopies
 from pd_analyze.analysis.engine.machine import FsmCall, Machine
 from pd_analyze.analysis.engine.numbering import Numbering
-from pd_analyze.analysis.engine.records import Records
+from pd_analyze.analysis.engine.records import Records, unpacked
 from pd_analyze.analysis.engine.tables import TableBuilder
 from pd_analyze.analysis.engine.take import EMPTY, Costs, VectorTake, given_back
 from pd_analyze.analysis.engine.txn import Txn
@@ -82,7 +82,7 @@ class EngineRun:
         self.part = 0
         self.last_frame = 0
         # each channel's last parameter request's addresses, as Q7 compares a read response with them (6.4)
-        self.last_request: CappedTable[tuple, tuple] = CappedTable(CHANNEL_REQUESTS)
+        self.last_request: CappedTable[tuple, object] = CappedTable(CHANNEL_REQUESTS)
         self.costs = Costs.of(checker.record)
         self.take = VectorTake(self.vector, self.pairing, self.machine, self.numbering, self.costs)
 
@@ -259,8 +259,8 @@ class EngineRun:
             elif row.whole and row.ptype == PTYPE_RESPONSE and row.answer is not None and row.answer.head is not None:
                 request = last_request.get(response_channel(view, row))
                 row.q7 = self.findings.q7(row, view, records, None if request is None else
-                                          tuple(records.addresses(request)) if not isinstance(request, tuple)
-                                          else request)
+                                          unpacked(request) if isinstance(request, bytes)
+                                          else tuple(records.addresses(request)))
             row.owner = machine.feed(row, now_pnio)
             accepted.append(row)
         self.now_pnio = max(self.now_pnio, decided)
@@ -276,9 +276,9 @@ class EngineRun:
         for k in np.flatnonzero(unmarked).tolist():  # (per channel in frame order: a later write replaces)
             last.remember(ep.channels[int(ep.channel[k])], int(view.rec_of[calls.q[ep.w[k]]]), self.costs.request)  # type: ignore[attr-defined]
         for channel, request in list(last.items()):
-            if not isinstance(request, tuple):
-                addresses = tuple(records.addresses(request))
-                last.put(channel, addresses, 64 + 72 * len(addresses))
+            if not isinstance(request, bytes):
+                packed = records.packed(request)
+                last.put(channel, packed, 64 + 72 * (len(packed) // 32))  # (the cap's charge as for tuples)
 
     def _marks(self, view: object, calls: Calls, ep: Episodes, stream: list[Pdu]) -> list[int]:
         """The episodes on a channel the loop has rows of in the part, or a transaction pending on: the loop
