@@ -418,3 +418,37 @@ def test_skipped_runs_give_the_same_results_and_accounting(tmp_path):
     assert runs == plain and len(plain) > 500
     assert d2.accounting == d1.accounting and d2.accounting.read == count and d2.accounting.balanced()
     assert d2.accounting.skipped[link.SKIP_NOT_IPV4] > count // 2
+
+
+# --- a capture whose file name is not UTF-8 ------------------------------------------------------------------
+@pytest.mark.parametrize("fmt", ["csv", "json", "parquet", "html"])
+def test_a_file_name_that_is_not_utf8_is_named_with_escapes_in_every_output(fmt: str, tmp_path: Path) -> None:
+    """A Latin-1 file name (undecodable bytes come to Python as lone surrogates, which no UTF-8 file holds): the
+    report is written in every format, each table names the capture with the byte escaped (caf\\xe9.pcap), as
+    analyze() and the summary do; it was an internal error for CSV, Parquet and HTML."""
+    import os
+
+    import pandas as pd
+
+    src = Path("sample_pcaps/fault_trace.pcap")
+    path = os.path.join(os.fsdecode(tmp_path), os.fsdecode(b"caf\xe9.pcap"))
+    with open(path, "wb") as f:
+        f.write(src.read_bytes())
+    shown = os.fsdecode(tmp_path) + "/caf\\xe9.pcap"
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "pd_analyze.cli", "report", "--format", fmt, "--out", str(out), path],
+                       capture_output=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.decode().splitlines()[0].startswith(f"{shown}: 408 frames read = 408 decoded")
+    if fmt == "json":
+        first = json.loads((out / "transactions.jsonl").read_text(encoding="utf-8").splitlines()[0])
+        assert first["capture"] == shown
+    elif fmt == "parquet":
+        assert set(pd.read_parquet(out / "transactions").capture.astype(str)) == {"caf\\xe9.pcap"}
+    else:
+        assert set(pd.read_csv(out / "transactions.csv").capture) == {shown}
+    if fmt == "html":
+        assert "<title>pd-analyze report: caf\\xe9.pcap</title>" in (out / "report.html").read_text(encoding="utf-8")
+    a = pd_analyze.analyze(path)
+    assert set(a.transactions.capture.astype(str)) == {shown} and len(a.transactions) == 62
+    assert a.accounting.capture.tolist() == [shown]

@@ -20,7 +20,7 @@ from pd_analyze.analysis.capture_run import DEFAULT_TXN_TIMEOUT, CaptureResult, 
 from pd_analyze.analysis.drilldown import annotated_frames
 from pd_analyze.analysis.jobs import run
 from pd_analyze.analysis.rows import Rows
-from pd_analyze.analysis.schema import frame_of
+from pd_analyze.analysis.schema import capture_text, frame_of
 from pd_analyze.protocol import profiles
 from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT
 
@@ -134,7 +134,7 @@ def accounting_frame(captures: Iterable[CaptureResult]) -> pd.DataFrame:
     import pandas as pd
 
     return pd.DataFrame([(
-        c.path, c.accounting.read, c.accounting.decoded, sum(c.accounting.skipped.values()),
+        capture_text(c.path), c.accounting.read, c.accounting.decoded, sum(c.accounting.skipped.values()),
         sum(c.accounting.malformed.values()), c.accounting.balanced(), c.transactions, c.error,
         dict(c.accounting.skipped), dict(c.accounting.malformed)) for c in captures],
         columns=list(ACCOUNTING_COLUMNS)).astype(ACCOUNTING_COLUMNS)

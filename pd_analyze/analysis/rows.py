@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from pd_analyze.analysis.engine.rules import WHOLE, refusal, refused_finding
-from pd_analyze.analysis.schema import ROW_TYPES, ChangeRow, FindingRow, ParameterRow, TransactionRow, arrow_text
+from pd_analyze.analysis.schema import ROW_TYPES, ChangeRow, FindingRow, ParameterRow, TransactionRow
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.values import status_text
@@ -86,11 +86,10 @@ class Rows:
         Here the rows made one by one in the batch join the tables after the batch's own tables, as the
         streaming report hands them on (report._ReportRows): rows that tie in a table's order (findings of
         one frame number in two captures) then come in the same order in `analyze()`'s DataFrames, in a
-        worker's rows and in the report's files. Rows stay rows where they go elsewhere (a spool, a sink)
-        or where a capture's name is one Arrow cannot hold (the engine then makes rows only)."""
+        worker's rows and in the report's files. Rows stay rows where they go elsewhere (a spool, a sink)."""
         for name in ROW_TYPES:
             rows = getattr(self, name)
-            if type(rows) is list and rows and all(arrow_text(r.capture) for r in rows):
+            if type(rows) is list and rows:
                 from pd_analyze.analysis.table_batches import rows_to_batch
 
                 self.add_table(name, rows_to_batch(name, rows))

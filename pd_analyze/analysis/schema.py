@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections import namedtuple
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
+from functools import lru_cache
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
@@ -150,13 +151,16 @@ def sort_key(name: str, by_capture: bool = False) -> Callable[[tuple], object]:
     return lambda r: _LAST if r[col] is None else r[col]
 
 
-def arrow_text(text: str) -> bool:
-    """Whether Arrow can hold the text (not a lone surrogate, as an undecodable file name gives)."""
+@lru_cache(maxsize=4096)
+def capture_text(path: str) -> str:
+    """A capture's name as the tables hold it: the path itself, or, for a file name that is not UTF-8 (its
+    undecodable bytes come as lone surrogates, which no UTF-8 file or Arrow column can hold), the name with
+    those bytes written as backslash escapes: caf\\xe9.pcap."""
     try:
-        text.encode("utf-8")
+        path.encode("utf-8")
     except UnicodeEncodeError:
-        return False
-    return True
+        return path.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    return path
 
 
 def micros(seconds: object) -> int | None:

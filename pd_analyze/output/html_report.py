@@ -36,6 +36,7 @@ import pandas as pd
 from pd_analyze import __version__
 from pd_analyze.analysis.api import Analysis
 from pd_analyze.analysis.intended import ExpectedSet
+from pd_analyze.analysis.schema import capture_text
 from pd_analyze.model.verdicts import VERDICTS
 from pd_analyze.output import html_drill, html_params, html_plots
 from pd_analyze.output.html_params import Audit
@@ -87,12 +88,12 @@ def render(analysis: Analysis, *, max_rows: int = MAX_ROWS, max_drilldown: int =
     drill = html_drill.drilldown(analysis, pd.concat([failed, others]))
     param_tables, param_section, audit = html_params.section(analysis, expected)
     tables |= param_tables
-    single = analysis.captures[0].path if len(analysis.captures) == 1 else ""
+    single = capture_text(analysis.captures[0].path) if len(analysis.captures) == 1 else ""
     data = {"tables": tables, "drill": {str(k): v for k, v in drill.items()}, "page": PAGE_SIZE,
             "capture": single, "cut": html_drill.SHOW_CHARS}
     script = "\n".join(_asset(name) for name in _SCRIPTS)
     digest = base64.b64encode(hashlib.sha256(script.encode("utf-8")).digest()).decode("ascii")
-    files = [os.path.basename(cap.path) for cap in analysis.captures]
+    files = [os.path.basename(capture_text(cap.path)) for cap in analysis.captures]
     title = "pd-analyze report: " + (files[0] if files else "no capture") + (
         f" and {len(files) - 1} more" if len(files) > 1 else "")
     failed_all = int((t.verdict != "ok").sum()) if not t.empty else 0
@@ -139,7 +140,7 @@ def _json(data: object) -> str:
 
 
 def _header(analysis: Analysis, title: str, audit: Audit | None) -> str:
-    caps = ", ".join(_e(c.path) for c in analysis.captures[:5])
+    caps = ", ".join(_e(capture_text(c.path)) for c in analysis.captures[:5])
     if len(analysis.captures) > 5:
         caps += f" and {len(analysis.captures) - 5:,} more"
     state = "Parameter state"

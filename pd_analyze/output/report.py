@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from pd_analyze.analysis.rows import Rows
-from pd_analyze.analysis.schema import COLUMNS, arrow_text, sort_key
+from pd_analyze.analysis.schema import COLUMNS, sort_key
 from pd_analyze.output.spool import Spool
 from pd_analyze.output.summary import TOP, Summary
 from pd_analyze.output.writers import neutralise, open_table
@@ -181,34 +181,6 @@ def write_batches(out_dir: str, fmt: str, batches_by_table: Mapping[str, Iterabl
         return out.close(captures)
 
 
-class _Table:
-    """Where `Rows` puts one table's rows in the streaming report: into the summary, and, as the line the
-    file will hold (CSV, JSON) or as the row (Parquet), into the spool that orders them."""
-
-    BATCH = 256  # rows gathered before they go on: one summary call per batch, not per row
-
-    def __init__(self, name: str, writer: Any, spool: Spool, acc: Summary) -> None:
-        self.name, self.spool, self.acc = name, spool, acc
-        self.line = getattr(writer, "line", None)
-        self._batch: list[tuple] = []
-
-    def append(self, row: tuple) -> None:
-        self._batch.append(row)
-        if len(self._batch) >= self.BATCH:
-            self.flush()
-
-    def extend(self, rows: Iterable[tuple]) -> None:
-        for row in rows:
-            self.append(row)
-
-    def flush(self) -> None:
-        batch, self._batch = self._batch, []
-        self.acc.add(self.name, batch)
-        line, append = self.line, self.spool.append
-        for row in batch:
-            append(row, None if line is None else line(row))
-
-
 @dataclass
 class Streamed:
     """What `stream` wrote and found."""
@@ -228,42 +200,15 @@ def stream(files: list[str], out_dir: str, fmt: str, settings: Settings,
            chunk_rows: int | None = None) -> Streamed:
     """The report of `files` written to `out_dir` as csv / json / parquet without holding the tables:
     the files equal `write_tables(analyze(files))`, and the summary equals `summary(analyze(files))`.
-    `chunk_rows`: the rows of a table held in memory before they spill to disk (None: the defaults,
-    table_sink.MAX_HELD, or CHUNK_ROWS for the rows' spools)."""
+    `chunk_rows`: the rows of a table held in memory before they spill to disk (None: table_sink.MAX_HELD).
+    A capture whose file name is not UTF-8 is named in the tables as schema.capture_text writes it."""
     from pd_analyze.analysis.jobs import run
 
-    if all(arrow_text(path) for path in files):
-        with BatchReport(out_dir, fmt, max_held=chunk_rows, chunk_rows=chunk_rows) as out:
-            rows = _ReportRows(out, chunk_rows or _ReportRows.ROWS_PER_BATCH)
-            captures = run(files, rows, settings, progress, jobs, chain)
-            rows.batch_done()
-            return out.close(captures)
-    # A capture name Arrow cannot hold (a lone surrogate from an undecodable file name): the engine gives
-    # rows (EngineRun.as_rows), through spools
-    chunk_rows = chunk_rows or CHUNK_ROWS
-    os.makedirs(out_dir, exist_ok=True)
-    spill = tempfile.mkdtemp(prefix=".pd-analyze-", dir=out_dir)  # beside the output: room for big files
-    writers = {name: open_table(out_dir, name, fmt) for name in TABLES}
-    try:
-        acc = Summary()
-        spools = {name: Spool(sort_key(name, _by_capture(name, fmt)), chunk_rows, spill) for name in TABLES}
-        tables = {name: _Table(name, writers[name], spools[name], acc) for name in TABLES}
-        captures = run(files, Rows(**tables), settings, progress, jobs, chain)  # type: ignore[arg-type]
-        written = []
-        for name in TABLES:
-            tables[name].flush()
-            writer = writers.pop(name)
-            for chunk in spools[name].chunks(chunk_rows):  # lines of text, or rows for Parquet
-                if tables[name].line is None:
-                    writer.write(chunk)
-                else:
-                    writer.write_lines(chunk)
-            written.append(writer.close())
-        return Streamed(written, acc.text(captures), captures, {n: s.peak_held for n, s in spools.items()})
-    finally:
-        for writer in writers.values():  # only after a failure: close what is open
-            writer.close()
-        shutil.rmtree(spill, ignore_errors=True)
+    with BatchReport(out_dir, fmt, max_held=chunk_rows, chunk_rows=chunk_rows) as out:
+        rows = _ReportRows(out, chunk_rows or _ReportRows.ROWS_PER_BATCH)
+        captures = run(files, rows, settings, progress, jobs, chain)
+        rows.batch_done()
+        return out.close(captures)
 
 
 class _ReportRows(Rows):

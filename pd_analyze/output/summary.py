@@ -17,7 +17,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any
 
-from pd_analyze.analysis.schema import sort_key
+from pd_analyze.analysis.schema import capture_text, sort_key
 from pd_analyze.analysis.stations import per_capture
 from pd_analyze.model.rules import SEVERITIES
 from pd_analyze.model.verdicts import VERDICTS
@@ -269,8 +269,9 @@ class Summary:
         lines = []
         for c in captures:
             acc = c.accounting
-            line = (f"{c.path}: {acc.read} frames read = {acc.decoded} decoded + {sum(acc.skipped.values())} "
-                    f"skipped + {sum(acc.malformed.values())} malformed; {c.transactions} transactions")
+            line = (f"{capture_text(c.path)}: {acc.read} frames read = {acc.decoded} decoded + "
+                    f"{sum(acc.skipped.values())} skipped + {sum(acc.malformed.values())} malformed; "
+                    f"{c.transactions} transactions")
             lines.append(line + (f"; ERROR {c.error}" if c.error else ""))
             for kind, reasons in (("skipped", acc.skipped), ("malformed", acc.malformed)):
                 if reasons:  # the invariant by reason: every frame is accounted for

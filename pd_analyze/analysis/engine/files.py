@@ -10,7 +10,6 @@ from collections.abc import Iterator
 from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings, difference, error_text, snapshot
 from pd_analyze.analysis.engine.run import EngineRun, run_batches
 from pd_analyze.analysis.rows import Rows
-from pd_analyze.analysis.schema import arrow_text
 from pd_analyze.capture import CaptureError
 from pd_analyze.capture.batches import FrameBatch, batches
 from pd_analyze.protocol.frames import Accounting
@@ -38,7 +37,7 @@ def analyze_chain(files: list[str], settings: Settings, progress: Progress | Non
     def capture_of(frame: int) -> str:
         return files[max(0, bisect_right(starts, frame) - 1)] if files else ""
 
-    run = EngineRun(settings, rows, capture_of, results, progress, as_rows=not all(map(arrow_text, files)))
+    run = EngineRun(settings, rows, capture_of, results, progress)
     offset = 0
     for path in files:
         before = snapshot(run.totals())

@@ -33,7 +33,7 @@ from pd_analyze.analysis.engine.txncols import TxnCols, of_episodes
 from pd_analyze.analysis.engine.vector import Calls, Episodes
 from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.analysis.rows import Rows
-from pd_analyze.analysis.schema import arrow_text
+from pd_analyze.analysis.schema import capture_text
 from pd_analyze.analysis.stations import names_in_batch
 from pd_analyze.capture import CaptureError
 from pd_analyze.capture.batches import BATCH_FRAMES, FrameBatch, frame_batches
@@ -52,8 +52,7 @@ class EngineRun:
     """One capture (or a chain of files read as one) analysed a batch at a time."""
 
     def __init__(self, settings: Settings, rows: Rows, capture_of: Callable[[int], str],
-                 results: list[CaptureResult], progress: Progress | None = None, offset: int = 0,
-                 as_rows: bool = False) -> None:
+                 results: list[CaptureResult], progress: Progress | None = None, offset: int = 0) -> None:
         self.settings = settings
         checker = settings.checker()
         self.decoder = Decoder(Dissector(annotate=False, rpc_timeout=settings.rpc_timeout, checker=checker,
@@ -65,14 +64,11 @@ class EngineRun:
         self.tables = TableBuilder(checker)
         self.rows = rows
         rows.use_names(checker.names)  # the rows name parameters and errors as the run's profile does
-        self.capture_of = capture_of
+        self.capture_of = lambda frame: capture_text(capture_of(frame))  # (a name every table format holds)
         self.results = results
         self.progress = progress
         self.offset = offset
-        # as_rows: a capture name Arrow cannot hold (schema.arrow_text): the loop alone, its transactions as
-        # rows (Rows.add) rather than Arrow tables
-        self.as_rows = as_rows
-        self.vector = settings.vector and not as_rows
+        self.vector = settings.vector
         self.accounting = Accounting()  # the frames the columns took; the dissector counts its own
         self.numbering = Numbering()
         self.late = LateCopies(self.pairing.timeout)
@@ -349,12 +345,6 @@ class EngineRun:
         done.sort(key=lambda t: t.number)  # (in number order, whichever way and batch they closed in)
         for t in done:
             _handed_on(t)
-        if self.as_rows:  # (rows made one by one: a copy after them is not added to them)
-            records = Records(view)  # type: ignore[arg-type]
-            for t in done:
-                self.rows.add(self.capture_of(t.write_frame), t, records, self.offset)
-                self._count(self.capture_of(t.write_frame))
-            return
         made = self.tables.tables(view, done, self.capture_of, self.offset, cols)  # type: ignore[arg-type]
         self.late.hold(made, done, cols, self.offset, self.now_all)
         self._hand_on(self.late.release(self.now_all))
@@ -393,8 +383,9 @@ class EngineRun:
         merge_accounting(out, self.decoder.accounting)
         return out
 
-    def _count(self, path: str) -> None:
-        next(r for r in self.results if r.path == path).transactions += 1
+    def _count(self, name: str) -> None:
+        """One more transaction of the capture the tables name `name` (schema.capture_text of its path)."""
+        next(r for r in self.results if capture_text(r.path) == name).transactions += 1
 
 
 def _handed_on(txn: Txn) -> None:
@@ -422,8 +413,7 @@ def run_batches(source: Iterable[FrameBatch] | Iterable[tuple[FrameBatch, list[t
                 progress: Progress | None, offset: int = 0) -> Accounting:
     """The loop over batches (or batches with their column decode made elsewhere: analysis.split); the
     frames' accounting when done (also after a CaptureError, which is recorded in the last result)."""
-    as_rows = not all(arrow_text(r.path) for r in results)
-    run = EngineRun(settings, rows, capture_of, results, progress, offset, as_rows)
+    run = EngineRun(settings, rows, capture_of, results, progress, offset)
     try:
         for item in source:
             if isinstance(item, tuple):
