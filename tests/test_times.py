@@ -23,7 +23,7 @@ from pd_analyze.capture.batches import batches
 from pd_analyze.capture.raw import RawFrame
 from pd_analyze.model.times import NS
 from pd_analyze.output import html_report, report
-from tests.test_html_report import embedded
+from tests.test_html_report import column, console_errors, embedded, load, type_filter
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = [f.data for f in capture.frames(str(REPO / "sample_pcaps" / "worked_example.pcap"))]
@@ -199,3 +199,21 @@ def test_a_workers_resolutions_join_the_runs():
     theirs.note_digits("b.pcapng", 2)  # a coarser interface later: the finest stays
     mine.extend(theirs, 0)
     assert mine.digits == {"a.pcap": 9, "b.pcapng": 3}
+
+
+def test_the_pages_time_filters_compare_times_of_any_resolution(browser, tmp_path):
+    """A page of a microsecond and a nanosecond capture: cells of six and of nine decimals compare as times
+    (the script pads each to nine), a filter typed to any decimal compares as the time it names."""
+    us, ns = _pcap(tmp_path / "us.pcap", US), _pcapng(tmp_path / "ns.pcapng", NANO, 9)
+    page = Path(html_report.write(pd_analyze.analyze([str(us), str(ns)]), str(tmp_path / "report.html")))
+    load(browser, page)
+    assert column(browser, "transactions", "t_start") == ["2024-05-06 08:00:00.002936",
+                                                           "2024-05-06 08:00:00.002936123"]
+    for text, txns in ((">2024-05-06 08:00:00.002936", ["2"]), ("<=2024-05-06 08:00:00.002936", ["1"]),
+                       (">=2024-05-06 08:00:00.0029361", ["2"]), ("<08:00:00.002936001", ["1"]),
+                       (">=08:00:00.002936", ["1", "2"]), (">8:00:00.003", [])):  # times of day
+        type_filter(browser, "transactions", "t_start", text)
+        assert column(browser, "transactions", "txn") == txns, text
+    type_filter(browser, "transactions", "t_start", "")
+    assert column(browser, "transactions", "t_write_rtt") == ["1.499", "1.499333"]
+    assert console_errors(browser) == []
