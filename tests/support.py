@@ -49,7 +49,7 @@ def shared_capture(name: str) -> Path:
 
 
 def table_rows(rows: Rows, name: str) -> list[tuple]:
-    """One table's rows as the row path made them (schema.ROW_TYPES, times as float seconds, None missing),
+    """One table's rows as the row path made them (schema.ROW_TYPES, times as integer nanoseconds, None missing),
     in the order `Analysis` reads them: the rows made one by one (`Rows.add`), then the rows of the
     engine's pyarrow tables (`Rows.tables`) in the order they were added. The tests of the row-to-batch
     machinery (writers, sink, summary) feed these to today's row code and to the batch code alike."""
@@ -61,8 +61,8 @@ def table_rows(rows: Rows, name: str) -> list[tuple]:
         cells = []
         for c in COLUMNS[name]:
             column = table.column(c.name)  # type: ignore[attr-defined]
-            if c.dtype == TIME:  # timestamp[us] back to float seconds: micros() gives the same microsecond back
-                cells.append([None if us is None else us / 1e6 for us in column.cast("int64").to_pylist()])
+            if c.dtype == TIME:  # timestamp[ns] as the nanoseconds the rows hold
+                cells.append(column.cast("int64").to_pylist())
             else:
                 cells.append(column.to_pylist())
         out += [row_type._make(r) for r in zip(*cells, strict=True)]

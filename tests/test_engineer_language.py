@@ -453,14 +453,14 @@ def test_summary_lists_failed_parameters_per_drive_with_the_reason_and_the_slowe
     assert "         1  P2000[0] P2001[0] P2002[0] ... (39 parameters): DF80B100 write: access write length error " \
            "(parameter request above the record limit or shorter than its header, or read buffer too small)" in drives
     assert "         1  P971[0] (transfer into non-volatile memory): timeout: the capture ended before an answer " \
-           "came (its last read 1004.0 ms after the write, 2 B5 answers)" in drives
+           "came (its last read 1004 ms after the write, 2 B5 answers)" in drives
     # a busy drive given up (every read B5 until the deadline) is pnio_error DE80B500 (protocol.md 7.3 step 5)
     assert "         1  P964[0] (drive unit identification): DE80B500 read: access state conflict (PROFIdrive: " \
            "response not ready yet / request still processed)" in drives
     assert "         1  P964[0] (drive unit identification): timeout: no answer within the transaction timeout (the " \
-           "controller gave up: last read 5.0 ms after the write, 1 B5 answer)" in drives
+           "controller gave up: last read 5 ms after the write, 1 B5 answer)" in drives
     slowest = text.split("Slowest parameters, ms (write to final response):\n")[1].splitlines()
-    assert slowest[0] == ("     111.5  192.168.1.21 slot 1 DO 1 P971[0] (transfer into non-volatile memory) "
+    assert slowest[0] == ("   111.500  192.168.1.21 slot 1 DO 1 P971[0] (transfer into non-volatile memory) "
                           "(transaction 2)")
 
 
@@ -544,13 +544,13 @@ def test_summary_names_a_drive_by_its_station_name_when_the_capture_has_it(tmp_p
     assert _drive_lines(text) == ["  192.168.1.21 (pump-1) slot 1 DO 1: 2",
                                   "         2  P1300[0]: refused: error 0x02 (low or high limit exceeded)"]
     slowest = text.split("Slowest parameters, ms (write to final response):\n")[1].splitlines()
-    assert slowest[2] == "       2.4  192.168.1.21 (pump-1) slot 1 DO 1 P1300[0] (transaction 3)"
-    assert slowest[4] == "       2.4  192.168.1.22 slot 1 DO 1 P1120[0] (transaction 5)"
+    assert slowest[2] == "     2.400  192.168.1.21 (pump-1) slot 1 DO 1 P1300[0] (transaction 3)"  # a microsecond pcap
+    assert slowest[4] == "     2.400  192.168.1.22 slot 1 DO 1 P1120[0] (transaction 5)"
     latency = text.split("Latency per device, ms (write to final response; slowest first):\n")[1].splitlines()
     assert latency[:3] == [
         "  device                     n      p50      p90      p99      max  write rtt p50",
-        "  192.168.1.21 (pump-1)      4      2.4      2.4      2.4      2.4  0.9",
-        "  192.168.1.22               2      2.4      2.4      2.4      2.4  0.9"]
+        "  192.168.1.21 (pump-1)      4    2.400    2.400    2.400    2.400  0.900",
+        "  192.168.1.22               2    2.400    2.400    2.400    2.400  0.900"]
 
 
 # --- 10. The HTML report -------------------------------------------------------------------------------------

@@ -37,8 +37,6 @@ RUNS = ("analyze", 1, 7, 1000, 0)  # analyze(); the engine in batches of these s
 TABLES = ("transactions", "parameters", "findings", "changes", "accounting")
 OUTCOME_RULES = ("txn_failed", "txn_refused")  # T8, T9: protocol.md 6.5
 
-TIMES = "issue #23: exact integer times (t_start and the figures from the capture's integer timestamps)"
-
 
 @pytest.fixture(scope="module")
 def captures(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, dict[str, Any]]]:
@@ -320,7 +318,6 @@ def test_a_write_cut_before_its_index_is_numbered_at_its_write_request(case: tup
     assert differences(a, truth, ("txn",), lambda t, _: t["write_req_frame"] in moved) == []
 
 
-@pytest.mark.xfail(strict=True, reason=TIMES)
 def test_exact_integer_times(case: tuple[Analysis, dict]) -> None:
     a, truth = case
     wrong = []

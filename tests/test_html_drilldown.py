@@ -171,9 +171,9 @@ def test_headings_leave_out_empty_fields_and_give_the_reason(pages: dict[str, Pa
 
     edge = headings("pd_edge_cases")
     assert edge[1] == ("txn 1 malformed · 192.168.1.21 · malformed: a PDU could not be decoded (see the findings) · "
-                       "8 frames, 9.0 ms")
+                       "8 frames, 9 ms")
     assert edge[11] == ("txn 11 nak · 192.168.1.25 DO 1 ref 2 · request error 0x16 parameter address impermissible "
-                        "(attribute, elements, PNU, subindex or combination) · 4 frames, 4.0 ms")
+                        "(attribute, elements, PNU, subindex or combination) · 4 frames, 4 ms")
     page = pages["fault_trace"].read_text(encoding="utf-8")  # a long parameter list: shortened, whole on hover
     params = " ".join(f"P{2000 + k}[0]" for k in range(20))
     assert f'<span title="{params}">P2000[0] P2001[0] P2002[0] ... (20 parameters)</span>' in page
@@ -181,7 +181,7 @@ def test_headings_leave_out_empty_fields_and_give_the_reason(pages: dict[str, Pa
     assert timeouts[5] == ("txn 5 timeout · 192.168.1.23 DO 1 ref 1 · P964[0] (drive unit identification) · "
                            "timeout: no answer within the transaction timeout · 1 frame")
     assert timeouts[20].endswith("timeout: no answer within the transaction timeout (the controller gave up: last "
-                                 "read 5.0 ms after the write, 1 B5 answer) · 7 frames")
+                                 "read 5 ms after the write, 1 B5 answer) · 7 frames")
 
 
 def test_every_transaction_the_summary_names_is_linked_and_drilled(pages: dict[str, Path]) -> None:

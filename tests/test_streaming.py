@@ -32,46 +32,64 @@ def _settings():
     return Settings()
 
 
-def _csv_cell(value: object) -> str:
+def _time(value: pd.Timestamp, digits: int, sep: str) -> str:
+    """A capture time with `digits` decimals of a second (cut), from its nanoseconds."""
+    fraction = f"{value.value % 10**9:09d}"[:digits]
+    return value.strftime(f"%Y-%m-%d{sep}%H:%M:%S") + (f".{fraction}" if digits else "")
+
+
+def _seconds(value: float, digits: int) -> str:
+    """A duration with at most `digits` decimals (the nearest), trailing zeros dropped but one, no exponent."""
+    whole, _, decimals = f"{value:.{digits}f}".partition(".")
+    return f"{whole}.{decimals.rstrip('0') or '0'}"
+
+
+def _csv_cell(value: object, digits: int) -> str:
+    """A DataFrame cell as the CSV writes it; `digits`: its capture's resolution."""
     if value is pd.NA or value is pd.NaT or value is None or (isinstance(value, float) and math.isnan(value)):
         return ""
     if isinstance(value, pd.Timestamp):
-        return value.strftime("%Y-%m-%d %H:%M:%S.%f+00:00")
+        return _time(value, digits, " ") + "+00:00"
     if isinstance(value, (bool, np.bool_)):
         return str(bool(value))
     if isinstance(value, (float, np.floating)):
-        return repr(float(value))
+        return _seconds(float(value), digits)
     if isinstance(value, (int, np.integer)):
         return str(int(value))
     return str(neutralise(str(value)))
 
 
-def _json_value(value: object) -> object:
+def _json_value(value: object, digits: int) -> object:
     if value is pd.NA or value is pd.NaT or value is None:
         return None
     if isinstance(value, pd.Timestamp):
-        return value.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+        return _time(value, digits, "T") + "Z"
     if isinstance(value, (bool, np.bool_)):
         return bool(value)
-    if isinstance(value, (float, np.floating)):
-        return float(value)
+    if isinstance(value, (float, np.floating)):  # (read back as its text: see assert_files_equal_tables)
+        return _seconds(float(value), digits)
     if isinstance(value, (int, np.integer)):
         return int(value)
     return str(value)
 
 
 def assert_files_equal_tables(out: Path, fmt: str, analysis: pd_analyze.Analysis) -> None:
+    """The files hold the DataFrames' cells, each row's times and durations at its capture's resolution."""
     for name in TABLES:
         df: pd.DataFrame = getattr(analysis, name)
+        places = [analysis.rows.digits[str(c)] for c in df.capture.astype(object)]  # every capture's is known
         if fmt == "csv":
             with open(out / f"{name}.csv", newline="", encoding="utf-8") as f:
                 got = list(csv.reader(f))
             assert got[0] == list(df.columns)
-            assert got[1:] == [[_csv_cell(v) for v in row] for row in df.astype(object).itertuples(index=False)]
+            assert got[1:] == [[_csv_cell(v, d) for v in row]
+                               for row, d in zip(df.astype(object).itertuples(index=False), places, strict=True)]
         elif fmt == "json":
-            got = [json.loads(line) for line in (out / f"{name}.jsonl").read_text("ascii").splitlines()]
-            want = [dict(zip(df.columns, map(_json_value, row), strict=True))
-                    for row in df.astype(object).itertuples(index=False)]
+            # numbers with a fraction as their text: a duration is written as _seconds writes it
+            lines = (out / f"{name}.jsonl").read_text("ascii").splitlines()
+            got = [json.loads(line, parse_float=str) for line in lines]
+            want = [dict(zip(df.columns, (_json_value(v, d) for v in row), strict=True))
+                    for row, d in zip(df.astype(object).itertuples(index=False), places, strict=True)]
             assert got == want
         else:
             back = pd.read_parquet(out / name)

@@ -57,8 +57,8 @@ def captures(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 def both_feeds(analysis: pd_analyze.Analysis, batch: int) -> tuple[str, str]:
     """The summary from the rows one by one, and from batches of `batch` rows (a request's rows split over
-    batches), in table order."""
-    rows_acc, batch_acc = Summary(), Summary()
+    batches), in table order; times at each capture's resolution, as the report writes them."""
+    rows_acc, batch_acc = Summary(analysis.rows.digits), Summary(analysis.rows.digits)
     for name in ("transactions", "parameters", "findings"):
         rows = sorted(table_rows(analysis.rows, name), key=sort_key(name))
         rows_acc.add(name, rows)
@@ -153,7 +153,7 @@ def test_one_text_per_error_number_whatever_the_order_of_rows(captures):
     texts = set()
     for order in ([*rows, worded], [worded, *rows]):
         for feed in ("rows", "batches"):
-            acc = Summary()
+            acc = Summary(analysis.rows.digits)
             for name in ("transactions", "findings"):
                 acc.add(name, table_rows(analysis.rows, name))
             if feed == "rows":

@@ -23,11 +23,13 @@ import pd_analyze
 from pd_analyze.analysis.capture_run import Settings
 from pd_analyze.analysis.schema import COLUMNS, ROW_TYPES, SORT_COLUMN, frame_of, sort_key
 from pd_analyze.analysis.table_batches import batch_schema, conform, frame_from_batches, rows_to_batch
+from pd_analyze.model.times import NS
+from pd_analyze.model.times import duration_text as duration_of
 from pd_analyze.output import report
-from pd_analyze.output.batch_cells import float_text, int_text, time_text
+from pd_analyze.output.batch_cells import duration_text, int_text, row_digits, time_text
 from pd_analyze.output.summary import Summary
 from pd_analyze.output.table_sink import FAN_IN, TableSink
-from pd_analyze.output.writers import csv_time, open_table
+from pd_analyze.output.writers import csv_time, json_time, open_table
 from tests.support import table_rows
 from tests.test_streaming import assert_files_equal_tables
 
@@ -91,10 +93,12 @@ def _feed(sink: TableSink, name: str, batches: list[list[tuple]], by_capture: bo
     return arrived
 
 
-def _today(out: Path, name: str, fmt: str, rows: list[tuple], by_capture: bool = False) -> Path:
-    """Today's file of these rows (in the order they came): sorted stably, written row by row."""
+def _today(out: Path, name: str, fmt: str, rows: list[tuple], by_capture: bool = False,
+           digits: dict[str, int] | None = None) -> Path:
+    """Today's file of these rows (in the order they came): sorted stably, written row by row; `digits`: each
+    capture's resolution."""
     out.mkdir(parents=True, exist_ok=True)
-    writer = open_table(str(out), name, fmt)
+    writer = open_table(str(out), name, fmt, digits)
     ordered = sorted(rows, key=sort_key(name, by_capture))
     for i in range(0, len(ordered), 100):
         writer.write(ordered[i:i + 100])
@@ -123,7 +127,7 @@ def _assert_same_files(a: Path, b: Path, fmt: str) -> None:
 
 def test_batch_schema_types_every_column():
     kinds = {"Int64": pa.int64(), "string": pa.large_string(), "category": pa.large_string(),
-             "Float64": pa.float64(), "boolean": pa.bool_(), "datetime64[ns, UTC]": pa.timestamp("us", tz="UTC"),
+             "Float64": pa.float64(), "boolean": pa.bool_(), "datetime64[ns, UTC]": pa.timestamp("ns", tz="UTC"),
              "category:verdict": pa.large_string(), "category:severity": pa.large_string()}
     for name in TABLES:
         schema = batch_schema(name)
@@ -166,9 +170,13 @@ TEXTS = ["=1+2", "+cmd", "-5", "-5\n", "-x", "@SUM(A1)", "\tx", "\rx", "-12.5e3"
          None, "Ölpumpe, 50 °C", "日本語", "emoji \U0001f600", 'quote "inner"', "a,b", "line\nbreak",
          "crlf\r\nend", "cr\ronly", "trailing space ", "  ", "nan", "0x1f", 12, 1.5, float("nan")]
 FLOATS = [0.0014998912811279297, 0.1, 1e-05, 1e16, 5e-324, -0.0, 0.0, 123456789012345680.0, 1.0, -2.5,
-          float("nan"), float("inf"), -float("inf"), 1e-7, 9.999999999999999e15, 1e15, 2.5e-4, None]
-TIMES = [1767225600.0265, 0.0, -1.5, -86400.000001, -9.1e9, 9.1e9, 9.3e9, -9.3e9, float("nan"), None,
-         1767225600, 951782400.5]  # before 1970 kept; before 1677 and after 2262 missing
+          float("nan"), float("inf"), -float("inf"), 1e-7, 9.999999999999999e15, 1e15, 2.5e-4, None, 0.001499,
+          1.5e-05, 0.123456789, -0.0000005, 9007199.254740991]
+TIMES = [1767225600_026500000, 0, -1_500_000_000, -86400_000001000, -9_100_000_000 * NS, 9_100_000_000 * NS,
+         9_300_000_000 * NS, -9_300_000_000 * NS, float("nan"), None, 1767225600 * NS, 951782400_500000000,
+         1714982400_002936123, 1714982400_002936000]  # ns: before 1970 kept; before 1677 and after 2262 missing
+# the tricky captures' resolutions (one left unknown: written to the nanosecond)
+TRICKY_DIGITS = {"a.pcap": 6, "b, c.pcap": 0}
 
 
 def _tricky_rows(name: str) -> list[tuple]:
@@ -214,34 +222,67 @@ def test_tricky_cells_as_today(tmp_path, name, fmt):
     by_capture = fmt == "parquet"
     pd.testing.assert_frame_equal(frame_from_batches(name, [rows_to_batch(name, rows)]), frame_of(name, rows))
     (tmp_path / "new").mkdir()
-    writer = open_table(str(tmp_path / "new"), name, fmt)
+    writer = open_table(str(tmp_path / "new"), name, fmt, TRICKY_DIGITS)
     sink = TableSink(name, writer, by_capture=by_capture, spill_dir=str(tmp_path), max_held=16, chunk_rows=9,
                      min_write=1)
     arrived = _feed(sink, name, _batches(name, rows, random.Random(1), 8), by_capture)
     writer.close()
-    today = _today(tmp_path / "today", name, fmt, arrived, by_capture)
+    today = _today(tmp_path / "today", name, fmt, arrived, by_capture, TRICKY_DIGITS)
     _assert_same_files(today, tmp_path / "new" / (name + SUFFIX[fmt]), fmt)
 
 
-def test_float_text_is_repr():
+def test_duration_text_is_the_rows_text_at_every_resolution():
+    """The columns' durations are model.times.duration_text's, at one resolution or one per row; a value that
+    is a whole number of the resolution's last decimal is written as exactly that decimal."""
     rng = random.Random(5)
-    values = [float(f"{rng.uniform(1, 10)}e{e}") for e in range(-330, 310) for _ in range(5)]
-    values += [np.frombuffer(rng.getrandbits(64).to_bytes(8, "little"), "<f8")[0].item() for _ in range(50_000)]
-    values += [rng.uniform(0, 0.05) for _ in range(20_000)] + [x for x in FLOATS if x is not None]
-    values += [float(2**53), 2.0**63, 1e22, 0.00009999999999999999, 1e-4, 9.999999999999999e14]
+    values = [float(f"{rng.uniform(1, 10)}e{e}") for e in range(-330, 310) for _ in range(2)]
+    values += [np.frombuffer(rng.getrandbits(64).to_bytes(8, "little"), "<f8")[0].item() for _ in range(5_000)]
+    values += [rng.uniform(-0.05, 0.05) for _ in range(5_000)] + [x for x in FLOATS if x is not None]
+    values += [float(2**53), 2.0**63, 1e22, 0.00009999999999999999, 1e-4, 9.999999999999999e14, 2**53 / 1e9,
+               -(2**53) / 1e6, 0.5e-9, 1.5e-9, -2.5e-6]
     values = [v for v in values if not math.isnan(v)]
-    assert float_text(pa.array(values, pa.float64())).to_pylist() == [repr(v) for v in values]
+    array = pa.array(values + [None], pa.float64())
+    for digits in range(10):
+        assert duration_text(array, digits).to_pylist() == [duration_of(v, digits) for v in values] + [None]
+    per_row = np.array([rng.randrange(10) for _ in range(len(values) + 1)])
+    assert duration_text(array, per_row).to_pylist() == [duration_of(v, int(d)) for v, d in
+                                                         zip(values, per_row, strict=False)] + [None]
+    for digits in (6, 9):  # exact durations (ns / 1e9) of a capture of this resolution: the exact decimal
+        ks = [rng.randrange(-10**13, 10**13) for _ in range(20_000)] + [1499, 1, -1, 0, 10**digits, 15]
+        unit = 10 ** (9 - digits)
+        text = duration_text(pa.array([k * unit / NS for k in ks], pa.float64()), digits).to_pylist()
+        want = [("-" if k < 0 else "") + f"{abs(k) // 10**digits}." + (f"{abs(k) % 10**digits:0{digits}d}".rstrip("0")
+                                                                      or "0") for k in ks]
+        assert text == want
+    assert duration_text(pa.array([0.001499, 1.5e-05, 1.0, 0.0015], pa.float64()), 6).to_pylist() == [
+        "0.001499", "0.000015", "1.0", "0.0015"]
 
 
 def test_time_and_int_text():
     rng = random.Random(6)
-    micros = [rng.randrange(-9_200_000_000_000_000, 9_200_000_000_000_000) for _ in range(20_000)] + [0, -1, 1]
-    times = pa.array(micros + [None], pa.int64()).cast(pa.timestamp("us", tz="UTC"))
-    assert time_text(times).to_pylist() == [csv_time(us) for us in micros] + [None]
-    assert time_text(times.slice(5, 10)).to_pylist() == [csv_time(us) for us in micros[5:15]]
+    ns = [rng.randrange(-9_200_000_000 * NS + 1, 9_200_000_000 * NS) for _ in range(20_000)] + [0, -1, 1]
+    times = pa.array(ns + [None], pa.int64()).cast(pa.timestamp("ns", tz="UTC"))
+    for digits in range(10):
+        assert time_text(times, digits).to_pylist() == [csv_time(v, digits) for v in ns] + [None]
+        assert time_text(times.slice(5, 10), digits).to_pylist() == [csv_time(v, digits) for v in ns[5:15]]
+    per_row = np.array([rng.randrange(10) for _ in range(len(ns) + 1)])
+    assert time_text(times, per_row, "T", "Z").to_pylist() == [json_time(v, int(d)) for v, d in
+                                                               zip(ns, per_row, strict=False)] + [None]
+    stamp = pa.array([1714982400_002936000, 1714982400_002936123], pa.int64()).cast(pa.timestamp("ns", tz="UTC"))
+    assert time_text(stamp, 6).to_pylist() == ["2024-05-06 08:00:00.002936+00:00"] * 2  # cut, as a clock reads
+    assert time_text(stamp, 9, "T", "Z").to_pylist() == ["2024-05-06T08:00:00.002936000Z",
+                                                         "2024-05-06T08:00:00.002936123Z"]
+    assert time_text(stamp, 0).to_pylist() == ["2024-05-06 08:00:00+00:00"] * 2
     for ints in ([rng.randrange(-3, 40) for _ in range(500)], [rng.randrange(-2**63, 2**63) for _ in range(500)]):
         values = pa.array([*ints, None], pa.int64())
         assert int_text(values).to_pylist() == [str(v) for v in ints] + [None]
+
+
+def test_each_row_is_written_at_its_captures_resolution():
+    captures = pa.array(["a.pcap", "b.pcap", None, "c.pcap", "a.pcap"], pa.large_string())
+    assert row_digits(captures, {"a.pcap": 6, "b.pcap": 9}).tolist() == [6, 9, 9, 9, 6]
+    assert row_digits(captures.slice(0, 1), {"a.pcap": 6}) == 6
+    assert row_digits(pa.array([], pa.large_string()), {}) == 9
 
 
 def test_conform_makes_a_batch_hold_what_rows_hold():
@@ -254,7 +295,7 @@ def test_conform_makes_a_batch_hold_what_rows_hold():
     raw = good.set_column(schema.get_field_index("t_total"), "t_total", pa.chunked_array([[math.nan] * len(good)]))
     raw = raw.set_column(schema.get_field_index("verdict"), "verdict", pa.chunked_array([["bogus"] * len(good)],
                                                                                         pa.large_string()))
-    far = pa.array([10**16] * len(good), pa.int64()).cast(pa.timestamp("us", tz="UTC"))
+    far = pa.array([9_210_000_000 * NS] * len(good), pa.int64()).cast(pa.timestamp("ns", tz="UTC"))  # after 2262
     raw = raw.set_column(schema.get_field_index("t_start"), "t_start", far)
     fixed = conform("transactions", raw)
     assert {fixed.column(c).null_count for c in ("t_total", "verdict", "t_start")} == {len(good)}
@@ -268,14 +309,14 @@ def test_shuffled_batches_through_the_sink_equal_todays_files(tmp_path, samples,
     by_capture = report._by_capture(name, fmt)
     rows = table_rows(samples.rows, name)
     (tmp_path / "new").mkdir()
-    writer = open_table(str(tmp_path / "new"), name, fmt)
+    writer = open_table(str(tmp_path / "new"), name, fmt, samples.rows.digits)
     sink = TableSink(name, writer, by_capture=by_capture, spill_dir=str(tmp_path), chunk_rows=50,
                      min_write=1 if fmt != "json" else 100)  # JSON: flushes wait for 100 rows
     batches = _batches(name, rows, random.Random(name + fmt))
     arrived = _feed(sink, name, batches, by_capture)
     assert arrived != rows and sink.rows_in == sink.rows_out == len(rows)  # out of order, nothing lost
     writer.close()
-    _assert_same_files(_today(tmp_path / "today", name, fmt, arrived, by_capture),
+    _assert_same_files(_today(tmp_path / "today", name, fmt, arrived, by_capture, samples.rows.digits),
                        tmp_path / "new" / (name + SUFFIX[fmt]), fmt)
 
 
@@ -283,13 +324,14 @@ def test_shuffled_batches_through_the_sink_equal_todays_files(tmp_path, samples,
 def test_the_sink_spills_and_still_writes_in_order(tmp_path, samples, name):
     rows = table_rows(samples.rows, name)
     (tmp_path / "new").mkdir()
-    writer = open_table(str(tmp_path / "new"), name, "csv")
+    writer = open_table(str(tmp_path / "new"), name, "csv", samples.rows.digits)
     sink = TableSink(name, writer, spill_dir=str(tmp_path / "new"), max_held=10, chunk_rows=7, min_write=1)
     arrived = _feed(sink, name, _batches(name, rows, random.Random(7), 6), every=5)
     writer.close()
     assert sink.runs_made > FAN_IN  # runs were merged before they were read
     assert sink.peak_held <= 10 + 5 + (FAN_IN + 1) * sink.block  # memory, one batch, a block per run merged
-    _assert_same_files(_today(tmp_path / "today", name, "csv", arrived), tmp_path / "new" / f"{name}.csv", "csv")
+    _assert_same_files(_today(tmp_path / "today", name, "csv", arrived, digits=samples.rows.digits),
+                       tmp_path / "new" / f"{name}.csv", "csv")
     assert sorted(p.name for p in (tmp_path / "new").iterdir()) == [f"{name}.csv"]  # spill files removed
 
 
@@ -335,7 +377,7 @@ def test_summary_from_batches_equals_summary_from_rows(samples):
     rng = random.Random(11)
     for paths in [ALL, *([p] for p in ALL[::3])]:
         analysis = samples if paths is ALL else pd_analyze.analyze(paths)
-        rows_acc, batch_acc = Summary(), Summary()
+        rows_acc, batch_acc = Summary(analysis.rows.digits), Summary(analysis.rows.digits)
         for name in ("transactions", "parameters", "findings"):
             rows = sorted(table_rows(analysis.rows, name), key=sort_key(name))  # table order, as the sink feeds it
             rows_acc.add(name, rows)
@@ -359,7 +401,7 @@ def test_write_batches_equals_the_stream(tmp_path, samples, fmt):
     gives analyze()'s tables, today's stream's files and its summary (ties kept whole in a batch, so the
     rows that tie come in the order the rows path has them)."""
     rng = random.Random(fmt)
-    with report.BatchReport(str(tmp_path / "new"), fmt, max_held=40, chunk_rows=30) as out:
+    with report.BatchReport(str(tmp_path / "new"), fmt, max_held=40, chunk_rows=30, digits=samples.rows.digits) as out:
         for name in TABLES:
             batches = _batches(name, table_rows(samples.rows, name), rng, whole_keys=True)
             for k, b in enumerate(batches):
@@ -391,7 +433,7 @@ def test_write_tables_writes_csv_and_parquet_through_the_batches(tmp_path, sampl
         report.write_tables(samples, str(tmp_path / fmt), fmt)
         for name in TABLES:
             _assert_same_files(_today(tmp_path / f"today-{fmt}", name, fmt, table_rows(samples.rows, name),
-                                      report._by_capture(name, fmt)),
+                                      report._by_capture(name, fmt), samples.rows.digits),
                                tmp_path / fmt / (name + SUFFIX[fmt]), fmt)
         assert not [p for p in (tmp_path / fmt).iterdir() if p.name.startswith(".")]  # no spill left
 
@@ -399,7 +441,7 @@ def test_write_tables_writes_csv_and_parquet_through_the_batches(tmp_path, sampl
 def test_json_batch_lines_are_todays_lines(samples, tmp_path):
     for name in TABLES:
         rows = sorted(table_rows(samples.rows, name), key=sort_key(name))
-        writer = open_table(str(tmp_path), name, "json")
+        writer = open_table(str(tmp_path), name, "json", samples.rows.digits)
         writer.write_batch(rows_to_batch(name, rows))
         writer.close()
         text = (tmp_path / f"{name}.jsonl").read_text("ascii")

@@ -28,9 +28,10 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 from pd_analyze.analysis.jobs import run
 from pd_analyze.analysis.param_values import cells_agree, one_value, split_cell
 from pd_analyze.analysis.rows import Rows, _shifted, _shifted_table
-from pd_analyze.analysis.schema import TIME, Column, micros
+from pd_analyze.analysis.schema import TIME, Column, time_series
 from pd_analyze.analysis.stations import merged
 from pd_analyze.model import pd_values as pt
+from pd_analyze.model.times import NS, nanos
 from pd_analyze.model.verdicts import ANSWERED
 
 if TYPE_CHECKING:
@@ -76,7 +77,7 @@ class Seen(NamedTuple):
     fmt: str
     capture: str
     frame: int | None
-    t: int | None  # microseconds since the epoch
+    t: int | None  # nanoseconds since the epoch (model.times)
     note: str = ""  # refused: "0x02 low or high limit exceeded"; unconfirmed: the verdict
 
 
@@ -120,8 +121,8 @@ class TxnInfo(NamedTuple):
     errors: str
     write_req_frame: int | None
     read_res_frame: int | None
-    t_start: int | None  # microseconds
-    t_total: float | None  # seconds
+    t_start: int | None  # nanoseconds
+    t_total: float | None  # seconds (the exact nanoseconds / 1e9)
 
 
 TXN_FIELDS = ("txn", *TxnInfo._fields)
@@ -152,6 +153,7 @@ class StateTable:
     stations: dict[str, str] = field(default_factory=dict)  # device IP -> station name (analysis.stations)
     pending: dict[int, list[ParamCells]] = field(default_factory=dict)  # rows whose transaction row is to come
     names: pt.Names = pt.PROFIDRIVE_NAMES  # what the run's profile calls parameters (Checker.names)
+    digits: dict[str, int] = field(default_factory=dict)  # each capture's resolution (Rows.digits)
 
     def add(self, txns: dict[int, TxnInfo], params: Iterable[ParamCells]) -> None:
         """Parameter rows and the rows of their transactions (a transaction's rows all in one call)."""
@@ -169,16 +171,16 @@ class StateTable:
                     self._row(txns[txn], p, k)
 
     def add_rows(self, transactions: Iterable[tuple], parameters: Iterable[tuple]) -> None:
-        """Rows as `Rows` makes them (named tuples; times in float seconds)."""
+        """Rows as `Rows` makes them (named tuples; times in integer nanoseconds)."""
         get = attrgetter(*TXN_FIELDS)
         txns = {}
         for r in transactions:
             txn, capture, req_id, verdict, errors, wframe, rframe, t_start, t_total = get(r)
-            txns[txn] = TxnInfo(capture, req_id, verdict, errors or "", wframe, rframe, micros(t_start), t_total)
+            txns[txn] = TxnInfo(capture, req_id, verdict, errors or "", wframe, rframe, nanos(t_start), t_total)
         self.add(txns, map(ParamCells._make, map(attrgetter(*PARAM_FIELDS), parameters)))
 
     def add_tables(self, transactions: Iterable[Any], parameters: Iterable[Any]) -> None:
-        """The columnar path's pyarrow tables (table_batches.batch_schema; times in microseconds)."""
+        """The columnar path's pyarrow tables (table_batches.batch_schema; times in nanoseconds)."""
         import pyarrow as pa
 
         txns = {}
@@ -210,7 +212,8 @@ class StateTable:
             values = split_cell(fmt, p.values_read)
             if len(values) != n and len(values) != 1:
                 return  # as the engine's values read (transaction.elements_read): nothing to assign
-            t = None if info.t_start is None or info.t_total is None else info.t_start + round(info.t_total * 1e6)
+            # (t_total is a whole number of nanoseconds / 1e9: times 1e9 and rounded, those nanoseconds again)
+            t = None if info.t_start is None or info.t_total is None else info.t_start + round(info.t_total * NS)
             for j, value in enumerate(values):
                 seen = Seen(order, value, fmt, info.capture, info.read_res_frame, t)
                 st = self._state((p.device, p.do, p.pnu, p.subindex + j))
@@ -262,13 +265,13 @@ def state_row(key: Key, st: ElementState, station: str = "", names: pt.Names = p
 
 
 def state_frame(rows: list[tuple]) -> pd.DataFrame:
-    """The typed DataFrame of state rows (times from microseconds)."""
+    """The typed DataFrame of state rows (times from nanoseconds, exactly)."""
     import pandas as pd
 
     df = pd.DataFrame.from_records(rows, columns=[c.name for c in STATE_COLUMNS])
     for c in STATE_COLUMNS:
         if c.dtype == TIME:
-            df[c.name] = pd.to_datetime(df[c.name].astype("Int64"), unit="us", utc=True).astype(TIME)
+            df[c.name] = time_series([nanos(v) for v in df[c.name]], df.index)
         else:
             df[c.name] = df[c.name].astype(c.dtype)
     return df
@@ -297,6 +300,11 @@ class StateRows(Rows):
         if self.inner is not None:
             self.inner.add_finding(capture, f, txn)
 
+    def note_digits(self, capture: str, digits: int) -> None:
+        super().note_digits(capture, digits)
+        if self.inner is not None:
+            self.inner.note_digits(capture, digits)
+
     def use_names(self, names: pt.Names) -> None:
         super().use_names(names)
         self.state.names = names
@@ -318,6 +326,8 @@ class StateRows(Rows):
         """A worker's rows (a file or part of one), its transaction numbers shifted by `offset`."""
         if self.inner is not None:
             self.inner.extend(other, offset)
+        for capture, digits in other.digits.items():
+            Rows.note_digits(self, capture, digits)
         self.transactions.extend(_shifted(other.transactions, offset))
         self.parameters.extend(_shifted(other.parameters, offset))
         for name in ("transactions", "parameters"):
@@ -339,7 +349,7 @@ class StateRows(Rows):
 def state_of(rows: Rows, stations: Mapping[str, str] | None = None) -> StateTable:
     """The state of an analysis' rows (Analysis.rows: rows made one by one and the columns' tables), with the
     captures' station names (IP address -> name; analysis.stations.merged)."""
-    table = StateTable(stations=dict(stations or {}), names=rows.names)
+    table = StateTable(stations=dict(stations or {}), names=rows.names, digits=rows.digits)
     table.add_rows(rows.transactions, rows.parameters)
     table.add_tables(rows.tables.get("transactions", ()), rows.tables.get("parameters", ()))
     return table
@@ -352,4 +362,5 @@ def collect(files: list[str], settings: Settings, progress: Progress | None = No
     results = run(files, rows, settings, progress, jobs, chain)
     rows.fold()
     rows.state.stations = merged(results)
+    rows.state.digits = rows.digits
     return rows.state, results

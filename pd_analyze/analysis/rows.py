@@ -56,6 +56,9 @@ class Rows:
     tables: dict[str, list] = field(default_factory=dict)
     # what the run's profile calls parameters and errors (Checker.names; set by the capture loops)
     names: pt.Names = pt.PROFIDRIVE_NAMES
+    # each capture's resolution: the decimals of a second its times carry (model.times), the finest read so
+    # far; the report's writers and summary hold this very dict and write each row's times with its capture's
+    digits: dict[str, int] = field(default_factory=dict)
     _channels: dict[tuple, tuple[str, str, str, str]] = field(default_factory=dict)
 
     def extend(self, other: Rows, offset: int) -> None:
@@ -64,9 +67,16 @@ class Rows:
         self.parameters.extend(_shifted(other.parameters, offset))
         self.findings.extend(_shifted(other.findings, offset))
         self.changes.extend(_shifted(other.changes, offset))
+        for capture, digits in other.digits.items():
+            self.note_digits(capture, digits)
         for name, tables in other.tables.items():
             for table in tables:
                 self.add_table(name, _shifted_table(table, offset))
+
+    def note_digits(self, capture: str, digits: int) -> None:
+        """A capture's times carry `digits` decimals of a second (its resolution as far as it was read)."""
+        if digits > self.digits.get(capture, -1):
+            self.digits[capture] = digits
 
     def use_names(self, names: pt.Names) -> None:
         """Name parameters and errors as the run's profile does (Checker.names)."""
@@ -163,7 +173,7 @@ class Rows:
             _hex(response.ident) if response is not None else "", txn.verdict, " ".join(errors), txn.pnio_status,
             status_text(txn.pnio_status), txn.b5, len(txn.read_frames), txn.retransmissions, txn.write_frame,
             txn.write_res_frame or None, " ".join(map(str, txn.read_frames)), txn.read_res_frame or None,
-            " ".join(map(str, sorted(txn.frames))), txn.t_start / 1e9, fig["t_write_rtt"], fig["t_total"],
+            " ".join(map(str, sorted(txn.frames))), txn.t_start, fig["t_write_rtt"], fig["t_total"],
             fig["t_final_read_rtt"], fig["t_first_read_gap"], fig["t_last_read"], txn.capture_ended, txn.closed_by)))
         for f in txn.findings:
             self.add_finding(capture, f, number)
@@ -177,7 +187,7 @@ class Rows:
         else:
             result = "ok" if txn.verdict in ANSWERED else txn.verdict
         self.changes.append(ChangeRow._make((
-            capture, device, txn.do, number, txn.write_frame, txn.t_start / 1e9, label, addr.pnu,
+            capture, device, txn.do, number, txn.write_frame, txn.t_start, label, addr.pnu,
             self.names.pnu(addr.pnu), addr.subindex,
             block_values(written), result, before)))
 

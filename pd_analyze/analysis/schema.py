@@ -16,6 +16,7 @@ from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 from pd_analyze.model.rules import RULES, SEVERITIES
+from pd_analyze.model.times import nanos
 from pd_analyze.model.verdicts import VERDICTS
 
 if TYPE_CHECKING:
@@ -24,8 +25,7 @@ if TYPE_CHECKING:
 VERDICT = "category:verdict"  # categoricals with fixed categories (the same in every chunk and file)
 SEVERITY = "category:severity"
 FIXED_CATEGORIES = {VERDICT: (VERDICTS, False), SEVERITY: (SEVERITIES, True)}
-TIME = "datetime64[ns, UTC]"
-MAX_TIME_SECONDS = 9.2e9  # datetime64[ns] spans 1677 ... 2262
+TIME = "datetime64[ns, UTC]"  # a capture time: integer nanoseconds in every row, batch and file (model.times)
 
 
 @dataclass(frozen=True, slots=True)
@@ -66,8 +66,9 @@ COLUMNS: Mapping[str, tuple[Column, ...]] = MappingProxyType({
         ("read_res_frame", "Int64", "frame of the final read response"),
         ("frames", "string", "every frame that belongs to the transaction: requests, answers, B5 answers, "
                                "fragments, retransmissions and copies (protocol.md 7.6); what extract writes"),
-        ("t_start", TIME, "time of the write request"),
-        ("t_write_rtt", "Float64", "seconds from write request to write response"),
+        ("t_start", TIME, "time of the write request: the capture's timestamp, exact"),
+        ("t_write_rtt", "Float64", "seconds from write request to write response (every t_ figure the exact "
+                                   "difference of two capture timestamps)"),
         ("t_total", "Float64", "seconds from write request to the final read response"),
         ("t_final_read_rtt", "Float64", "seconds from the final read request to its response"),
         ("t_first_read_gap", "Float64", "seconds from write response to the first read request"),
@@ -103,7 +104,8 @@ COLUMNS: Mapping[str, tuple[Column, ...]] = MappingProxyType({
     "changes": _cols(
         ("capture", "category", "capture file"), ("device", "category", "device IP address"),
         ("do", "Int64", "DO-ID"), ("txn", "Int64", "transaction"), ("frame", "Int64", "write request frame"),
-        ("t", TIME, "time of the change request"), ("param", "string", "P<pnu>[<subindex>..]"),
+        ("t", TIME, "time of the change request: the capture's timestamp, exact"),
+        ("param", "string", "P<pnu>[<subindex>..]"),
         ("pnu", "Int64", "parameter number"),
         ("pnu_name", "string", "standard name of the parameter, empty when none"),
         ("subindex", "Int64", "first subindex"),
@@ -163,16 +165,6 @@ def capture_text(path: str) -> str:
     return path
 
 
-def micros(seconds: object) -> int | None:
-    """A capture time as the tables hold it: whole microseconds (None beyond datetime64[ns])."""
-    if seconds is None:
-        return None
-    s = float(seconds)  # type: ignore[arg-type]
-    if not abs(s) < MAX_TIME_SECONDS:  # NaN fails too
-        return None
-    return round(s * 1e6)
-
-
 def text_cell(value: object) -> str | None:
     """A string cell as pandas' "string" dtype holds it: None stays missing, anything else str()."""
     if value is None or (isinstance(value, float) and value != value):
@@ -198,9 +190,10 @@ def _category(col: Column) -> Callable[[object], str | None]:
 
 def cell_value(col: Column) -> Callable[[object], Any]:
     """The typed value of one cell of a row (None when missing), as every table file and batch holds it:
-    times as whole microseconds, NaN missing, text cells str(), values outside fixed categories missing."""
+    times as integer nanoseconds (model.times.nanos), NaN missing, text cells str(), values outside fixed
+    categories missing."""
     if col.dtype == TIME:
-        return micros
+        return nanos
     if col.dtype == "Float64":
         return float_cell
     if col.dtype in ("Int64", "boolean"):
@@ -227,6 +220,16 @@ def __getattr__(name: str) -> object:
     raise AttributeError(name)
 
 
+def time_series(ns: Iterable[int | None], index: object = None) -> pd.Series:
+    """Capture times (integer nanoseconds, None missing) as a datetime64[ns, UTC] Series, exactly: never
+    through a float (pandas converts a nullable integer column to float on its way to a datetime)."""
+    import numpy as np
+    import pandas as pd
+
+    raw = np.array([np.iinfo(np.int64).min if v is None else v for v in ns], np.int64)  # int64 min: NaT
+    return pd.Series(raw.view("datetime64[ns]"), index=index).dt.tz_localize("UTC")
+
+
 def frame_of(name: str, rows: Iterable[tuple]) -> pd.DataFrame:
     """A typed DataFrame of one table from its rows."""
     import pandas as pd
@@ -234,11 +237,8 @@ def frame_of(name: str, rows: Iterable[tuple]) -> pd.DataFrame:
     cols = COLUMNS[name]
     df = pd.DataFrame.from_records(list(rows), columns=[c.name for c in cols])
     for c in cols:
-        if c.dtype == TIME:  # capture times to the microsecond (float seconds carry no more)
-            seconds = df[c.name].astype("float64")
-            seconds = seconds.where(seconds.abs() < MAX_TIME_SECONDS)  # a pcapng time beyond datetime64: NaT
-            micro = (seconds * 1e6).round().astype("Int64")
-            df[c.name] = pd.to_datetime(micro, unit="us", utc=True).astype(TIME)
+        if c.dtype == TIME:
+            df[c.name] = time_series([nanos(v) for v in df[c.name]], df.index)
         else:
             df[c.name] = df[c.name].astype(pandas_dtype(c))
     if len(df):

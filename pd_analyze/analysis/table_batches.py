@@ -1,8 +1,8 @@
 """The four tables as Arrow batches: their schema, today's rows converted, their order, their DataFrames.
 
 The columnar report path hands each table on as pyarrow Tables of `batch_schema(name)`, a batch at a
-time. A batch holds exactly the cells a row holds once `schema.cell_value` has read it: times as whole
-microseconds (timestamp[us, UTC]; missing beyond datetime64[ns]), NaN missing, text cells str(), a fixed
+time. A batch holds exactly the cells a row holds once `schema.cell_value` has read it: times as integer
+nanoseconds (timestamp[ns, UTC]; missing beyond datetime64[ns]), NaN missing, text cells str(), a fixed
 categorical's value outside its categories missing. Categoricals are plain strings here; their encoding
 is made where a DataFrame or a Parquet file is built.
 
@@ -23,7 +23,6 @@ import pyarrow.compute as pc
 from pd_analyze.analysis.schema import (
     COLUMNS,
     FIXED_CATEGORIES,
-    MAX_TIME_SECONDS,
     RULE_RANK,
     SEVERITY,
     SORT_COLUMN,
@@ -32,15 +31,15 @@ from pd_analyze.analysis.schema import (
     cell_value,
     pandas_dtype,
 )
+from pd_analyze.model.times import MAX_TIME_NS
 
 if TYPE_CHECKING:
     import pandas as pd
 
-TIME_TYPE = pa.timestamp("us", tz="UTC")
+TIME_TYPE = pa.timestamp("ns", tz="UTC")
 _TYPES = {"Int64": pa.int64(), "string": pa.large_string(), "category": pa.large_string(),
           VERDICT: pa.large_string(), SEVERITY: pa.large_string(), TIME: TIME_TYPE, "Float64": pa.float64(),
           "boolean": pa.bool_()}
-_MAX_MICROS = int(MAX_TIME_SECONDS * 1e6)  # a time beyond this is missing (micros() keeps what rounds to it)
 SEQ = "__seq"  # the arrival number of a row, where a key needs it: ties keep the order rows came in
 
 
@@ -51,7 +50,7 @@ def batch_schema(name: str) -> pa.Schema:
 
 
 def rows_to_batch(name: str, rows: Iterable[tuple]) -> pa.Table:
-    """Row tuples (as `Rows` builds them: times as float seconds, None for missing) as one batch."""
+    """Row tuples (as `Rows` builds them: times as integer nanoseconds, None for missing) as one batch."""
     cols, schema = COLUMNS[name], batch_schema(name)
     rows = rows if isinstance(rows, list | tuple) else list(rows)
     columns = list(zip(*rows, strict=True)) if rows else [()] * len(cols)
@@ -86,8 +85,8 @@ def conform(name: str, table: pa.Table) -> pa.Table:
         if c.dtype == "Float64":
             bad = pc.is_nan(col)
         elif c.dtype == TIME:
-            micros = pc.cast(col, pa.int64())
-            bad = pc.or_(pc.greater(micros, _MAX_MICROS), pc.less(micros, -_MAX_MICROS))
+            ns = pc.cast(col, pa.int64())
+            bad = pc.or_(pc.greater_equal(ns, MAX_TIME_NS), pc.less_equal(ns, -MAX_TIME_NS))
         elif c.dtype in FIXED_CATEGORIES:
             known = pc.is_in(col, value_set=pa.array(FIXED_CATEGORIES[c.dtype][0], pa.large_string()))
             bad = pc.and_(pc.invert(known), pc.is_valid(col))

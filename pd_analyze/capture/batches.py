@@ -24,10 +24,11 @@ import numpy as np
 
 from pd_analyze.capture import pcap
 from pd_analyze.capture.chunks import ChunkReads
-from pd_analyze.capture.pcap import pcap_header
+from pd_analyze.capture.pcap import divisor_digits, pcap_header
 from pd_analyze.capture.pcapng_chunks import pcapng_columns
 from pd_analyze.capture.raw import MAX_CAPLEN, CaptureError, CaptureInfo, RawFrame
 from pd_analyze.capture.reader import opened
+from pd_analyze.model.times import DEFAULT_DIGITS, NS
 
 BATCH_FRAMES = 65_536  # frames per batch by default (a batch of full-size frames: about 100 MB)
 # Bytes of frames given one by one gathered into one batch: the frames and the batch's copy of them are held
@@ -49,6 +50,9 @@ class FrameBatch:
     # int64: the same times exactly, in nanoseconds since the epoch (as the file's integer units give them;
     # a float of seconds resolves only about 0.24 us today): every duration and deadline is computed on these
     ns: np.ndarray
+    # decimals of a second the capture's times carry (CaptureInfo.digits as far as the file was read): the
+    # tables' files write its times and durations with as many (model.times)
+    digits: int = DEFAULT_DIGITS
 
     def __len__(self) -> int:
         return len(self.number)
@@ -58,7 +62,8 @@ class FrameBatch:
         if start == 0 and stop >= len(self):
             return self
         return FrameBatch(self.buf, self.number[start:stop], self.ts[start:stop], self.linktype[start:stop],
-                          self.start[start:stop], self.caplen[start:stop], self.iface[start:stop], self.ns[start:stop])
+                          self.start[start:stop], self.caplen[start:stop], self.iface[start:stop], self.ns[start:stop],
+                          self.digits)
 
     def raw_frame(self, i: int) -> RawFrame:
         """Frame i as the per-frame dissector takes it."""
@@ -69,8 +74,9 @@ class FrameBatch:
 
 def frame_batches(frames: Iterable[RawFrame], size: int = BATCH_FRAMES) -> Iterator[FrameBatch]:
     """Frames given one by one (a generator's, a fuzzer's) as batches of at most `size` frames and about
-    FRAME_BATCH_BYTES. Their float times are taken to the microsecond (what a float of seconds since the epoch
-    holds exactly)."""
+    FRAME_BATCH_BYTES. A frame's time is its `ns` where the reader gave it, else its float time taken to the
+    microsecond (what a float of seconds since the epoch holds exactly); the batch's resolution is 6 decimals
+    of a second, or 9 where a frame's nanoseconds need them (frames declare none)."""
     part: list[RawFrame] = []
     held = 0
     for frame in frames:
@@ -91,13 +97,24 @@ def _of_frames(frames: list[RawFrame]) -> FrameBatch:
     lengths = np.array([len(f.data) for f in frames], np.int64)
     start = np.zeros(len(frames), np.int64)
     np.cumsum(lengths[:-1], out=start[1:])
-    ns = [max(-_NS_EDGE, min(_NS_EDGE, round(f.ts * 1e6) * 1000)) if f.ts == f.ts else 0 for f in frames]
+    ns = np.array([_frame_ns(f) for f in frames], np.int64)
     return FrameBatch(b"".join(f.data for f in frames), np.array([f.number for f in frames], np.int64),
                       np.array([f.ts for f in frames], np.float64), np.array([f.linktype for f in frames], np.int32),
-                      start, lengths, np.array([f.iface for f in frames], np.int32), np.array(ns, np.int64))
+                      start, lengths, np.array([f.iface for f in frames], np.int32), ns,
+                      9 if np.any(ns % 1000) else 6)
 
 
-_NS_EDGE = (1 << 62)  # a float time beyond this (hostile input) is kept at the edge
+_NS_EDGE = (1 << 62)  # a time beyond this (hostile input) is kept at the edge
+
+
+def _frame_ns(frame: RawFrame) -> int:
+    if frame.ns is not None:
+        ns = frame.ns
+    elif frame.ts == frame.ts:
+        ns = round(max(-1e13, min(1e13, frame.ts)) * 1e6) * 1000  # (an infinite time kept at the edge too)
+    else:
+        return 0
+    return max(-_NS_EDGE, min(_NS_EDGE, ns))
 
 
 def batches(path: str, size: int = BATCH_FRAMES, info: CaptureInfo | None = None) -> Iterator[FrameBatch]:
@@ -113,7 +130,7 @@ def batches(path: str, size: int = BATCH_FRAMES, info: CaptureInfo | None = None
                 yield batch
         else:
             for columns in pcapng_columns(path, stream, info):
-                chunk = FrameBatch(*columns)
+                chunk = FrameBatch(*columns, info.digits)
                 for i in range(0, len(chunk), size):
                     yield chunk.part(i, i + size)
 
@@ -131,6 +148,7 @@ def _pcap_batches(path: str, stream: BinaryIO, info: CaptureInfo, size: int, hea
     knows which of its reads would have come next."""
     little, divisor, linktype = pcap_header(path, head)
     info.linktypes = [linktype]
+    info.digits = divisor_digits(divisor)
     caplen_at = struct.Struct("<8xI" if little else ">8xI").unpack_from
     word = np.dtype("<u4" if little else ">u4")
     start = origin if begin is None else begin
@@ -207,11 +225,11 @@ def _columns(buf: bytes, starts: np.ndarray, caplen: np.ndarray, word: np.dtype,
     stamps = np.take(np.frombuffer(buf, np.uint8), np.add.outer(starts, _STAMP_BYTES)).view(word)
     sec, frac = stamps[:, 0], stamps[:, 1]
     ts = sec.astype(np.float64) + frac.astype(np.float64) / divisor  # as pcap_frames: sec + frac / divisor
-    ns = sec.astype(np.int64) * 1_000_000_000 + frac.astype(np.int64) * (1_000_000_000 // int(divisor))
+    ns = sec.astype(np.int64) * NS + frac.astype(np.int64) * (NS // int(divisor))
     # A pcap link type is 32 bits, FCS flags on top: above 2^31 (hostile files) it is kept as its bit pattern
     lt = np.full(count, linktype - (1 << 32) if linktype >= 1 << 31 else linktype, np.int32)
     return FrameBatch(buf, np.arange(number, number + count, dtype=np.int64), ts, lt, starts + 16,
-                      caplen, np.zeros(count, np.int32), ns)
+                      caplen, np.zeros(count, np.int32), ns, divisor_digits(divisor))
 
 
 _STAMP_BYTES = np.arange(8, dtype=np.int64)  # a record header's seconds and fraction of a second

@@ -17,6 +17,7 @@ import dpkt.pcap
 
 from pd_analyze.capture.gzip_stream import read_failure
 from pd_analyze.capture.raw import MAX_CAPLEN, CaptureError, CaptureInfo, RawFrame
+from pd_analyze.model.times import NS
 from pd_analyze.model.values import IP_ETHERTYPES, LINKTYPE_ETHERNET
 
 PCAP_MAGICS = {
@@ -38,6 +39,11 @@ def pcap_header(path: str, head: bytes) -> tuple[bool, float, int]:
     return little, divisor, fh.linktype
 
 
+def divisor_digits(divisor: float) -> int:
+    """The decimals of a second a pcap's records carry: 6 (microsecond magic) or 9 (nanosecond magic)."""
+    return 9 if divisor == 1e9 else 6
+
+
 def pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, ip_only: bool = False) -> Iterator[RawFrame]:
     """Classic pcap: dpkt parses the file header; records are cut from large chunks.
 
@@ -46,6 +52,8 @@ def pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, ip_only: bool = 
     """
     little, divisor, linktype = pcap_header(path, stream.read(24))
     info.linktypes = [linktype]
+    info.digits = divisor_digits(divisor)
+    unit = NS // int(divisor)  # nanoseconds a unit of a record's fraction of a second
     unpack = struct.Struct("<IIII" if little else ">IIII").unpack_from
     skip_non_ip = ip_only and linktype == LINKTYPE_ETHERNET
     buf = b""
@@ -105,7 +113,7 @@ def pcap_frames(path: str, stream: BinaryIO, info: CaptureInfo, ip_only: bool = 
         if run:
             yield _run_record(number - 1, run_buf, run_pos, unpack, divisor, linktype, run)
             run = 0
-        yield RawFrame(number, sec + frac / divisor, linktype, buf[pos + 16:end])
+        yield RawFrame(number, sec + frac / divisor, linktype, buf[pos + 16:end], 0, 0, sec * NS + frac * unit)
         pos = end
 
 
@@ -116,7 +124,7 @@ def _run_record(number: int, buf: bytes, pos: int, unpack: Callable, divisor: fl
                 run: int) -> RawFrame:
     """The record standing for `run` skipped frames up to `number`, timed as the last (its header at pos)."""
     sec, frac = unpack(buf, pos)[:2]
-    return RawFrame(number, sec + frac / divisor, linktype, b"", 0, run)
+    return RawFrame(number, sec + frac / divisor, linktype, b"", 0, run, sec * NS + frac * (NS // int(divisor)))
 
 
 def _read(path: str, stream: BinaryIO, size: int, offset: int) -> bytes:

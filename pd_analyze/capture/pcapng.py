@@ -14,6 +14,7 @@ import dpkt.pcapng
 
 from pd_analyze.capture.gzip_stream import read_failure
 from pd_analyze.capture.raw import MAX_CAPLEN, CaptureError, CaptureInfo, RawFrame, peek
+from pd_analyze.model.times import resol_digits
 
 PCAPNG_SHB = 0x0A0D0D0A
 _PCAPNG_BOM = 0x1A2B3C4D
@@ -63,8 +64,8 @@ class Section:
 def pcapng_frames(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[RawFrame]:
     for section, block, packet in _walk(path, stream, info):
         if packet is not None:
-            ts, linktype, start, caplen, iface_id, _ns = packet
-            yield RawFrame(section.number, ts, linktype, block[start:start + caplen], iface_id)
+            ts, linktype, start, caplen, iface_id, ns = packet
+            yield RawFrame(section.number, ts, linktype, block[start:start + caplen], iface_id, 0, ns)
 
 
 def _walk(path: str, stream: BinaryIO, info: CaptureInfo
@@ -109,6 +110,7 @@ def read_block(path: str, section: Section, info: CaptureInfo, buf: bytes, at: i
     elif btype == dpkt.pcapng.PCAPNG_BT_IDB:
         section.ifaces.append(_interface(path, buf[at:at + blen], section.little, pos))
         info.linktypes.append(section.ifaces[-1].linktype)
+        info.digits = max(info.digits, resol_digits(section.ifaces[-1].resol))
     elif btype in (dpkt.pcapng.PCAPNG_BT_EPB, dpkt.pcapng.PCAPNG_BT_PB):
         if blen < 32:
             raise CaptureError(path, f"packet block of {blen} bytes, shorter than its 32-byte header", pos)

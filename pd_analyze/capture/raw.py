@@ -30,6 +30,9 @@ class RawFrame(NamedTuple):
     data: bytes
     iface: int = 0
     run: int = 0  # > 0: this record stands for that many Ethernet frames without IPv4 (data is empty)
+    # the time exactly, in integer nanoseconds since the epoch, as the file's units give it (the readers set
+    # it; None: a frame made elsewhere, whose time is `ts` taken to the microsecond)
+    ns: int | None = None
 
 
 
@@ -42,6 +45,9 @@ class CaptureInfo:
         self.format = ""
         self.compressed = False
         self.linktypes: list[int] = []
+        # decimals of a second its timestamps carry (model.times): the pcap header's, or a pcapng's finest
+        # interface so far (an interface description may come late; frames come after theirs)
+        self.digits = 0
 
 
 def peek(stream: BinaryIO, size: int) -> bytes:

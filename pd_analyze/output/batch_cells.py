@@ -2,16 +2,16 @@
 
 `CsvWriter.line` formats a row's cells one by one in Python; here each column is formatted at once with
 pyarrow compute (casts, regular expressions, joins) and the lines are one string buffer, written as
-is. The cells are today's: times `2026-01-01 00:00:00.026500+00:00`, floats as Python's repr, True and
-False, missing as an empty cell, text a spreadsheet would run prefixed with an apostrophe; and a cell is
-quoted exactly where `csv.writer` (QUOTE_MINIMAL, lineterminator "\\n") quotes it, so the files are the
-same byte for byte.
+is. The cells are the row path's: times `2026-01-01 00:00:00.026500+00:00` and durations `0.001499` at
+each row's capture's resolution (model.times), True and False, missing as an empty cell, text a
+spreadsheet would run prefixed with an apostrophe; and a cell is quoted exactly where `csv.writer`
+(QUOTE_MINIMAL, lineterminator "\\n") quotes it, so the files are the same byte for byte.
 """
 
 from __future__ import annotations
 
 import csv
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from functools import cache
 
 import numpy as np
@@ -19,6 +19,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from pd_analyze.analysis.schema import COLUMNS, TIME, Column
+from pd_analyze.model.times import DEFAULT_DIGITS, MAX_DIGITS, NS
 
 _L = pa.large_string()
 # writers._NUMBER for RE2: Python's \d is any Unicode decimal digit, and its $ also
@@ -94,39 +95,45 @@ def _rows_starting(values: pa.Array, chars: str, text: bytes) -> np.ndarray:
     return mask
 
 
-def float_text(values: pa.Array) -> pa.Array:
-    """float64 values (no NaN) as Python's repr writes them: shortest round trip, `1.0`, `1e-05`, `inf`."""
-    text = pc.cast(values, _L)
-    x = np.abs(values.to_numpy(zero_copy_only=False))  # nulls come as NaN: compare False below
-    with np.errstate(invalid="ignore"):
-        positional = ((x >= 1e-4) & (x < 1e16)) | (x == 0) | np.isinf(x)  # where repr writes no exponent
-        whole = positional & (x == np.floor(x)) & np.isfinite(x)  # repr writes 5.0, Arrow 5
-    scientific = _rows_holding(text, "e")  # where Arrow writes an exponent
-    odd = positional == scientific  # the notations differ: repr() those cells
-    odd &= values.is_valid().to_numpy(zero_copy_only=False)
-    if scientific.any():  # repr's exponent has two digits at least: 1e-07, not 1e-7
-        text = pc.replace_substring_regex(text, r"e([+-])(\d)$", "e\\10\\2")
-    fix = whole & ~odd
-    if fix.any():
-        text = pc.if_else(pa.array(fix), pc.binary_join_element_wise(text, _text(".0"), _text("")), text)
-    if odd.any():
-        fixed = [repr(v) for v in values.filter(pa.array(odd)).to_pylist()]
-        text = pc.replace_with_mask(text, pa.array(odd), pa.array(fixed, _L))
-    return text
+def duration_text(values: pa.Array, digits: int | np.ndarray) -> pa.Array:
+    """Seconds (float64) as model.times.duration_text writes them at `digits` decimals (one number, or one per
+    row): the integer of the last decimal, split at the point, trailing zeros dropped but one."""
+    x = values.to_numpy(zero_copy_only=False)  # nulls come as NaN: not finite, so left to the end
+    with np.errstate(invalid="ignore", over="ignore"):
+        scaled = np.rint(x * 10.0 ** np.asarray(digits, np.float64))
+        exact = np.isfinite(scaled) & (np.abs(scaled) < _EXACT)
+    k = np.abs(np.where(exact, scaled, 0)).astype(np.int64)
+    unit = np.broadcast_to(10 ** np.asarray(digits, np.int64), k.shape)
+    whole, frac = np.divmod(k, unit)
+    # the fraction with its leading zeros: unit + frac written, its leading 1 cut off, then trailing zeros
+    decimals = pc.utf8_rtrim(pc.utf8_slice_codeunits(pc.cast(pa.array(unit + frac), _L), 1), characters="0")
+    decimals = pc.if_else(pc.equal(decimals, _text("")), _text("0"), decimals)
+    sign = pc.if_else(pa.array(scaled < 0), _text("-"), _text(""))
+    text = pc.binary_join_element_wise(sign, int_text(pa.array(whole)), _text("."), decimals, _text(""))
+    odd = ~exact & values.is_valid().to_numpy(zero_copy_only=False)
+    if odd.any():  # infinite, or too large for the integer of its last decimal: as repr writes it
+        text = pc.replace_with_mask(text, pa.array(odd), pa.array([repr(v) for v in x[odd].tolist()], _L))
+    return pc.if_else(values.is_valid(), text, pa.scalar(None, _L)) if values.null_count else text
 
 
-_TIME_TEMPLATE = np.frombuffer(b"0000-00-00 00:00:00.000000+00:00", dtype=np.uint8)
+_EXACT = float(2**53)  # as model.times: the integer of a duration's last decimal is exact in a double below this
+_TIME_TEMPLATE = "0000-00-00{}00:00:00.000000000{}"
 _PAIRS = np.array([ord(str(i // 10)) | ord(str(i % 10)) << 8 for i in range(100)], dtype="<u2")  # "00" ... "99"
+_POINT = 19  # where a time's decimal point is in the template
+_ZONE = _POINT + 10  # and where its zone begins
 
 
-def time_text(values: pa.Array) -> pa.Array:
-    """timestamp[us, UTC] as writers.csv_time: `2026-01-01 00:00:00.026500+00:00`, microseconds always.
+def time_text(values: pa.Array, digits: int | np.ndarray = MAX_DIGITS, sep: str = " ",
+              zone: str = "+00:00") -> pa.Array:
+    """timestamp[ns, UTC] as model.times.time_text writes it, with `digits` decimals of a second (one number,
+    or one per row): `2026-01-01 00:00:00.026500+00:00` at 6; JSON's with sep "T" and zone "Z".
 
-    Every such cell is 32 characters (the years a table holds have four digits), so the text is built
-    as a block of bytes, two digits at a time; the civil date of a day by H. Hinnant's civil_from_days."""
-    us = pc.fill_null(pc.cast(values, pa.int64()), 0).to_numpy(zero_copy_only=False)
-    days, rest = np.divmod(us, 86_400_000_000)
-    seconds, micros = np.divmod(rest, 1_000_000)
+    The cells are built as a block of bytes (the years a table holds have four digits), two digits at a time,
+    with all nine decimals, then cut to the resolution. The civil date of a day by H. Hinnant's
+    civil_from_days."""
+    ns = pc.fill_null(pc.cast(values, pa.int64()), 0).to_numpy(zero_copy_only=False)
+    days, rest = np.divmod(ns, 86_400 * NS)
+    seconds, frac = np.divmod(rest, NS)
     z = days + 719_468
     era = np.floor_divide(z, 146_097)
     doe = z - era * 146_097
@@ -135,9 +142,12 @@ def time_text(values: pa.Array) -> pa.Array:
     mp = (5 * doy + 2) // 153
     month = np.where(mp < 10, mp + 3, mp - 9)
     year = yoe + era * 400 + (month <= 2)
-    out = np.tile(_TIME_TEMPLATE, (len(us), 1))
+    template = np.frombuffer(_TIME_TEMPLATE.format(sep, zone).encode(), dtype=np.uint8)
+    width = len(template) + len(template) % 2  # an odd width padded: the rows are read as pairs of characters
+    out = np.zeros((len(ns), width), np.uint8)
+    out[:, :len(template)] = template
     even = out.view("<u2")  # two characters at even positions ...
-    odd = out[:, 1:31].view("<u2")  # ... and at odd ones (position p: column (p - 1) // 2)
+    odd = out[:, 1:width - 1].view("<u2")  # ... and at odd ones (position p: column (p - 1) // 2)
     even[:, 0] = _PAIRS[year // 100]
     even[:, 1] = _PAIRS[year % 100]
     odd[:, 2] = _PAIRS[month]  # position 5
@@ -145,12 +155,39 @@ def time_text(values: pa.Array) -> pa.Array:
     odd[:, 5] = _PAIRS[seconds // 3600]  # 11
     even[:, 7] = _PAIRS[seconds // 60 % 60]
     odd[:, 8] = _PAIRS[seconds % 60]  # 17
-    even[:, 10] = _PAIRS[micros // 10_000]
-    even[:, 11] = _PAIRS[micros // 100 % 100]
-    even[:, 12] = _PAIRS[micros % 100]
-    offsets = pa.py_buffer(np.arange(0, 32 * len(us) + 1, 32, dtype=np.int64))
-    text = pa.Array.from_buffers(_L, len(us), [None, offsets, pa.py_buffer(out)])
+    even[:, 10] = _PAIRS[frac // 10_000_000]  # 20: the decimals
+    even[:, 11] = _PAIRS[frac // 100_000 % 100]
+    even[:, 12] = _PAIRS[frac // 1000 % 100]
+    even[:, 13] = _PAIRS[frac // 10 % 100]
+    out[:, 28] = ord("0") + frac % 10
+    at = np.arange(width)
+    d = np.asarray(digits)
+    # the characters kept: all before the point, the point and `digits` decimals (none without decimals), the zone
+    end = _POINT + np.where(d > 0, d + 1, 0)
+    if d.ndim == 0:  # one resolution: every cell one width
+        keep = (at < end) | ((at >= _ZONE) & (at < len(template)))
+        cells = np.ascontiguousarray(out[:, keep])
+        offsets = np.arange(len(ns) + 1, dtype=np.int64) * int(keep.sum())
+    else:  # one per row: each row's characters picked, the offsets their running count
+        keep = (at < end[:, None]) | ((at >= _ZONE) & (at < len(template)))
+        cells = out[keep]
+        offsets = np.zeros(len(ns) + 1, np.int64)
+        np.cumsum(keep.sum(axis=1), out=offsets[1:])
+    text = pa.Array.from_buffers(_L, len(ns), [None, pa.py_buffer(offsets), pa.py_buffer(cells)])
     return pc.if_else(values.is_valid(), text, pa.scalar(None, _L)) if values.null_count else text
+
+
+def row_digits(captures: pa.Array, digits: Mapping[str, int]) -> int | np.ndarray:
+    """Each row's resolution (model.times digits) by its capture, DEFAULT_DIGITS where the capture is not
+    known: one number when every row has the same (one capture's rows, nearly always)."""
+    encoded = pc.dictionary_encode(captures)
+    known = [digits.get(c, DEFAULT_DIGITS) for c in encoded.dictionary.to_pylist()]
+    if encoded.null_count:
+        known.append(DEFAULT_DIGITS)
+    if len(set(known)) <= 1:
+        return known[0] if known else DEFAULT_DIGITS
+    index = pc.fill_null(encoded.indices, len(known) - 1).to_numpy(zero_copy_only=False)
+    return np.array(known, np.int64)[index]
 
 
 def int_text(values: pa.Array) -> pa.Array:
@@ -166,8 +203,8 @@ def int_text(values: pa.Array) -> pa.Array:
 
 
 def _few(values: pa.Array, text: Callable[[pa.Array], pa.Array]) -> pa.Array:
-    """`text` of each distinct value once when the values repeat (latencies measured in whole
-    microseconds of capture time do), else of every cell."""
+    """`text` of each distinct value once when the values repeat (latencies of a microsecond capture
+    often do), else of every cell."""
     if len(values) > 64:
         encoded = pc.dictionary_encode(values)
         if 2 * len(encoded.dictionary) <= len(values):
@@ -202,12 +239,14 @@ def text_cells(values: pa.Array) -> pa.Array:
     return quoted(neutralised(values, text), text)
 
 
-def _cells(col: Column, values: pa.Array) -> pa.Array:
-    """One column's CSV cells (null for an empty cell)."""
+def _cells(col: Column, values: pa.Array, digits: int | np.ndarray) -> pa.Array:
+    """One column's CSV cells (null for an empty cell); `digits`: the rows' resolution (row_digits)."""
     if col.dtype == TIME:
-        return time_text(values)
-    if col.dtype == "Float64":
-        return _few(values, float_text)
+        return time_text(values, digits)
+    if col.dtype == "Float64":  # (the tables' floats are durations, in seconds)
+        if np.ndim(digits):
+            return duration_text(values, digits)
+        return _few(values, lambda v: duration_text(v, digits))
     if col.dtype == "boolean":
         return pc.if_else(values, _text("True"), _text("False"))
     if col.dtype == "Int64":
@@ -215,9 +254,11 @@ def _cells(col: Column, values: pa.Array) -> pa.Array:
     return text_cells(values)
 
 
-def csv_lines(name: str, batch: pa.RecordBatch) -> pa.Array:
-    """The CSV lines of a batch (columns of batch_schema(name)), each ending in a newline."""
-    cells = [_cells(c, batch.column(i)) for i, c in enumerate(COLUMNS[name])]
+def csv_lines(name: str, batch: pa.RecordBatch, digits: Mapping[str, int]) -> pa.Array:
+    """The CSV lines of a batch (columns of batch_schema(name)), each ending in a newline; `digits`: each
+    capture's resolution (Rows.digits)."""
+    places = row_digits(batch.column("capture"), digits)
+    cells = [_cells(c, batch.column(i), places) for i, c in enumerate(COLUMNS[name])]
     last = pc.fill_null(cells[-1], _text(""))
     cells[-1] = pc.binary_join_element_wise(last, _text(""), _text("\n"))  # the line's end: a pass over one column
     return pc.binary_join_element_wise(*cells, _text(","), null_handling="replace", null_replacement="")

@@ -26,6 +26,7 @@ from pd_analyze.analysis.api import Analysis
 from pd_analyze.analysis.drilldown import annotated_frames, with_findings
 from pd_analyze.analysis.stations import device_label, merged
 from pd_analyze.model.rules import SEVERITY_RANK, Finding
+from pd_analyze.model.times import DEFAULT_DIGITS, ms_text
 from pd_analyze.output.frame_view import template_of
 from pd_analyze.output.html_tables import column
 from pd_analyze.output.summary_words import few, reason
@@ -250,7 +251,7 @@ def section(analysis: Analysis, failed_all: int, failed: pd.DataFrame, others: p
         if rows.empty:
             continue
         parts.append(f"<h3>{html.escape(title)}</h3>\n")
-        parts += [_details(r, names, pnu_names, bool(drill.get(int(r.txn), {}).get("F")))
+        parts += [_details(r, names, pnu_names, bool(drill.get(int(r.txn), {}).get("F")), analysis.rows.digits)
                   for r in _heading_rows(rows, analysis)]
     if failed.empty:
         parts.append("<p class=\"intro\">No transaction failed.</p>\n")
@@ -263,16 +264,18 @@ def _heading_rows(rows: pd.DataFrame, analysis: Analysis) -> Iterable:
     return (r._replace(errors=e or "") for r, e in zip(rows.itertuples(), errors, strict=True))
 
 
-def heading(r: Any, names: Mapping[str, str], pnu_names: dict[int, str]) -> list[tuple[str, str, str]]:
+def heading(r: Any, names: Mapping[str, str], pnu_names: dict[int, str],
+            digits: Mapping[str, int] | None = None) -> list[tuple[str, str, str]]:
     """A drill-down's heading as (css class, text, full text where the text is shortened) parts, empty fields
-    left out."""
+    left out; times at the capture's resolution (`digits`: Rows.digits)."""
+    places = (digits or {}).get(_text(r.capture), DEFAULT_DIGITS)
     verdict = str(r.verdict)
     parts = [("txn", f"txn {int(r.txn)}", ""), (f"badge v-{verdict}", verdict, "")]
     where = [device_label(str(r.device), names)] if _text(r.device) else []
     where += [f"{label} {_text(v)}" for label, v in (("DO", r.do), ("ref", r.ref)) if _text(v)]
     if where:
         parts.append(("", " ".join(where), ""))
-    what = _what(r)
+    what = _what(r, places)
     params = _text(r.params)
     if params and not (verdict == "nak" and all(p in what for p in params.split())):
         short = few(params, pnu_names)  # (a NAK's errors name its parameters already)
@@ -280,27 +283,29 @@ def heading(r: Any, names: Mapping[str, str], pnu_names: dict[int, str]) -> list
     if what:
         parts.append(("what", what, ""))
     frames = len(_text(r.frames).split())
-    total = "" if pd.isna(r.t_total) else f", {float(r.t_total) * 1000:.1f} ms"
+    total = "" if pd.isna(r.t_total) else f", {ms_text(float(r.t_total), places, False)} ms"
     parts.append(("dim", f"{frames} frame{'s' if frames != 1 else ''}{total}", ""))
     return parts
 
 
-def _what(r: Any) -> str:
+def _what(r: Any, digits: int) -> str:
     verdict = str(r.verdict)
     if verdict == "ok":
         return ""
     if verdict == "nak":
         return _text(r.errors)
-    return reason(verdict, _text(r.pnio_error_text), _text(r.closed_by), _value(r.b5_retries), _value(r.t_last_read))
+    return reason(verdict, _text(r.pnio_error_text), _text(r.closed_by), _value(r.b5_retries), _value(r.t_last_read),
+                  digits)
 
 
 def _value(value: object) -> object:
     return None if value is None or pd.isna(value) else value
 
 
-def _details(r: Any, names: Mapping[str, str], pnu_names: dict[int, str], found: bool) -> str:
+def _details(r: Any, names: Mapping[str, str], pnu_names: dict[int, str], found: bool,
+             digits: Mapping[str, int]) -> str:
     txn = int(r.txn)
-    parts = heading(r, names, pnu_names)
+    parts = heading(r, names, pnu_names, digits)
     if not found:
         parts.append(("dim", "not found again in the capture", ""))
     spans = [_span(c, text, full) for c, text, full in parts]

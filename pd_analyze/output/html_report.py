@@ -76,12 +76,13 @@ def render(analysis: Analysis, *, max_rows: int = MAX_ROWS, max_drilldown: int =
     t, f, c = analysis.transactions, analysis.findings, analysis.changes
     several = len(analysis.captures) > 1
     where = tables_dir_note or "the tables that pd-analyze report writes (CSV, Parquet, JSON)"
-    names = analysis.rows.names
+    names, digits = analysis.rows.names, analysis.rows.digits
     tables = {
         "transactions": table(*cap_transactions(t, max_rows), cols(TRANSACTION_COLS, several), where,
-                              "transactions", names),
+                              "transactions", names, digits),
         "findings": table(*cap_findings(f, max_rows), cols(FINDING_COLS, several), where, "findings"),
-        "changes": table(c.head(max_rows), len(c), "in txn order", cols(CHANGE_COLS, several), where, "changes"),
+        "changes": table(c.head(max_rows), len(c), "in txn order", cols(CHANGE_COLS, several), where, "changes",
+                         digits=digits),
     }
     summary_text = report.summary(analysis)
     failed, others = html_drill.choose(t, f, c, html_drill.named_in(summary_text), max_drilldown)

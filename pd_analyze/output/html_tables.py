@@ -12,9 +12,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from pd_analyze.model import pd_values as pt
+from pd_analyze.model.times import DEFAULT_DIGITS, ms_decimals
 from pd_analyze.output.frame_notes import _error_texts
 
 
@@ -23,7 +25,8 @@ class Col:
     name: str  # column of the DataFrame
     label: str
     # num, str, time (UTC datetime), ms (seconds shown as milliseconds), verdict, severity, frames (a list of
-    # frame numbers), req_id / resp_id (the ID with its name), errors (the errors cell in words)
+    # frame numbers), req_id / resp_id (the ID with its name), errors (the errors cell in words); times and
+    # milliseconds at the row's capture's resolution (model.times)
     kind: str
 
 
@@ -77,10 +80,12 @@ def cap_findings(f: pd.DataFrame, limit: int) -> tuple[pd.DataFrame, int, str]:
 
 
 def table(df: pd.DataFrame, total: int, chosen: str, columns: tuple[Col, ...], where: str, name: str,
-          names: pt.Names = pt.PROFIDRIVE_NAMES) -> dict[str, Any]:
-    """A table's data for the page: `total` rows in all, `df` the ones embedded (`chosen` says which)."""
+          names: pt.Names = pt.PROFIDRIVE_NAMES, digits: Mapping[str, int] | None = None) -> dict[str, Any]:
+    """A table's data for the page: `total` rows in all, `df` the ones embedded (`chosen` says which);
+    `digits`: each capture's resolution (Rows.digits)."""
     spec = [{"name": c.name, "label": c.label, "kind": _SCRIPT_KIND.get(c.kind, c.kind)} for c in columns]
-    values = [column(df[c.name], c.kind, names) for c in columns]
+    places = row_digits(df["capture"], digits or {}) if "capture" in df else DEFAULT_DIGITS
+    values = [column(df[c.name], c.kind, names, places) for c in columns]
     rows = [list(r) for r in zip(*values, strict=True)] if values and len(df) else []
     note = ""
     if len(df) < total:
@@ -89,14 +94,24 @@ def table(df: pd.DataFrame, total: int, chosen: str, columns: tuple[Col, ...], w
     return {"columns": spec, "rows": rows, "total": total, "note": note}
 
 
-def column(s: pd.Series, kind: str, names: pt.Names = pt.PROFIDRIVE_NAMES) -> list[object]:
-    """A column's cells as the page shows them (None for an empty cell)."""
-    if kind == "time":
-        text = s.dt.strftime("%Y-%m-%d %H:%M:%S.%f")
-        return [None if pd.isna(v) else v for v in text.astype("object")]
-    if kind == "ms":
-        ms = (s.astype("Float64") * 1000).round(3)
-        return [None if pd.isna(v) else float(v) for v in ms.astype("object")]
+def row_digits(captures: pd.Series, digits: Mapping[str, int]) -> np.ndarray:
+    """Each row's resolution (decimals of a second) by its capture; DEFAULT_DIGITS for one not known."""
+    return np.array([digits.get(c, DEFAULT_DIGITS) for c in captures.astype("object")], np.int64)
+
+
+def column(s: pd.Series, kind: str, names: pt.Names = pt.PROFIDRIVE_NAMES,
+           digits: int | np.ndarray = DEFAULT_DIGITS) -> list[object]:
+    """A column's cells as the page shows them (None for an empty cell); `digits`: the rows' resolution."""
+    if kind == "time":  # as the CSV writes it, without the zone (the heading says UTC)
+        import pyarrow as pa
+
+        from pd_analyze.output.batch_cells import time_text
+
+        return time_text(pa.array(s.to_numpy(dtype="datetime64[ns]"), pa.timestamp("ns")), digits, " ", "").to_pylist()
+    if kind == "ms":  # a number (the script sorts and compares it), to the resolution's last decimal
+        scale = 10.0 ** ms_decimals_of(digits)
+        ms = np.rint(s.astype("Float64").to_numpy(dtype="float64", na_value=np.nan) * 1000 * scale) / scale
+        return [None if v != v else v for v in ms.tolist()]
     if kind == "num":
         return [None if pd.isna(v) else (int(v) if float(v).is_integer() else float(v)) for v in s.astype("object")]
     if kind in ("req_id", "resp_id"):  # the ID with its name: "0x81 request parameter, negative"
@@ -105,6 +120,11 @@ def column(s: pd.Series, kind: str, names: pt.Names = pt.PROFIDRIVE_NAMES) -> li
     if kind == "errors":  # "P2[0]:0x01" as "P2[0] error 0x01 parameter value cannot be changed"
         return [None if pd.isna(v) or not v else "; ".join(_error_texts(str(v), names)) for v in s.astype("object")]
     return [None if pd.isna(v) else str(v) for v in s.astype("object")]
+
+
+def ms_decimals_of(digits: int | np.ndarray) -> int | np.ndarray:
+    """model.times.ms_decimals of one resolution or of each row's."""
+    return np.maximum(np.asarray(digits) - 3, 0) if np.ndim(digits) else ms_decimals(int(digits))
 
 
 def named_id(text: str, ids: Mapping[int, str]) -> str:

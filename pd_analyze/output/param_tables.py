@@ -1,7 +1,8 @@
 """The parameter state (`pd-analyze params`) and other small tables declared as schema.Column tuples, as an
 aligned text table, CSV, JSON Lines or Parquet.
 
-Cells are written as the report's files write them (output.writers): times in microseconds as
+Cells are written as the report's files write them (output.writers): times at their capture's resolution
+(the capture column before a time names it: written_capture for written_t) as
 `2026-01-01 00:00:00.000000+00:00` (CSV) or `...Z` (JSON), missing cells empty (CSV) or null (JSON), text a
 spreadsheet would run as a formula with a leading `'` in CSV. These tables hold one row per parameter
 element, not per frame: they are built whole.
@@ -13,11 +14,12 @@ import csv
 import io
 import json
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 
 from pd_analyze.analysis.param_state import STATE_COLUMNS, StateTable
 from pd_analyze.analysis.schema import TIME, Column
 from pd_analyze.analysis.stations import device_label
+from pd_analyze.model.times import DEFAULT_DIGITS
 from pd_analyze.output.writers import csv_time, json_time, neutralise
 
 STATE_TABLE = "parameter_state"
@@ -29,28 +31,41 @@ TEXT_COLUMNS = (("device", "device"), ("DO", "do"), ("parameter", "param"), ("fo
 _MAX_CELL = 40  # characters of a value shown in the text table (the CSV holds it whole)
 
 
-def _cell(value: object, dtype: str, time_text: object) -> object:
-    if value is None:
-        return None
-    if dtype == TIME:
-        return time_text(int(value))  # type: ignore[operator]
-    return value
+def _cells(columns: Sequence[Column], digits: Mapping[str, int] | None,
+           time_text: Callable[[int, int], str]) -> Callable[[tuple], list[object]]:
+    """A row's cells as written: a time at the resolution of the capture named by the nearest capture column
+    before it (DEFAULT_DIGITS without one, or for a capture not known)."""
+    digits = digits or {}
+    pairs = [(i, max((j for j in range(i) if columns[j].name.endswith("capture")), default=None))
+             for i, c in enumerate(columns) if c.dtype == TIME]
+
+    def cells(row: tuple) -> list[object]:
+        out = list(row)
+        for i, j in pairs:
+            if out[i] is not None:
+                out[i] = time_text(int(out[i]), digits.get(row[j], DEFAULT_DIGITS) if j is not None  # type: ignore[call-overload]
+                                   else DEFAULT_DIGITS)
+        return out
+    return cells
 
 
-def csv_text(columns: Sequence[Column], rows: Iterable[tuple]) -> str:
+def csv_text(columns: Sequence[Column], rows: Iterable[tuple], digits: Mapping[str, int] | None = None) -> str:
+    """The rows as CSV; `digits`: each capture's resolution (Rows.digits)."""
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")
     w.writerow([c.name for c in columns])
+    cells = _cells(columns, digits, csv_time)
     for row in rows:
-        w.writerow([neutralise(_cell(v, c.dtype, csv_time)) for c, v in zip(columns, row, strict=True)])
+        w.writerow([neutralise(v) for v in cells(row)])
     return out.getvalue()
 
 
-def json_text(columns: Sequence[Column], rows: Iterable[tuple]) -> str:
+def json_text(columns: Sequence[Column], rows: Iterable[tuple], digits: Mapping[str, int] | None = None) -> str:
+    """The rows as JSON Lines; `digits`: each capture's resolution (Rows.digits)."""
     names = [c.name for c in columns]
     encode = json.JSONEncoder(ensure_ascii=True, separators=(",", ":")).encode
-    return "".join(encode(dict(zip(names, [_cell(v, c.dtype, json_time) for c, v in zip(columns, row, strict=True)],
-                                   strict=True))) + "\n" for row in rows)
+    cells = _cells(columns, digits, json_time)
+    return "".join(encode(dict(zip(names, cells(row), strict=True))) + "\n" for row in rows)
 
 
 def aligned(headings: Sequence[str], rows: Iterable[Sequence[object]]) -> list[str]:
@@ -85,7 +100,8 @@ def state_text(state: StateTable) -> list[str]:
 def state_formatted(state: StateTable, fmt: str) -> str:
     """The state as CSV or JSON Lines text."""
     rows = list(state.rows())
-    return csv_text(STATE_COLUMNS, rows) if fmt == "csv" else json_text(STATE_COLUMNS, rows)
+    return (csv_text(STATE_COLUMNS, rows, state.digits) if fmt == "csv"
+            else json_text(STATE_COLUMNS, rows, state.digits))
 
 
 def write_state(state: StateTable, out_dir: str, fmt: str) -> str:

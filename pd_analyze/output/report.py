@@ -51,11 +51,11 @@ def write_tables(analysis: Analysis, out_dir: str, fmt: str) -> list[str]:
     surrogate from an undecodable file name), stays on the rows."""
     if fmt in ("csv", "parquet") or any(analysis.rows.tables.values()):
         return write_batches(out_dir, fmt, {name: _batches(analysis.rows, name) for name in TABLES},
-                             count=False).written
+                             count=False, digits=analysis.rows.digits).written
     os.makedirs(out_dir, exist_ok=True)
     written = []
     for name in TABLES:
-        writer = open_table(out_dir, name, fmt)
+        writer = open_table(out_dir, name, fmt, analysis.rows.digits)
         rows = sorted(getattr(analysis.rows, name), key=sort_key(name, _by_capture(name, fmt)))  # stable
         for i in range(0, len(rows), CHUNK_ROWS):
             writer.write(rows[i:i + CHUNK_ROWS])
@@ -65,7 +65,7 @@ def write_tables(analysis: Analysis, out_dir: str, fmt: str) -> list[str]:
 
 def summary(analysis: Analysis, top: int = TOP) -> str:
     """Verdict counts; NAKs by device, DO, PNU and error; B5 retries; latency per device."""
-    acc = Summary()
+    acc = Summary(analysis.rows.digits)
     for name in ("transactions", "parameters", "findings"):
         acc.add(name, getattr(analysis.rows, name))
         for table in analysis.rows.tables.get(name, ()):
@@ -89,15 +89,18 @@ class BatchReport:
     A watermark is a value of the table's sort column (txn; frame for findings); for Parquet's findings,
     which are written by capture, a pair (capture, frame) (`by_capture(name)` says which). Rows are held
     in memory up to `max_held` per table, beyond that spilled to a hidden directory in `out_dir`; a flush
-    writes once `min_write` rows are complete (see table_sink); `count=False` leaves the summary out."""
+    writes once `min_write` rows are complete (see table_sink); `count=False` leaves the summary out.
+    `digits`: each capture's resolution (Rows.digits; by default a dict of its own, which the run's Rows
+    then shares: `_ReportRows`), read as the rows are written."""
 
     def __init__(self, out_dir: str, fmt: str, max_held: int | None = None, chunk_rows: int | None = None,
-                 count: bool = True, min_write: int | None = None) -> None:
+                 count: bool = True, min_write: int | None = None, digits: dict[str, int] | None = None) -> None:
         from pd_analyze.output import table_sink
 
         os.makedirs(out_dir, exist_ok=True)
         self.fmt = fmt
-        self.acc = Summary() if count else None
+        self.digits = {} if digits is None else digits
+        self.acc = Summary(self.digits) if count else None
         self._uncounted: dict[str, list[Any]] = {name: [] for name in TABLES}  # batches not yet in the summary
         self._count_rows = table_sink.FORMAT_ROWS  # batches counted together: a call costs, whatever its size
         self._spill = tempfile.mkdtemp(prefix=".pd-analyze-", dir=out_dir)  # beside the output: room for big files
@@ -105,7 +108,7 @@ class BatchReport:
         self.sinks: dict[str, table_sink.TableSink] = {}
         try:
             for name in TABLES:
-                self._writers[name] = writer = open_table(out_dir, name, fmt)
+                self._writers[name] = writer = open_table(out_dir, name, fmt, self.digits)
                 self.sinks[name] = table_sink.TableSink(
                     name, writer, self.by_capture(name), self._spill, max_held or table_sink.MAX_HELD,
                     chunk_rows or table_sink.CHUNK_ROWS, min_write or table_sink.FORMAT_ROWS)
@@ -171,10 +174,12 @@ class BatchReport:
 
 def write_batches(out_dir: str, fmt: str, batches_by_table: Mapping[str, Iterable[Any]],
                   captures: Sequence[CaptureResult] = (), max_held: int | None = None,
-                  chunk_rows: int | None = None, count: bool = True, min_write: int | None = None) -> Streamed:
+                  chunk_rows: int | None = None, count: bool = True, min_write: int | None = None,
+                  digits: dict[str, int] | None = None) -> Streamed:
     """The report files of tables given as pyarrow batches (each table's batches in any order, rows of a
-    batch in the order found; tables not given are written empty), and the summary of `captures`."""
-    with BatchReport(out_dir, fmt, max_held, chunk_rows, count, min_write) as out:
+    batch in the order found; tables not given are written empty), and the summary of `captures`; `digits`:
+    each capture's resolution (Rows.digits)."""
+    with BatchReport(out_dir, fmt, max_held, chunk_rows, count, min_write, digits) as out:
         for name, tables in batches_by_table.items():
             for table in tables:
                 out.add(name, table)
@@ -218,7 +223,7 @@ class _ReportRows(Rows):
     ROWS_PER_BATCH = 4096
 
     def __init__(self, out: BatchReport, rows_per_batch: int) -> None:
-        super().__init__()
+        super().__init__(digits=out.digits)  # the writers and the summary read the resolutions the run notes
         self.out = out
         self.size = min(rows_per_batch, self.ROWS_PER_BATCH)
 

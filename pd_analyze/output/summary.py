@@ -14,12 +14,13 @@ from __future__ import annotations
 import math
 from array import array
 from collections import Counter
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 from pd_analyze.analysis.schema import capture_text, sort_key
 from pd_analyze.analysis.stations import per_capture
 from pd_analyze.model.rules import SEVERITIES
+from pd_analyze.model.times import DEFAULT_DIGITS
 from pd_analyze.model.verdicts import VERDICTS
 from pd_analyze.output.summary_words import (
     FAILED,
@@ -85,7 +86,8 @@ def quantile(values: Sequence[float], q: float) -> float:
 
 
 class Summary:
-    """Accumulates the summary from table rows; `text()` renders it."""
+    """Accumulates the summary from table rows; `text()` renders it. Times are written at their capture's
+    resolution (`digits`: Rows.digits, the same dict the run fills)."""
 
     # the verdicts listed per drive (a NAK by its refused parameters), and how many slowest transactions are
     # kept (for add_batch)
@@ -93,7 +95,8 @@ class Summary:
     SLOWEST = TOP
     WHOLE_REQUEST = WHOLE_REQUEST
 
-    def __init__(self) -> None:
+    def __init__(self, digits: Mapping[str, int] | None = None) -> None:
+        self.digits = {} if digits is None else digits
         self.transactions = 0
         self.verdicts: Counter[str] = Counter()
         self.any_failed = False
@@ -169,7 +172,7 @@ class Summary:
         place = (_LAST if missing(txn) else txn, number)
         label = params_label(params, n_params)
         if verdict in FAILED:
-            entries = [(label, reason(verdict, status, closed_by, b5, last_read))]
+            entries = [(label, reason(verdict, status, closed_by, b5, last_read, self._digits(device)))]
         elif verdict == "nak":  # each parameter refused; a negative answer that names no error, as such (Q8)
             entries = refused_entries(errors, label) or [(label, "refused: negative response without an error block")]
         else:
@@ -190,6 +193,10 @@ class Summary:
             elif (entry[0], entry[1]) < (self.slowest[-1][0], self.slowest[-1][1]):
                 self.slowest[-1] = entry
                 self.slowest.sort(key=lambda e: (e[0], e[1]))
+
+    def _digits(self, device: object) -> int:
+        """The resolution of a device's capture (a device is (capture, address))."""
+        return self.digits.get(device_key(device)[0], DEFAULT_DIGITS)
 
     def _parameters(self, rows: Iterable[tuple]) -> None:
         first = self.first
@@ -265,6 +272,9 @@ class Summary:
             return label_of(*device)
 
         failed, naks, refused, unitemised, latency = self._by_label(label)
+        places: dict[str, int] = {}  # a device's resolution: the finest of its captures'
+        for dev in self.latency:
+            places[label(dev)] = max(places.get(label(dev), 0), self._digits(dev))
 
         lines = []
         for c in captures:
@@ -330,8 +340,10 @@ class Summary:
         if self.slowest:
             lines.append("")
             lines.append("Slowest parameters, ms (write to final response):")
-            for neg, _place, dev, slot, do, params, txn in self.slowest:
-                lines.append(f"  {ms(-neg):>8}  {label(dev)} slot {known(slot)} DO {known(do)} "
+            times = [ms(-entry[0], self._digits(entry[2])) for entry in self.slowest]
+            cell = max(8, *(len(text) for text in times))
+            for text, (_neg, _place, dev, slot, do, params, txn) in zip(times, self.slowest, strict=True):
+                lines.append(f"  {text:>{cell}}  {label(dev)} slot {known(slot)} DO {known(do)} "
                              f"{few(params, self.pnu_names)} (transaction {na_text(txn)})")
         lines.append("")
         lines.append(f"B5 retries: {self.b5_total} in {self.b5_transactions} transactions"
@@ -341,15 +353,19 @@ class Summary:
             lines.append("")
             lines.append("Latency per device, ms (write to final response; slowest first):")
             width = max(16, *(len(dev) for dev in latency))
-            lines.append(f"  {'device':<{width}} {'n':>6} {'p50':>8} {'p90':>8} {'p99':>8} {'max':>8}  write rtt p50")
             stats = []
             for dev in sorted(latency):
                 totals, rtts = (sorted(a) for a in latency[dev])
                 stats.append((dev, len(totals), quantile(totals, 0.5), quantile(totals, 0.9),
                               quantile(totals, 0.99), totals[-1], quantile(rtts, 0.5)))
-            for dev, n, p50, p90, p99, most, w50 in sorted(stats, key=lambda s: -s[3])[:top]:
-                lines.append(f"  {dev:<{width}} {n:>6} {ms(p50):>8} {ms(p90):>8} {ms(p99):>8} "
-                             f"{ms(most):>8}  {ms(w50)}")
+            shown = [(dev, n, [ms(v, places[dev]) for v in values])
+                     for dev, n, *values in sorted(stats, key=lambda s: -s[3])[:top]]
+            # aligned at any resolution, two spaces apart at least
+            cell = max(8, *(len(text) + 1 for _, _, texts in shown for text in texts[:4]))
+            lines.append(f"  {'device':<{width}} {'n':>6} {'p50':>{cell}} {'p90':>{cell}} {'p99':>{cell}} "
+                         f"{'max':>{cell}}  write rtt p50")
+            for dev, n, (p50, p90, p99, most, w50) in shown:
+                lines.append(f"  {dev:<{width}} {n:>6} {p50:>{cell}} {p90:>{cell}} {p99:>{cell}} {most:>{cell}}  {w50}")
         return "\n".join(lines + self._findings_lines(top))
 
     def _by_label(self, label: Callable[[tuple], str]) -> tuple[dict, Counter, dict, Counter, dict]:

@@ -4,14 +4,17 @@ counting is output.summary's)."""
 from __future__ import annotations
 
 from pd_analyze.model import pd_values as pt
+from pd_analyze.model.times import DEFAULT_DIGITS, ms_text
 
 
 def missing(value: object) -> bool:
     return value is None or (isinstance(value, float) and value != value)
 
 
-def ms(seconds: float) -> str:
-    return "-" if seconds != seconds else f"{seconds * 1000:.1f}"
+def ms(seconds: float, digits: int = DEFAULT_DIGITS, column: bool = True) -> str:
+    """Seconds as milliseconds at a capture's resolution of `digits` decimals of a second ('-' missing): in a
+    column every decimal, in a sentence (`column` False) no trailing zero."""
+    return ms_text(seconds, digits, column)
 
 
 def na_text(value: object) -> str:
@@ -47,14 +50,16 @@ _UNANSWERED = {"deadline": "no answer within the transaction timeout",
                "evicted": "dropped by the analyser's limits (too many open transactions or frames)"}
 
 
-def reason(verdict: object, status: object, closed_by: object, b5: object, last_read: object = None) -> str:
-    """Why a transaction failed, in words; for a timeout, how long the controller kept reading."""
+def reason(verdict: object, status: object, closed_by: object, b5: object, last_read: object = None,
+           digits: int = DEFAULT_DIGITS) -> str:
+    """Why a transaction failed, in words; for a timeout, how long the controller kept reading (at the
+    capture's resolution, `digits` decimals of a second)."""
     if verdict == "pnio_error":
         return str(status) if status and not missing(status) else "record service refused"
     if verdict == "timeout":
         why = _UNANSWERED.get(str(closed_by), "no answer")
         stopped = "its last read" if closed_by == "capture_end" else "the controller gave up: last read"
-        asked = [] if missing(last_read) else [f"{stopped} {ms(last_read)} ms after the write"]
+        asked = [] if missing(last_read) else [f"{stopped} {ms(last_read, digits, False)} ms after the write"]  # type: ignore[arg-type]
         if not missing(b5) and b5:
             asked.append(f"{b5} B5 answer{'s' if b5 != 1 else ''}")
         return f"timeout: {why}" + (f" ({', '.join(asked)})" if asked else "")

@@ -1,11 +1,14 @@
 """Table files written a chunk of rows at a time: CSV, JSON Lines, and a Hive-partitioned Parquet dataset.
 
 Cells are formatted from the column declarations of tables_out, the same way in every chunk, so the
-files do not depend on where chunks start: times with microseconds always (`2026-01-01 00:00:00.000000+00:00`
-in CSV, `2026-01-01T00:00:00.000000Z` in JSON), floats at full precision, empty cells (CSV) or null
-(JSON) for missing values. CSV and JSON need neither pandas nor pyarrow; Parquet imports pyarrow when
-the first Parquet file is opened, and pandas for the schema metadata that gives the same dtypes back
-(pyarrow imports pandas anyway as soon as it converts a Python list).
+files do not depend on where chunks start: a row's times and durations at its capture's resolution
+(model.times; `digits`, the dict Rows.digits, read when a row is formatted): a microsecond capture's
+times `2026-01-01 00:00:00.002936+00:00` in CSV, `2026-01-01T00:00:00.002936Z` in JSON, its durations
+`0.001499` (never in exponent form, in JSON a number too); a nanosecond capture's with nine decimals;
+empty cells (CSV) or null (JSON) for missing values. CSV and JSON need neither pandas nor pyarrow;
+Parquet imports pyarrow when the first Parquet file is opened, and pandas for the schema metadata that
+gives the same dtypes back (pyarrow imports pandas anyway as soon as it converts a Python list). Parquet
+keeps times as timestamp[ns] and durations as doubles, exactly.
 
 `write_batch(table)` writes rows that come as a pyarrow batch (table_batches.batch_schema) into the same
 bytes: CSV formatted a column at a time (batch_cells), JSON Lines through the same encoder, Parquet with
@@ -20,21 +23,19 @@ import json
 import math
 import os
 import re
-from collections.abc import Callable, Sequence
-from datetime import UTC, datetime, timedelta
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 from urllib.parse import quote
 
-from pd_analyze.analysis.schema import COLUMNS, FIXED_CATEGORIES, TIME, float_cell, micros, text_cell
+from pd_analyze.analysis.schema import COLUMNS, FIXED_CATEGORIES, TIME, float_cell, text_cell
 from pd_analyze.analysis.schema import cell_value as value_of
+from pd_analyze.model.times import DEFAULT_DIGITS, duration_text, nanos, time_text
 
 _FORMULA = re.compile(r"^[=+\-@\t\r]")
 # A number, or a list of numbers separated by single spaces (values_written "-775.375 2225.25"): data a
 # spreadsheet cannot run, so never prefixed; the formula guard is for free text only.
 _NUMBER_TOKEN = r"([+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?|[+-]?inf|nan)"
 _NUMBER = re.compile(rf"^{_NUMBER_TOKEN}( {_NUMBER_TOKEN})*$")
-_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
-_EPOCH_NAIVE = datetime(1970, 1, 1)
 CSV_BATCH_ROWS = 65_536  # rows formatted a column at a time at once (each call costs some microseconds)
 
 
@@ -45,24 +46,29 @@ def neutralise(text: object) -> object:
     return text
 
 
-def csv_time(us: int) -> str:
-    return (_EPOCH + timedelta(microseconds=us)).isoformat(" ", "microseconds")
+def csv_time(ns: int, digits: int = DEFAULT_DIGITS) -> str:
+    return time_text(ns, digits)
 
 
-def json_time(us: int) -> str:
-    return (_EPOCH_NAIVE + timedelta(microseconds=us)).isoformat("T", "microseconds") + "Z"
+def json_time(ns: int, digits: int = DEFAULT_DIGITS) -> str:
+    return time_text(ns, digits, "T", "Z")
 
 
 _FORMULA_START = frozenset("=+-@\t\r")
 
 
 class _Cells:
-    """What a row needs before csv or json can write it: times formatted, NaN made missing, text cells
-    made str, values outside fixed categories missing. Integers, booleans and None go out as they are."""
+    """What a row needs before csv or json can write it: times and durations as text at the row's capture's
+    resolution (`digits` by capture), NaN made missing (for JSON, `finite`, infinity too), text cells made
+    str, values outside fixed categories missing. Integers, booleans and None go out as they are."""
 
-    def __init__(self, name: str, time_text: Callable[[int], str]) -> None:
+    def __init__(self, name: str, time_text: Callable[[int, int], str], digits: Mapping[str, int] | None,
+                 finite: bool = False) -> None:
         self.cols = cols = COLUMNS[name]
         self.time_text = time_text
+        self.digits = {} if digits is None else digits  # (the caller's dict: a capture may be learnt later)
+        self.finite = finite
+        self.capture = [c.name for c in cols].index("capture")
         self.times = [i for i, c in enumerate(cols) if c.dtype == TIME]
         self.floats = [i for i, c in enumerate(cols) if c.dtype == "Float64"]
         self.texts = [i for i, c in enumerate(cols) if c.dtype in ("string", "category")]
@@ -71,13 +77,15 @@ class _Cells:
 
     def row(self, row: tuple) -> list:
         out = list(row)
+        digits = self.digits.get(text_cell(out[self.capture]), DEFAULT_DIGITS)  # type: ignore[arg-type]
         for i in self.times:
-            us = micros(out[i])
-            out[i] = None if us is None else self.time_text(us)
+            ns = nanos(out[i])
+            out[i] = None if ns is None else self.time_text(ns, digits)
         for i in self.floats:
             v = out[i]
             if v is not None:
-                out[i] = float_cell(v)
+                v = float_cell(v)
+                out[i] = None if v is None or (self.finite and not math.isfinite(v)) else duration_text(v, digits)
         for i in self.texts:
             v = out[i]
             if v is not None and type(v) is not str:
@@ -120,9 +128,9 @@ class _LineWriter:
 class CsvWriter(_LineWriter):
     """One CSV file, header first; text cells a spreadsheet would run as a formula get an apostrophe."""
 
-    def __init__(self, path: str, name: str) -> None:
+    def __init__(self, path: str, name: str, digits: Mapping[str, int] | None = None) -> None:
         self.path = path
-        self._cells = _Cells(name, csv_time)
+        self._cells = _Cells(name, csv_time, digits)
         self._texts = self._cells.texts
         self._name = name
         self._line = csv.writer(_Returned, lineterminator="\n").writerow  # None is written as an empty cell
@@ -141,7 +149,7 @@ class CsvWriter(_LineWriter):
         from pd_analyze.output.batch_cells import csv_lines
 
         batches = table.combine_chunks().to_batches(max_chunksize=CSV_BATCH_ROWS)  # few calls: each costs
-        return pa.chunked_array([csv_lines(self._name, b) for b in batches], pa.large_string())
+        return pa.chunked_array([csv_lines(self._name, b, self._cells.digits) for b in batches], pa.large_string())
 
     def write_formatted(self, lines: Any) -> None:
         """Lines made by format_batch (or pieces of them, in any order the caller chose)."""
@@ -161,22 +169,39 @@ class CsvWriter(_LineWriter):
 
 
 class JsonWriter(_LineWriter):
-    """JSON Lines, ASCII only: one object per row, null for a missing value."""
+    """JSON Lines, ASCII only: one object per row, null for a missing value (and for infinity)."""
 
-    def __init__(self, path: str, name: str) -> None:
+    def __init__(self, path: str, name: str, digits: Mapping[str, int] | None = None) -> None:
         self.path = path
         self._names = [c.name for c in COLUMNS[name]]
-        self._cells = _Cells(name, json_time)
-        self._floats = self._cells.floats
+        self._cells = _Cells(name, json_time, digits, finite=True)
         self._encode = json.JSONEncoder(ensure_ascii=True, separators=(",", ":"), allow_nan=False).encode
+        # the columns in runs: durations (numbers written as their text, which json would write in exponent
+        # form below 1e-4) and the others (encoded together, as one object's members)
+        floats = set(self._cells.floats)
+        self._runs: list[tuple[bool, list[int]]] = []
+        for i in range(len(self._names)):
+            if self._runs and self._runs[-1][0] == (i in floats):
+                self._runs[-1][1].append(i)
+            else:
+                self._runs.append((i in floats, [i]))
         self._file = open(path, "w", encoding="ascii")  # noqa: SIM115 - closed by close()
 
+    def _object(self, cells: Sequence[object]) -> str:
+        """A row's line from its cells (durations as text): what json writes for the same object."""
+        names, encode = self._names, self._encode
+        if len(self._runs) == 1:
+            return encode(dict(zip(names, cells, strict=True))) + "\n"
+        parts = []
+        for numbers, run in self._runs:
+            if numbers:
+                parts += [f'"{names[i]}":{"null" if cells[i] is None else cells[i]}' for i in run]
+            else:
+                parts.append(encode({names[i]: cells[i] for i in run})[1:-1])
+        return "{" + ",".join(parts) + "}\n"
+
     def line(self, row: tuple) -> str:
-        cells = self._cells.row(row)
-        for i in self._floats:  # JSON has no infinity: null, as for NaN
-            if cells[i] is not None and not math.isfinite(cells[i]):
-                cells[i] = None
-        return self._encode(dict(zip(self._names, cells, strict=True))) + "\n"
+        return self._object(self._cells.row(row))
 
     def write_batch(self, table: Any) -> None:
         """Rows of a pyarrow Table of batch_schema(name), in table order: the same bytes `write` writes
@@ -186,18 +211,25 @@ class JsonWriter(_LineWriter):
     def format_batch(self, table: Any) -> Any:
         """The JSON lines of a batch's rows (a pyarrow ChunkedArray, one line a row), to be written later."""
         import pyarrow as pa
+        import pyarrow.compute as pc
 
+        from pd_analyze.output.batch_cells import duration_text, row_digits
+        from pd_analyze.output.batch_cells import time_text as times
+
+        table = table.combine_chunks()
+        digits = row_digits(table.column("capture").combine_chunks(), self._cells.digits) if table.num_rows else 0
         columns = []
         for c, values in zip(self._cells.cols, table.columns, strict=True):
+            values = values.combine_chunks()
             if c.dtype == TIME:
-                columns.append([None if us is None else json_time(us) for us in values.cast(pa.int64()).to_pylist()])
+                columns.append(times(values, digits, "T", "Z").to_pylist())
             elif c.dtype == "Float64":  # JSON has no infinity (nor NaN): null
-                columns.append([v if v is None or math.isfinite(v) else None for v in values.to_pylist()])
+                text = duration_text(values, digits)
+                columns.append(pc.if_else(pc.is_finite(values), text, pa.scalar(None, text.type)).to_pylist())
             else:
                 columns.append(values.to_pylist())
-        encode, names = self._encode, self._names
-        return pa.chunked_array([pa.array([encode(dict(zip(names, row, strict=True))) + "\n"
-                                           for row in zip(*columns, strict=True)], pa.large_string())])
+        line = self._object
+        return pa.chunked_array([pa.array([line(row) for row in zip(*columns, strict=True)], pa.large_string())])
 
     def write_formatted(self, lines: Any) -> None:
         """Lines made by format_batch (or pieces of them, in any order the caller chose)."""
@@ -215,10 +247,10 @@ class ParquetWriter:
     tables are in transaction order, which runs file by file): one partition file is open at a time.
     Without rows, DIR/part-0.parquet holds the schema, capture column included."""
 
-    def __init__(self, path: str, name: str) -> None:
+    def __init__(self, path: str, name: str, digits: Mapping[str, int] | None = None) -> None:
         import pyarrow as pa
 
-        self.path = path
+        self.path = path  # (`digits` unused: Parquet keeps every time and duration exactly)
         self._pa = pa
         self._cols = COLUMNS[name]
         self._capture = [c.name for c in self._cols].index("capture")
@@ -313,7 +345,7 @@ class ParquetWriter:
         pa = self._pa
         col, kind = self._cols[i], self._schema.field(i).type
         if col.dtype == TIME:
-            return pa.array([micros(v) for v in cells], pa.int64()).cast(pa.timestamp("us", tz="UTC")).cast(kind)
+            return pa.array([nanos(v) for v in cells], pa.int64()).cast(kind)
         fixed = FIXED_CATEGORIES.get(col.dtype)
         if fixed is not None:
             codes = {c: j for j, c in enumerate(fixed[0])}
@@ -365,7 +397,9 @@ WRITERS: dict[str, type[CsvWriter] | type[JsonWriter] | type[ParquetWriter]] = {
     "csv": CsvWriter, "json": JsonWriter, "parquet": ParquetWriter}
 
 
-def open_table(out_dir: str, name: str, fmt: str) -> CsvWriter | JsonWriter | ParquetWriter:
-    """The writer of one table in `out_dir`: name.csv, name.jsonl, or the dataset directory name/."""
+def open_table(out_dir: str, name: str, fmt: str,
+               digits: Mapping[str, int] | None = None) -> CsvWriter | JsonWriter | ParquetWriter:
+    """The writer of one table in `out_dir`: name.csv, name.jsonl, or the dataset directory name/; `digits`:
+    each capture's resolution (Rows.digits, the same dict: captures read later are written at theirs)."""
     path = os.path.join(out_dir, name if fmt == "parquet" else f"{name}.{'jsonl' if fmt == 'json' else fmt}")
-    return WRITERS[fmt](path, name)
+    return WRITERS[fmt](path, name, digits)

@@ -89,6 +89,8 @@ class EngineRun:
         if not len(batch):
             return
         self.last_frame = int(batch.number[-1])
+        for result in self.results:  # (a chain is one capture: its files' rows are written at its finest)
+            self.rows.note_digits(capture_text(result.path), batch.digits)
         for decoded in self.decoder.parts(batch, views):
             self._part(decoded)
             del decoded  # (the next part's decode does not wait for this one's memory)

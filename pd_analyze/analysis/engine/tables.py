@@ -18,13 +18,13 @@ import pyarrow as pa
 from pd_analyze.analysis.engine.facts import Carried
 from pd_analyze.analysis.engine.records import Records
 from pd_analyze.analysis.engine.rules import WHOLE, refusal, refused_finding
-from pd_analyze.analysis.engine.txn import NS, Txn
+from pd_analyze.analysis.engine.txn import Txn
 from pd_analyze.analysis.engine.txncols import MISSING, TxnCols, of_txns
 from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.analysis.rows import Rows, finding_row
-from pd_analyze.analysis.schema import micros
 from pd_analyze.analysis.table_batches import TIME_TYPE, batch_schema, rows_to_batch
 from pd_analyze.model import pd_values as pt
+from pd_analyze.model.times import MAX_TIME_NS, NS
 from pd_analyze.model.values import status_text
 from pd_analyze.model.verdicts import ANSWERED
 from pd_analyze.protocol import profidrive_batch
@@ -347,9 +347,9 @@ def _take(text: pa.Array, rows: np.ndarray) -> pa.Array:
 
 
 def _times(ns: np.ndarray) -> pa.Array:
-    """Capture times (integer nanoseconds) as the tables hold them: schema.micros of the seconds (one per
-    transaction: a Python division, as the rows of the per-frame tables make them)."""
-    return pa.array([micros(v / NS) for v in ns.tolist()], pa.int64()).cast(TIME_TYPE)
+    """Capture times (integer nanoseconds) as the tables hold them: those same nanoseconds, missing beyond
+    datetime64[ns] (model.times.nanos, a column at a time)."""
+    return pa.array(ns, pa.int64(), mask=(ns >= MAX_TIME_NS) | (ns <= -MAX_TIME_NS)).cast(TIME_TYPE)
 
 
 def _pnu_names(pnu: np.ndarray, names: pt.Names) -> pa.Array:

@@ -5,8 +5,7 @@ from __future__ import annotations
 
 from pd_analyze.analysis.engine.facts import Channel, Head, Record
 from pd_analyze.model.rules import Finding
-
-NS = 1_000_000_000
+from pd_analyze.model.times import NS
 
 
 class Txn:

@@ -5,7 +5,7 @@ var PD = (function () {
   var DATA = JSON.parse(document.getElementById("pd-data").textContent);
   var PAGE = DATA.page;
   var CLASS = {verdict: "v", severity: "s"};
-  var TIME_TEMPLATE = "0000-01-01 00:00:00.000000";
+  var TIME_TEMPLATE = "0000-01-01 00:00:00.000000000";  /* cells have a capture's decimals: 0 to 9 */
 
   function el(tag, text, cls) {
     var e = document.createElement(tag);
@@ -19,13 +19,17 @@ var PD = (function () {
     return op === "<" ? a < b : op === ">" ? a > b : op === "<=" ? a <= b : op === ">=" ? a >= b : a === b;
   }
 
+  /* A time cell padded to the full width (nine decimals), so that cells of any resolution compare as times. */
+  function fullTime(text) {
+    return text + TIME_TEMPLATE.slice(text.length);
+  }
   /* A time typed in a filter as the cells hold it ("2026-01-01 00:00:05" or a time of day "00:00:05.5"):
-     [the text padded to the cells' full width, whether it is a time of day], or null. */
+     [the text padded to the full width, whether it is a time of day], or null. */
   function timeKey(text) {
-    if (/^\d{4}-\d\d(-\d\d( \d\d(:\d\d(:\d\d(\.\d{1,6})?)?)?)?)?$/.test(text)) {
+    if (/^\d{4}-\d\d(-\d\d( \d\d(:\d\d(:\d\d(\.\d{1,9})?)?)?)?)?$/.test(text)) {
       return [text + TIME_TEMPLATE.slice(text.length), false];
     }
-    var m = /^(\d{1,2}):(\d\d)(?::(\d\d)(\.\d{1,6})?)?$/.exec(text);
+    var m = /^(\d{1,2}):(\d\d)(?::(\d\d)(\.\d{1,9})?)?$/.exec(text);
     if (!m) { return null; }
     var day = ("0" + m[1]).slice(-2) + ":" + m[2] + ":" + (m[3] || "00") + (m[4] || ".");
     return [day + TIME_TEMPLATE.slice(11 + day.length), true];
@@ -49,7 +53,9 @@ var PD = (function () {
       };
     } else if (kind === "time" && m && m[1] !== "=" && timeKey(rest)) {
       var key = timeKey(rest);
-      test = function (v) { return v !== null && compareOp(op, key[1] ? String(v).slice(11) : String(v), key[0]); };
+      test = function (v) {
+        return v !== null && compareOp(op, key[1] ? fullTime(String(v)).slice(11) : fullTime(String(v)), key[0]);
+      };
     } else if (m && m[1] === "=") {
       var exact = rest.toLowerCase();
       test = function (v) { return shown(v).toLowerCase() === exact; };
