@@ -7,10 +7,11 @@ from __future__ import annotations
 import math
 import struct
 from datetime import date, timedelta
-from typing import Protocol
+from typing import Any, Protocol
 
 from pd_analyze.model import pd_values as pt
-from pd_analyze.model.layout import Field, show
+from pd_analyze.model.layout import Field, Layout, show
+from pd_analyze.model.shown import SharedField
 from pd_analyze.protocol.profidrive import HEADER, RESPONSE_HEADER, Address, Block, Parsed, as_value, error_meaning
 from pd_analyze.protocol.profiles import DEFAULT, VendorIds, VendorRequest
 
@@ -169,25 +170,22 @@ def annotate(p: Parsed, data: bytes, base: int, checks: Checks,
     if not p.header_ok:  # decoded as far as the bytes go (protocol.md 1.3), the finding says it is cut
         return [(f"Parameter {side} header (cut: {len(data)} of 4 bytes)",
                  _fields_present(data, 0, base, tuple(zip(layout.names, layout.sizes, strict=True))))]
-    head = layout.annotate(data, 0, (p.ref, p.ident, p.do, p.n), base)
-    for i, key in enumerate(("ref", "resp_id" if p.response else "req_id", "do", "n_params")):
-        head[i] = head[i].with_check(_described(checks, f"{side}.{key}", head[i].value))
-    if p.vendor is not None:  # the vendor's own ID: the generic profile does not define it (protocol.md 5.5)
-        head[1] = head[1].replaced(f"0x{p.ident:02x} ({p.vendor.name})", _vendor_check(head[1].check))
+    memo = _memo(checks)
+    key = ("header", p.response, base, bytes(data[:4]), id(p.vendor))
+    head = memo.get(key)
+    if head is None:
+        head = _header(p, data, base, checks, layout, side)
+        memo[key] = head = tuple(head)
     vendor = request.vendor if p.response and request is not None else p.vendor
     service = vendor if isinstance(vendor, VendorRequest) else None
-    sections: list[Section] = [(f"Parameter {side} header", head)]
+    sections: list[Section] = [(f"Parameter {side} header", list(head))]
     for i, a in enumerate(p.addresses):
         at = a.offset
-        fields = [Field(f"pd.addr[{i}].{n}", base + at + off, size, bytes(data[at + off:at + off + size]),
-                        v, _show_addr(n, v, service, checks.names)) for n, off, size, v in
-                  (("attr", 0, 1, a.attr), ("n_elems", 1, 1, a.n_elems), ("pnu", 2, 2, a.pnu),
-                   ("subindex", 4, 2, a.subindex))]
-        for fld, key in zip(fields, ("attribute", "n_elems", "pnu", "subindex"), strict=True):
-            fld.check = _described(checks, f"request.{key}", fld.value)
-            if service is not None and key in ("attribute", "pnu"):  # the service's, not the profile's
-                fld.check = _vendor_check(fld.check)
-        sections.append((f"Parameter address [{i}]: {_named(a.label(), a.pnu, checks.names)}", fields))
+        key = ("address", i, base + at, bytes(data[at:at + 6]), id(service))
+        found = memo.get(key)
+        if found is None:
+            found = memo[key] = _address(i, a, data, base, checks, service)
+        sections.append((found[0], list(found[1])))
     if p.echo:
         sections.append(("Address echo (AKD manual layout)", [Field("pd.echo", base + 4, 6, bytes(data[4:10]),
                                                                     data[4:10].hex(), data[4:10].hex(" "))]))
@@ -199,10 +197,18 @@ def annotate(p: Parsed, data: bytes, base: int, checks: Checks,
     addresses = request.addresses if request is not None and p.response else p.addresses
     if service is not None:
         addresses = [as_value(a) for a in addresses]
+    owner = id(p.vendor)  # (error texts name a vendor's errors: its Response ID, protocol.md 5.5)
     for i, block in enumerate(p.blocks):
         addr = addresses[i] if i < len(addresses) else None
-        sections.append((_block_title(i, block, addr, p, checks.names),
-                         _block_fields(i, block, data, base, side, checks, addr, p)))
+        key = ("block", i, base + block.offset, block.format, block.n_values, block.size, block.data, block.pad,
+               block.unknown_size, None if addr is None else (addr.attr, addr.n_elems, addr.pnu, addr.subindex),
+               p.response, owner)
+        found = memo.get(key)
+        if found is None:
+            found = memo[key] = (_block_title(i, block, addr, p, checks.names), tuple(
+                SharedField.make(f.name, f.offset, f.length, f.raw, f.value, f.show, f.check)
+                for f in _block_fields(i, block, data, base, side, checks, addr, p)))
+        sections.append((found[0], list(found[1])))
     cut = _cut_block(p, data, base, side, checks, addresses)
     if cut is not None:
         sections.append(cut)
@@ -213,6 +219,52 @@ def annotate(p: Parsed, data: bytes, base: int, checks: Checks,
     return sections
 
 
+
+
+def _header(p: Parsed, data: bytes, base: int, checks: Checks, layout: Layout, side: str) -> list[Field]:
+    """The record header's four fields with their checks (a vendor's own ID with its name)."""
+    head = layout.annotate(data, 0, (p.ref, p.ident, p.do, p.n), base)
+    for i, key in enumerate(("ref", "resp_id" if p.response else "req_id", "do", "n_params")):
+        head[i] = head[i].with_check(_described(checks, f"{side}.{key}", head[i].value))
+    if p.vendor is not None:  # the vendor's own ID: the generic profile does not define it (protocol.md 5.5)
+        head[1] = head[1].replaced(f"0x{p.ident:02x} ({p.vendor.name})", _vendor_check(head[1].check))
+    return list(head)
+
+
+def _address(i: int, a: Address, data: bytes, base: int, checks: Checks, service: VendorRequest | None
+             ) -> tuple[str, tuple[Field, ...]]:
+    """Parameter address `i`: its title and fields with their checks (a vendor service's own attribute and
+    PNU checked against the vendor profile only)."""
+    at = a.offset
+    fields = []
+    for n, key, off, size, v in (("attr", "attribute", 0, 1, a.attr), ("n_elems", "n_elems", 1, 1, a.n_elems),
+                                 ("pnu", "pnu", 2, 2, a.pnu), ("subindex", "subindex", 4, 2, a.subindex)):
+        check = _described(checks, f"request.{key}", v)
+        if service is not None and key in ("attribute", "pnu"):  # the service's, not the profile's
+            check = _vendor_check(check)
+        raw = bytes(data[at + off:at + off + size])
+        fields.append(SharedField.make(f"pd.addr[{i}].{n}", base + at + off, size, raw, v,
+                                       _show_addr(n, v, service, checks.names), check))
+    return f"Parameter address [{i}]: {_named(a.label(), a.pnu, checks.names)}", tuple(fields)
+
+
+def _memo(checks: Checks) -> dict[tuple, Any]:
+    """The sections made for the checker `checks` (its texts and names), by what decides them: the header,
+    each address and each value block by its bytes, offset and what names it. A commissioning reads and
+    writes the same few parameters over and over, so most sections are met again, with their texts kept on
+    their SharedFields."""
+    memo = _SECTIONS.get(id(checks))
+    if memo is None or memo[0] is not checks:  # another run's checker (the id of one gone)
+        if len(_SECTIONS) >= 16:
+            _SECTIONS.clear()
+        memo = _SECTIONS[id(checks)] = (checks, {})
+    if len(memo[1]) >= _SECTIONS_KEPT:
+        memo[1].clear()
+    return memo[1]
+
+
+_SECTIONS: dict[int, tuple[Checks, dict[tuple, Any]]] = {}  # by checker: (checker, sections)
+_SECTIONS_KEPT = 16_384  # sections per checker (a section with its texts: some 2 KB)
 
 
 _ADDRESS_PARTS = (("attr", 1), ("n_elems", 1), ("pnu", 2), ("subindex", 2))
