@@ -171,14 +171,15 @@ def annotate(p: Parsed, data: bytes, base: int, checks: Checks,
         return [(f"Parameter {side} header (cut: {len(data)} of 4 bytes)",
                  _fields_present(data, 0, base, tuple(zip(layout.names, layout.sizes, strict=True))))]
     memo = _memo(checks)
-    key = ("header", p.response, base, bytes(data[:4]), id(p.vendor))
-    head = memo.get(key)
-    if head is None:
+    ref_key = ("ref", p.response, base, data[0])  # the reference changes every transaction: a key of its own
+    key = ("header", p.response, base, bytes(data[1:4]), id(p.vendor))
+    ref, rest = memo.get(ref_key), memo.get(key)
+    if ref is None or rest is None:
         head = _header(p, data, base, checks, layout, side)
-        memo[key] = head = tuple(head)
+        ref, rest = memo[ref_key], memo[key] = head[0], tuple(head[1:])
     vendor = request.vendor if p.response and request is not None else p.vendor
     service = vendor if isinstance(vendor, VendorRequest) else None
-    sections: list[Section] = [(f"Parameter {side} header", list(head))]
+    sections: list[Section] = [(f"Parameter {side} header", [ref, *rest])]
     for i, a in enumerate(p.addresses):
         at = a.offset
         key = ("address", i, base + at, bytes(data[at:at + 6]), id(service))
@@ -197,18 +198,9 @@ def annotate(p: Parsed, data: bytes, base: int, checks: Checks,
     addresses = request.addresses if request is not None and p.response else p.addresses
     if service is not None:
         addresses = [as_value(a) for a in addresses]
-    owner = id(p.vendor)  # (error texts name a vendor's errors: its Response ID, protocol.md 5.5)
     for i, block in enumerate(p.blocks):
         addr = addresses[i] if i < len(addresses) else None
-        key = ("block", i, base + block.offset, block.format, block.n_values, block.size, block.data, block.pad,
-               block.unknown_size, None if addr is None else (addr.attr, addr.n_elems, addr.pnu, addr.subindex),
-               p.response, owner)
-        found = memo.get(key)
-        if found is None:
-            found = memo[key] = (_block_title(i, block, addr, p, checks.names), tuple(
-                SharedField.make(f.name, f.offset, f.length, f.raw, f.value, f.show, f.check)
-                for f in _block_fields(i, block, data, base, side, checks, addr, p)))
-        sections.append((found[0], list(found[1])))
+        sections.append(_block_section(i, block, addr, p, data, base, side, checks, memo))
     cut = _cut_block(p, data, base, side, checks, addresses)
     if cut is not None:
         sections.append(cut)
@@ -246,6 +238,45 @@ def _address(i: int, a: Address, data: bytes, base: int, checks: Checks, service
         fields.append(SharedField.make(f"pd.addr[{i}].{n}", base + at + off, size, raw, v,
                                        _show_addr(n, v, service, checks.names), check))
     return f"Parameter address [{i}]: {_named(a.label(), a.pnu, checks.names)}", tuple(fields)
+
+
+def _block_section(i: int, block: Block, addr: Address | None, p: Parsed, data: bytes, base: int, side: str,
+                   checks: Checks, memo: dict[tuple, Any]) -> Section:
+    """Value block `i` of `p` (named after `addr`): its title and fields (_block_title, _block_fields) kept in
+    `memo`. A block of numbers is kept without its values (they change), each value by its bytes."""
+    numbers = not block.is_error and not _is_text(block) and not _is_description(block, addr)
+    key = ("block", i, base + block.offset, block.format, block.n_values, block.size, block.pad, block.unknown_size,
+           None if addr is None else (addr.attr, addr.n_elems, addr.pnu, addr.subindex), p.response,
+           id(p.vendor), None if numbers else block.data)  # (a vendor's Response ID names its errors, 5.5)
+    found = memo.get(key)
+    if found is None:
+        made = tuple(SharedField.make(f.name, f.offset, f.length, f.raw, f.value, f.show, f.check)
+                     for f in _block_fields(i, block, data, base, side, checks, addr, p))
+        title = _block_title(i, block, addr, p, checks.names)
+        if not numbers:
+            memo[key] = (title, made, ())
+            return title, list(made)
+        found = memo[key] = (title, made[:2], made[2 + block.n_values:])
+        for f in made[2:2 + block.n_values]:
+            memo[("value", f.name, f.offset, block.format, f.raw)] = f
+        return title, list(made)
+    title, head, tail = found
+    if not numbers:
+        return title, list(head)
+    fields = list(head)
+    size, fmt, values = block.size, block.format, block.data
+    at = base + block.offset + 2
+    for j in range(block.n_values):  # as _block_fields shows the values of a block of numbers (values_of)
+        raw = values[j * size:(j + 1) * size]
+        name = f"pd.val[{i}].value[{j}]"
+        f = memo.get(("value", name, at + j * size, fmt, raw))
+        if f is None:
+            value, shown = value_of(fmt, raw)
+            f = memo[("value", name, at + j * size, fmt, raw)] = SharedField.make(name, at + j * size, size, raw,
+                                                                                  value, shown)
+        fields.append(f)
+    fields += tail
+    return title, fields
 
 
 def _memo(checks: Checks) -> dict[tuple, Any]:
@@ -385,8 +416,7 @@ def _block_fields(i: int, block: Block, data: bytes, base: int, side: str, check
             else:
                 fields.append(Field(f"pd.val[{i}].value[{k}]", base + pos + 2 + 2 * k, 2, bytes(word), value,
                                     f"{value} (extra error value)"))
-    elif addr is not None and addr.attr == pt.ATTR_DESCRIPTION and addr.subindex == 0 \
-            and len(block.data) == pt.DESCRIPTION_SIZE:
+    elif _is_description(block, addr):
         fields += description_fields(block, i, base)
     else:
         for j, (off, size, value, shown) in enumerate(values_of(block)):
@@ -396,6 +426,12 @@ def _block_fields(i: int, block: Block, data: bytes, base: int, side: str, check
         fields.append(Field(f"pd.val[{i}].pad", base + block.pad_offset, 1, bytes([block.pad]), block.pad,
                             f"0x{block.pad:02x} (word-alignment pad)"))
     return fields
+
+
+def _is_description(block: Block, addr: Address | None) -> bool:
+    """The block holds a complete description (attribute 0x20, subindex 0), shown element by element."""
+    return addr is not None and addr.attr == pt.ATTR_DESCRIPTION and addr.subindex == 0 \
+        and len(block.data) == pt.DESCRIPTION_SIZE
 
 
 def _is_text(block: Block) -> bool:
