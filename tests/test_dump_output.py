@@ -251,3 +251,82 @@ def test_checks_of_an_annotated_structure_as_mark_checks_sets_them() -> None:
     assert lazy_res.layers[0].fields.made
     assert next(f.check for f in lazy_res.fields() if f.name == "rpc.frag_len") == "R1 error: fragment body cut"
     assert list(lazy_res.fields()) == list(plain_res.fields())
+
+
+def test_a_structure_at_two_offsets_in_turn_keeps_its_fields() -> None:
+    """The memo is keyed by value and offset: a header behind a VLAN tag in every other frame is not remade."""
+    layout = Layout("test", ">", (("udp.sport", "H"), ("udp.dport", "H")))
+    buf = bytes(range(4))
+    values = layout.unpack(buf)
+    first = [list(layout.annotate(buf, 0, values, base)) for base in (34, 38)]
+    again = [list(layout.annotate(buf, 0, values, base)) for base in (34, 38)]
+    assert all(a is b for x, y in zip(first, again, strict=True) for a, b in zip(x, y, strict=True))
+    assert [f.offset for f in again[1]] == [38, 40]
+
+
+def _sections_fresh(parsed, data, base, checker, request):
+    from pd_analyze.protocol import profidrive_view
+
+    profidrive_view._SECTIONS.clear()
+    return profidrive_view.annotate(parsed, data, base, checker, request)
+
+
+@pytest.mark.parametrize("profile", ["generic", "sew", "akd", "sinamics", "yaskawa"])
+def test_record_sections_kept_equal_the_sections_made_anew(profile: str) -> None:
+    """A record's header, addresses and value blocks are kept per checker (profidrive_view._memo); every
+    PROFIdrive record of the samples shows the same fields whether its sections were kept or made anew (with
+    each vendor profile: its own IDs, services and names), and each call hands out lists of its own
+    (mark_checks may replace a field in one frame's list)."""
+    from pd_analyze.protocol import profidrive_view
+    from pd_analyze.protocol.profidrive_checks import Checker
+
+    checker = Checker.for_profile(profile)
+    records = []
+    for path in SAMPLES:
+        for res in dissect(str(path), dissector=Dissector(annotate=True, checker=checker)):
+            for block in res.pdu.stub.blocks if res.pdu is not None and res.pdu.stub is not None else []:
+                if isinstance(block.pd, tuple) and block.pd[0] is not None:
+                    records.append((block.pd[0], block.record, 100 + block.record_offset, block.pd[1]))
+    assert len(records) > 100
+    for parsed, data, base, request in records:
+        made = _sections_fresh(parsed, data, base, checker, request)
+        kept = profidrive_view.annotate(parsed, data, base, checker, request)
+        assert kept == made
+        kept[0][1][0] = kept[0][1][0].with_check("changed")  # one frame's list changed ...
+        assert profidrive_view.annotate(parsed, data, base, checker, request) == made  # ... not the kept one
+    for parsed, data, base, request in records:  # all kept at once, then read again
+        assert profidrive_view.annotate(parsed, data, base, checker, request) == \
+            _sections_fresh(parsed, data, base, checker, request)
+
+
+def test_frames_are_written_in_blocks_and_the_last_block_before_damage() -> None:
+    from pd_analyze.capture import CaptureError
+
+    results = _results(REPO / "sample_pcaps" / "pd_commissioning.pcap")
+    one_by_one: list[str] = []
+    for res in results:
+        one_by_one.append(dump.frame_text(res) + "\n")
+    for fmt, single in (("text", one_by_one), ("json", [dump.frame_json(res) for res in results])):
+        calls: list[str] = []
+        assert dump.render(results, fmt, calls.append, dump.plain_style, False) == len(results)
+        assert len(calls) < len(results) / 2 or len(results) < 4
+        assert "".join(text + "\n" for text in calls) == "".join(text + "\n" for text in single)
+
+    def damaged():
+        yield from results[:3]
+        raise CaptureError("x.pcap", "record header cut", 100)
+
+    calls = []
+    with pytest.raises(CaptureError):
+        dump.render(damaged(), "text", calls.append, dump.plain_style, False)
+    assert calls == ["\n".join(one_by_one[:3])]  # the frames before the damage, written before the error
+
+
+def test_fewer_collections_restores_the_collector() -> None:
+    import gc
+
+    before, frozen = gc.get_threshold(), gc.get_freeze_count()
+    with dump.fewer_collections(30_000):
+        assert gc.get_threshold() == (max(30_000, before[0]), max(100, before[1]), max(100, before[2]))
+        assert gc.get_freeze_count() >= frozen
+    assert gc.get_threshold() == before and gc.get_freeze_count() == 0

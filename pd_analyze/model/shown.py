@@ -19,6 +19,8 @@ Converter = Callable[[object], object]
 Shower = Callable[[object], str]
 # a View's entry: name, offset in the structure, size, memo, converter, shower, source position, own position
 Entry = tuple[str, int, int, dict, Converter | None, Shower, int, int]
+# a field written from its parts: name, offset, length, raw bytes, value, shown text, check, indent (text only)
+Slot = Callable[[str, int, int, bytes, object, str, str, str], str]
 
 
 @dataclass(slots=True, eq=False)
@@ -144,6 +146,32 @@ class Run:
         self.text = self.json = ""
 
 
+class Template:
+    """The runs of one structure's bytes at one offset (View._template: Runs, and the positions of the changing
+    fields), with their texts as the renderers last asked: the lines for `indent`, the JSON objects."""
+
+    __slots__ = ("indent", "json", "pieces", "text")
+
+    def __init__(self, pieces: tuple[Run | int, ...]) -> None:
+        self.pieces = pieces
+        self.indent: str | None = None
+        self.text: tuple[str, ...] = ()
+        self.json: tuple[str, ...] = ()
+
+    def texts(self, indent: str, line: Callable[[Field, str], str]) -> tuple[str, ...]:
+        """Each run's lines at `indent`, joined (a changing field's place: ""); the whole text when the
+        structure has no changing fields."""
+        self.text = tuple("\n".join([line(f, indent) for f in piece.fields]) if piece.__class__ is Run else ""
+                          for piece in self.pieces)
+        self.indent = indent
+        return self.text
+
+    def jsons(self, obj: Callable[[Field], str]) -> tuple[str, ...]:
+        self.json = tuple(",".join([obj(f) for f in piece.fields]) if piece.__class__ is Run else ""
+                          for piece in self.pieces)
+        return self.json
+
+
 class View:
     """The fields the dump shows of a Layout (Layout.shown), each with its converter, how it is shown and
     a memo of recent values: most header fields repeat from frame to frame, so each value is shown once.
@@ -161,7 +189,7 @@ class View:
         self._changing: set[int] = set()  # positions of the entries whose values keep changing
         self._slots: tuple[tuple[int, Entry], ...] = ()  # the changing entries and their places in a template
         self._spans: tuple[tuple[int, int, int, int], ...] = ()  # runs: (first, end entry, first, end byte)
-        self._templates: dict[tuple[int, int, bytes], tuple[Run | int, ...]] = {}
+        self._templates: dict[tuple[int, int, bytes], Template] = {}
         self._split()
 
     def annotate(self, buf: bytes, offset: int, values: tuple, base: int = 0) -> Annotated:
@@ -192,27 +220,27 @@ class View:
             yield shared(entry, buf, offset, values, base + offset, checks[entry[7]])
 
     def _shared(self, entry: Entry, buf: bytes, offset: int, values: tuple, at: int, check: str) -> Field:
-        """The SharedField of one entry of the structure at `offset` (shown at `at`), with its check."""
+        """The SharedField of one entry of the structure at `offset` (shown at `at`), with its check.
+
+        The memo is keyed by the value and where it is shown: the same structure at two offsets in turn (a
+        VLAN tag before it in every other frame) keeps both fields, and a field is made with its check."""
         name, rel, size, memo, conv, show_value, src, i = entry
         value = values[src]
         raw = buf[offset + rel:offset + rel + size]
         if type(raw) is not bytes:  # a slice of bytes is bytes already; of anything else, copied
             raw = bytes(raw)
-        known = memo.get(value)
-        if known is None or known.offset != at + rel or known.raw != raw:
-            if known is not None and known.raw == raw:  # the same value at another offset
-                known = memo[value] = known.moved(at + rel)
-            else:
-                if len(memo) >= _MEMO_SIZE:  # a field whose values keep changing (sequence numbers...)
-                    memo.clear()
-                made = self._made[i] = self._made[i] + 1
-                if made == _CHANGING:  # written one by one from now on, not in a run
-                    self._changing.add(i)
-                    self._split()
-                converted = value if conv is None else conv(value)
-                known = memo[value] = SharedField.make(name, at + rel, size, raw, converted, show_value(converted))
-        if check:
-            return known.ok or known.with_check(check)
+        key = (value, at + rel)
+        known = memo.get(key)
+        if known is not None and known.raw == raw:
+            return known if known.check == check else known.with_check(check)
+        if len(memo) >= _MEMO_SIZE:  # a field whose values keep changing (sequence numbers...)
+            memo.clear()
+        made = self._made[i] = self._made[i] + 1
+        if made == _CHANGING:  # written one by one from now on, not in a run
+            self._changing.add(i)
+            self._split()
+        converted = value if conv is None else conv(value)
+        known = memo[key] = SharedField.make(name, at + rel, size, raw, converted, show_value(converted), check)
         return known
 
     def pieces(self, buf: bytes, offset: int, values: tuple, base: int, checks: tuple[str, ...]
@@ -220,6 +248,61 @@ class View:
         """The fields in order as the dump writes them: each run of fields whose values do not keep
         changing as one Run, found by the bytes of all the runs together (one look-up for the structure),
         the changing fields one by one. The same SharedFields as `fields`, grouped."""
+        found, made = self._find(buf, offset, values, base, checks)
+        if made is not None:
+            return made
+        slots = self._slots
+        if not slots:
+            return found.pieces  # runs only
+        out = list(found.pieces)
+        shared, at = self._shared, base + offset
+        for j, entry in slots:
+            out[j] = shared(entry, buf, offset, values, at, checks[entry[7]])
+        return out
+
+    def text(self, buf: bytes, offset: int, values: tuple, base: int, checks: tuple[str, ...], indent: str,
+             line: Callable[[Field, str], str], slot: Slot) -> str:
+        """The fields' text lines at `indent`, joined: the runs' lines kept on the structure's template for
+        this indent (`line` writes a field's), each changing field's line written from its parts (`slot`),
+        no SharedField made for a value that will not come again."""
+        found, made = self._find(buf, offset, values, base, checks)
+        if made is not None:
+            return "\n".join([line(f, indent) for f in made])
+        parts = found.text if found.indent == indent else found.texts(indent, line)
+        slots = self._slots
+        if not slots:
+            return parts[0]
+        out = list(parts)
+        at = base + offset
+        for j, (name, rel, size, _memo, conv, show_value, src, i) in slots:
+            value = values[src] if conv is None else conv(values[src])
+            start = offset + rel
+            out[j] = slot(name, at + rel, size, buf[start:start + size], value, show_value(value), checks[i], indent)
+        return "\n".join(out)
+
+    def json(self, buf: bytes, offset: int, values: tuple, base: int, checks: tuple[str, ...],
+             obj: Callable[[Field], str], slot: Slot) -> str:
+        """The fields' JSON objects joined by commas, kept and written as `text` keeps and writes the lines."""
+        found, made = self._find(buf, offset, values, base, checks)
+        if made is not None:
+            return ",".join([obj(f) for f in made])
+        parts = found.json or found.jsons(obj)
+        slots = self._slots
+        if not slots:
+            return parts[0]
+        out = list(parts)
+        at = base + offset
+        for j, (name, rel, size, _memo, conv, show_value, src, i) in slots:
+            value = values[src] if conv is None else conv(values[src])
+            start = offset + rel
+            out[j] = slot(name, at + rel, size, buf[start:start + size], value, show_value(value), checks[i], "")
+        return ",".join(out)
+
+    def _find(self, buf: bytes, offset: int, values: tuple, base: int, checks: tuple[str, ...]
+              ) -> tuple[Template, None] | tuple[None, list[Field]]:
+        """The template of the structure's runs (found by their bytes), or the fields made one by one: the
+        first time these bytes are met, for a buffer that may change, or when the runs were split anew
+        while the fields were made (the template would not match the slots)."""
         spans = self._spans
         if len(spans) == 1:
             key = buf[offset + spans[0][2]:offset + spans[0][3]]
@@ -227,22 +310,16 @@ class View:
             key = b"".join([buf[offset + lo:offset + hi] for _, _, lo, hi in spans])
         templates = self._templates
         found = templates.get((id(checks), base + offset, key))
-        if found is None or type(buf) is not bytes:
-            made = list(self.fields(buf, offset, values, base, checks))
-            found = self._template(made)
+        if found is not None and type(buf) is bytes:
+            return found, None
+        made = list(self.fields(buf, offset, values, base, checks))
+        if spans is self._spans and type(buf) is bytes:  # not split again while the fields were made
             if len(templates) >= _TEMPLATES:
                 templates.clear()
-            if spans is self._spans:  # not split again while the fields were made
-                templates[(id(checks), base + offset, bytes(key))] = found
-            return [piece if piece.__class__ is Run else made[piece] for piece in found]
-        slots = self._slots
-        if not slots:
-            return found  # runs only
-        out = list(found)
-        shared, at = self._shared, base + offset
-        for j, entry in slots:
-            out[j] = shared(entry, buf, offset, values, at, checks[entry[7]])
-        return out
+            found = templates[(id(checks), base + offset, bytes(key))] = Template(self._template(made))
+            if not self._slots:
+                return found, None
+        return None, made
 
     def _template(self, made: list[Field]) -> tuple[Run | int, ...]:
         """The runs of `made` (one frame's fields) as Runs, the changing fields as their positions."""
@@ -312,6 +389,21 @@ class Annotated(MutableSequence[Field]):
         if self._list is not None:
             return self._list  # type: ignore[return-value]
         return self.view.pieces(self.buf, self.offset, self.values, self.base, self.view.defaults(self.checked))
+
+    def text(self, indent: str, line: Callable[[Field, str], str], slot: Slot) -> str:
+        """The fields' lines at `indent` (View.text), or from the list once it is made."""
+        if self._list is not None:
+            return "\n".join([line(f, indent) for f in self._list])
+        view = self.view
+        return view.text(self.buf, self.offset, self.values, self.base, view.defaults(self.checked), indent, line,
+                         slot)
+
+    def json(self, obj: Callable[[Field], str], slot: Slot) -> str:
+        """The fields' JSON objects joined by commas (View.json), or from the list once it is made."""
+        if self._list is not None:
+            return ",".join([obj(f) for f in self._list])
+        view = self.view
+        return view.json(self.buf, self.offset, self.values, self.base, view.defaults(self.checked), obj, slot)
 
     def __iter__(self) -> Iterator[Field]:
         if self._list is not None:

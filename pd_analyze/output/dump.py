@@ -10,7 +10,7 @@ from contextlib import contextmanager
 from datetime import UTC, datetime
 
 from pd_analyze.model.rules import ERROR, INFO, WARNING, Finding
-from pd_analyze.model.shown import Annotated, Field, Run, SharedField, json_value
+from pd_analyze.model.shown import Annotated, Field, SharedField, json_value
 from pd_analyze.protocol.frames import FrameResult
 
 Style = Callable[[str, str], str]  # (text, role) -> text, roles: severity names, "frame", "dim"
@@ -33,19 +33,18 @@ def frame_json(result: FrameResult) -> str:
     """One JSON Lines object, written directly rather than by json.dumps of a dict per field (several
     times dearer). The text equals json.dumps(..., ensure_ascii=True, separators=(",", ":")): names
     are registry names, strings go through the json module's own escaping, numbers as json writes them.
-    A Layout's field (SharedField) keeps its JSON object, made for the first frame that has it."""
+    A Layout's field (SharedField) keeps its JSON object, made for the first frame that has it, and a
+    Layout's structure its runs' objects (Annotated.json)."""
     fields = []
     add = fields.append
     for layer in result.layers:
         shown = layer.fields
-        for f in shown.pieces() if shown.__class__ is Annotated else shown:
-            kind = f.__class__
-            if kind is SharedField:
+        if shown.__class__ is Annotated and not shown.made:
+            add(shown.json(_shared_json, _slot_json))
+            continue
+        for f in shown:
+            if f.__class__ is SharedField:
                 add(f.json or _shared_json(f))
-            elif kind is Run:
-                if not f.json:
-                    f.json = ",".join([g.json or _shared_json(g) for g in f.fields])
-                add(f.json)
             else:
                 add(_json_field(f))
     head = (f'{{"frame":{_json_value(result.frame)},"time":{_json_value(result.ts)},"src":{_json_value(result.src)},'
@@ -65,6 +64,15 @@ def _json_field(f: Field) -> str:
     value, check = f.value, f.check
     return (f'{{"name":"{f.name}","offset":{f.offset},"length":{f.length},"raw":"{f.raw.hex()}",'
             f'"value":{value if type(value) is int else _json_value(value)},"show":{_esc(f.show)},'
+            f'"check":{_CHECKS.get(check) or _esc(check)}}}')
+
+
+def _slot_json(name: str, offset: int, length: int, raw: bytes, value: object, show: str, check: str,
+               indent: str) -> str:
+    """_json_field of a field given by its parts (a Layout's field whose values keep changing: shown.Slot)."""
+    del indent
+    return (f'{{"name":"{name}","offset":{offset},"length":{length},"raw":"{raw.hex()}",'
+            f'"value":{value if type(value) is int else _json_value(value)},"show":{_esc(show)},'
             f'"check":{_CHECKS.get(check) or _esc(check)}}}')
 
 
@@ -136,28 +144,26 @@ def frame_text(result: FrameResult, style: Style = plain_style, findings_only: b
     lines = [head]
     if not findings_only:
         add = lines.append
-        kept = style is plain_style  # without colour, a Layout's fields keep their lines (SharedField, Run)
+        kept = style is plain_style  # without colour, a Layout's fields keep their lines (SharedField, Template)
         for layer in result.layers:
-            indent = _INDENTS[layer.depth] if layer.depth < len(_INDENTS) else "  " * (layer.depth + 1)
-            add(f"{indent}{safe(layer.title)}")
+            depth = layer.depth
+            indent = _INDENTS[depth] if depth < len(_INDENTS) else "  " * (depth + 1)
+            title = layer.title
+            add(indent + (title if title.isprintable() else safe(title)))
             indent += "  "
             shown = layer.fields
             if not kept:
                 lines += [_field_line(f, indent, style) for f in shown]
-                continue
-            for f in shown.pieces() if shown.__class__ is Annotated else shown:
-                kind = f.__class__
-                if kind is SharedField:
-                    add(f.line if f.indent == indent else _shared_line(f, indent))
-                elif kind is Run:
-                    if f.indent != indent:
-                        f.text = "\n".join([g.line if g.indent == indent else _shared_line(g, indent)
-                                            for g in f.fields])
-                        f.indent = indent
-                    add(f.text)
-                else:
-                    add(_field_line(f, indent, style))
-    lines += [finding_line(f, "  ", style) for f in result.findings]
+            elif shown.__class__ is Annotated and not shown.made:
+                add(shown.text(indent, _shared_line, _slot_line))
+            else:
+                for f in shown:
+                    if f.__class__ is SharedField:
+                        add(f.line if f.indent == indent else _shared_line(f, indent))
+                    else:
+                        add(_field_line(f, indent, style))
+    if result.findings:
+        lines += [finding_line(f, "  ", style) for f in result.findings]
     return "\n".join(lines)
 
 
@@ -189,22 +195,44 @@ def decoded_json(sections: list[tuple[str, list[Field]]], findings: list[Finding
 
 
 def _field_line(f: Field, indent: str, style: Style) -> str:
-    styled = style is not plain_style  # without colour, the style calls are skipped (same text)
+    if style is plain_style:
+        return _slot_line(f.name, f.offset, f.length, f.raw, f.value, f.show, f.check, indent)
     if f.offset < 0:
-        where = " " * 32
+        where = _NOWHERE
     else:
         raw = f.raw[:8].hex(" ") + (" .." if len(f.raw) > 8 else "")
         where = f"{f.offset:04x}  {raw:<26}"
-    text = f"{style(where, 'dim') if styled else where}  {f.name} = {safe(f.show)}"
+    text = f"{style(where, 'dim')}  {f.name} = {safe(f.show)}"
     check = f.check
     if not check:
         return f"{indent}{text}"
+    return f"{indent}{text}  {style(*_mark(check))}"
+
+
+def _slot_line(name: str, offset: int, length: int, raw: bytes, value: object, show: str, check: str,
+               indent: str) -> str:
+    """A field's text line without colour, from its parts (shown.Slot): at `indent`, its offset and first
+    bytes (none for a derived field, offset -1), name, shown value and its check in brackets."""
+    del length, value
+    where = f"{offset:04x}  {raw[:8].hex(' ') + (' ..' if len(raw) > 8 else ''):<26}" if offset >= 0 else _NOWHERE
+    if not show.isprintable():
+        show = safe(show)
+    if not check:
+        return f"{indent}{where}  {name} = {show}"
+    return f"{indent}{where}  {name} = {show}  {(_MARKS.get(check) or _mark(check))[0]}"
+
+
+_NOWHERE = " " * 32  # the offset and bytes columns of a derived field
+
+
+def _mark(check: str) -> tuple[str, str]:
+    """A check's bracketed text and its style role, kept for the next field with this check."""
     mark = _MARKS.get(check)
     if mark is None:
         mark = (f"[{safe(check)}]", _check_role(check))
         if len(_MARKS) < 4096:  # check texts repeat ("ok", the profile limits); a few hold values
             _MARKS[check] = mark
-    return f"{indent}{text}  {style(*mark) if styled else mark[0]}"
+    return mark
 
 
 _MARKS: dict[str, tuple[str, str]] = {}  # check text -> (its bracketed text, its style role)
@@ -265,28 +293,56 @@ def frame_ranges(spec: str) -> list[tuple[int, int]]:
 
 def render(results: Iterable[FrameResult], fmt: str, write: Callable[[str], None], style: Style,
            findings_only: bool, clock: Clock | None = None) -> int:
-    """Write each result; returns the number of frames written. The results are usually made while this
-    loop draws them (the dissector), so the garbage collector's young generation is collected less often
-    meanwhile (see fewer_collections)."""
-    count = 0
-    with fewer_collections():
-        for result in results:
-            if findings_only and not result.findings:
-                continue
-            write(frame_json(result) if fmt == "json" else frame_text(result, style, findings_only, clock) + "\n")
-            count += 1
+    """Write each result (`write` takes one frame's text or JSON object and ends it with a newline); returns
+    the number of frames written. Frames are handed to `write` in blocks of about BLOCK_CHARS, joined by
+    newlines (the same bytes as one call each: a call per frame cost more than its text), the last block
+    when the results end or fail (a capture damaged after its good frames). The results are usually made
+    while this loop draws them (the dissector), so the garbage collector's young generation is collected
+    less often meanwhile (see fewer_collections)."""
+    count = size = 0
+    block: list[str] = []
+    add = block.append
+    json_lines = fmt == "json"
+    try:
+        with fewer_collections():
+            for result in results:
+                if findings_only and not result.findings:
+                    continue
+                text = frame_json(result) if json_lines else frame_text(result, style, findings_only, clock) + "\n"
+                add(text)
+                count += 1
+                size += len(text)
+                if size >= BLOCK_CHARS:
+                    text = "\n".join(block)
+                    block.clear()
+                    size = 0
+                    write(text)
+    finally:
+        if block:  # (emptied before each write: a write that failed is not tried again)
+            text = "\n".join(block)
+            block.clear()
+            write(text)
     return count
 
 
+BLOCK_CHARS = 1 << 18  # characters of frames written at once (some 50 frames of a text dump)
+
+
 @contextmanager
-def fewer_collections(young: int = 20_000) -> Iterator[None]:
-    """The cyclic garbage collector's young generation collected every `young` allocations (default 700).
-    A dumped frame allocates some 200 objects that live until it is written (its result, layers, texts);
-    at the default, a collection ran every few frames and walked the held frames again each time: a
-    quarter of the dump's time. Cycles are rare here, so little waits longer to be freed."""
+def fewer_collections(young: int = 20_000, older: int = 100) -> Iterator[None]:
+    """The cyclic garbage collector's young generation collected every `young` allocations (default 700),
+    the older ones every `older` collections of the one before (default 10), and what exists before the
+    dump (modules, the first pass's facts) out of its sight (gc.freeze) until it ends. A dumped frame
+    allocates some 200 objects that live until it is written (its result, layers, texts), and the second
+    pass holds a part's frames until its odd frames are known: at the defaults, a collection ran every few
+    frames and walked the held frames again each time (a quarter of the dump's time), and each collection
+    of the middle generation walked them all once more (a tenth of it, measured on a 50,000-frame fault-rich
+    capture). Cycles are rare here (none in the frames of that capture), so little waits longer to be freed."""
     before = gc.get_threshold()
-    gc.set_threshold(max(young, before[0]), *before[1:])
+    gc.freeze()
+    gc.set_threshold(max(young, before[0]), max(older, before[1]), max(older, before[2]))
     try:
         yield
     finally:
         gc.set_threshold(*before)
+        gc.unfreeze()

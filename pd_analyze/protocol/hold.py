@@ -64,6 +64,8 @@ class HeldFrames:
 
     def release(self, new: list[FrameResult], now: float) -> list[FrameResult]:
         """Hold `new`; hand on, in order, every result that waits for nothing (any more) at time `now`."""
+        if not self._held and not self._waiting:  # nothing held and nothing waits: `new` leaves as it came
+            return new
         for res in new:
             self._held.append(res)
             self._index[res.frame] = res

@@ -49,6 +49,9 @@ IPV4_SHOWN = IPV4.shown(
     "ip.tos", "ip.len", "ip.id", "ip.flags", ("ip.mf", "ip.flags", lambda v: (v >> 13) & 1),
     ("ip.frag_offset", "ip.flags", lambda v: v & 0x1FFF, lambda v: f"{v} ({v * 8} bytes)"),
     "ip.ttl", "ip.proto", "ip.checksum", "ip.src", "ip.dst")
+# What the dump shows of an 802.1Q tag: priority, DEI and VLAN ID from the TCI word, as Wireshark splits it
+VLAN_SHOWN = VLAN.shown(("vlan.pcp", "vlan.id", lambda v: v >> 13), ("vlan.dei", "vlan.id", lambda v: (v >> 12) & 1),
+                        ("vlan.id", "vlan.id", lambda v: v & 0x0FFF), "vlan.etype")
 _ip_unpack = IPV4.struct.unpack_from
 _udp_unpack = UDP.struct.unpack_from
 
@@ -278,10 +281,7 @@ def annotate(linktype: int, data: bytes, dgram: Datagram) -> list[tuple[str, lis
         layers.append((ETH.title, ETH.annotate(data, 0, ETH.unpack(data))))
         chain = headers(linktype, data)
         for tag in chain.tags:
-            tci, etype = VLAN.unpack(data, tag)
-            fields = [plain("vlan.pcp", tag, data, 2, tci >> 13), plain("vlan.dei", tag, data, 2, (tci >> 12) & 1),
-                      plain("vlan.id", tag, data, 2, tci & 0x0FFF), plain("vlan.etype", tag + 2, data, 2, etype)]
-            layers.append((VLAN.title, fields))
+            layers.append((VLAN.title, VLAN_SHOWN.annotate(data, tag, VLAN.unpack(data, tag))))
         off = chain.l3
     elif linktype == LINKTYPE_SLL:
         layers.append((SLL.title, SLL.annotate(data, 0, SLL.unpack(data))))

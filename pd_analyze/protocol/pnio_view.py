@@ -36,10 +36,17 @@ def pdu_summary(ptype: int, seq: int, stub: rec.Stub, fragments: int, opnum: int
     if stub.status is not None and not stub.status.ok:
         parts.append(f"PNIOStatus {status_text(stub.status.text())}")
     for block in stub.blocks[:4]:
-        text = f"{block.layout.title.split(' ')[0]} api {block.values[rec.B_API]:#x} slot " \
-               f"{block.values[rec.B_SLOT]}/{block.values[rec.B_SUBSLOT]:#x} index {block.index:#06x}"
-        if block.layout in (rec.WRITE_REQ, rec.READ_RES):
-            text += f" {block.record_len} bytes"
+        v = block.values
+        key = (block.layout, v[rec.B_API], v[rec.B_SLOT], v[rec.B_SUBSLOT], block.index, block.record_len)
+        text = _BLOCK_TEXTS.get(key)
+        if text is None:
+            text = f"{block.layout.title.split(' ')[0]} api {v[rec.B_API]:#x} slot " \
+                   f"{v[rec.B_SLOT]}/{v[rec.B_SUBSLOT]:#x} index {block.index:#06x}"
+            if block.layout in (rec.WRITE_REQ, rec.READ_RES):
+                text += f" {block.record_len} bytes"
+            if len(_BLOCK_TEXTS) >= 4096:
+                _BLOCK_TEXTS.clear()
+            _BLOCK_TEXTS[key] = text
         parts.append(text)
         negative = negative_response(block)
         if negative:
@@ -49,6 +56,12 @@ def pdu_summary(ptype: int, seq: int, stub: rec.Stub, fragments: int, opnum: int
     if fragments:
         parts.append(f"reassembled from {fragments} fragments")
     return ", ".join(parts)
+
+
+# a block's part of the summary by what it names (blocks at the same address repeat through a capture), and
+# its layer's title by its layout and index
+_BLOCK_TEXTS: dict[tuple, str] = {}
+_BLOCK_TITLES: dict[tuple, str] = {}
 
 
 def negative_response(block: rec.Block) -> str:
@@ -80,10 +93,15 @@ def stub_layers(stub: rec.Stub, body: bytes, base: int, opnum: int, response: bo
             layers.append(Layer(f"{PNIO_OPNUM.get(opnum, 'PNIO')} blocks (not decoded)", 0,
                                     [plain("ndr.blocks", rec.NDR_SIZE, body, len(rest), rest, base)]))
         return layers
-    pads = dict(rec.multi_pads(stub))
+    pads = dict(rec.multi_pads(stub)) if len(stub.blocks) > 1 else {}  # (a Write-Multiple's inner blocks)
     for block in stub.blocks:
         depth = 1 + block.depth
-        layers.append(Layer(f"{block.layout.title}, index {block.index:#06x}", depth,
+        title = _BLOCK_TITLES.get((block.layout, block.index))
+        if title is None:
+            title = f"{block.layout.title}, index {block.index:#06x}"
+            if len(_BLOCK_TITLES) < 4096:
+                _BLOCK_TITLES[(block.layout, block.index)] = title
+        layers.append(Layer(title, depth,
                             explain_status(block.layout.annotate(body, block.offset, block.values, base),
                                            block.status)))
         if block.layout in (rec.WRITE_REQ, rec.READ_RES) and block.index != INDEX_WRITE_MULTIPLE:

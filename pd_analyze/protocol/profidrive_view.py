@@ -7,10 +7,11 @@ from __future__ import annotations
 import math
 import struct
 from datetime import date, timedelta
-from typing import Protocol
+from typing import Any, Protocol
 
 from pd_analyze.model import pd_values as pt
-from pd_analyze.model.layout import Field, show
+from pd_analyze.model.layout import Field, Layout, show
+from pd_analyze.model.shown import SharedField
 from pd_analyze.protocol.profidrive import HEADER, RESPONSE_HEADER, Address, Block, Parsed, as_value, error_meaning
 from pd_analyze.protocol.profiles import DEFAULT, VendorIds, VendorRequest
 
@@ -169,25 +170,23 @@ def annotate(p: Parsed, data: bytes, base: int, checks: Checks,
     if not p.header_ok:  # decoded as far as the bytes go (protocol.md 1.3), the finding says it is cut
         return [(f"Parameter {side} header (cut: {len(data)} of 4 bytes)",
                  _fields_present(data, 0, base, tuple(zip(layout.names, layout.sizes, strict=True))))]
-    head = layout.annotate(data, 0, (p.ref, p.ident, p.do, p.n), base)
-    for i, key in enumerate(("ref", "resp_id" if p.response else "req_id", "do", "n_params")):
-        head[i] = head[i].with_check(_described(checks, f"{side}.{key}", head[i].value))
-    if p.vendor is not None:  # the vendor's own ID: the generic profile does not define it (protocol.md 5.5)
-        head[1] = head[1].replaced(f"0x{p.ident:02x} ({p.vendor.name})", _vendor_check(head[1].check))
+    memo = _memo(checks)
+    ref_key = ("ref", p.response, base, data[0])  # the reference changes every transaction: a key of its own
+    key = ("header", p.response, base, bytes(data[1:4]), id(p.vendor))
+    ref, rest = memo.get(ref_key), memo.get(key)
+    if ref is None or rest is None:
+        head = _header(p, data, base, checks, layout, side)
+        ref, rest = memo[ref_key], memo[key] = head[0], tuple(head[1:])
     vendor = request.vendor if p.response and request is not None else p.vendor
     service = vendor if isinstance(vendor, VendorRequest) else None
-    sections: list[Section] = [(f"Parameter {side} header", head)]
+    sections: list[Section] = [(f"Parameter {side} header", [ref, *rest])]
     for i, a in enumerate(p.addresses):
         at = a.offset
-        fields = [Field(f"pd.addr[{i}].{n}", base + at + off, size, bytes(data[at + off:at + off + size]),
-                        v, _show_addr(n, v, service, checks.names)) for n, off, size, v in
-                  (("attr", 0, 1, a.attr), ("n_elems", 1, 1, a.n_elems), ("pnu", 2, 2, a.pnu),
-                   ("subindex", 4, 2, a.subindex))]
-        for fld, key in zip(fields, ("attribute", "n_elems", "pnu", "subindex"), strict=True):
-            fld.check = _described(checks, f"request.{key}", fld.value)
-            if service is not None and key in ("attribute", "pnu"):  # the service's, not the profile's
-                fld.check = _vendor_check(fld.check)
-        sections.append((f"Parameter address [{i}]: {_named(a.label(), a.pnu, checks.names)}", fields))
+        key = ("address", i, base + at, bytes(data[at:at + 6]), id(service))
+        found = memo.get(key)
+        if found is None:
+            found = memo[key] = _address(i, a, data, base, checks, service)
+        sections.append((found[0], list(found[1])))
     if p.echo:
         sections.append(("Address echo (AKD manual layout)", [Field("pd.echo", base + 4, 6, bytes(data[4:10]),
                                                                     data[4:10].hex(), data[4:10].hex(" "))]))
@@ -201,8 +200,7 @@ def annotate(p: Parsed, data: bytes, base: int, checks: Checks,
         addresses = [as_value(a) for a in addresses]
     for i, block in enumerate(p.blocks):
         addr = addresses[i] if i < len(addresses) else None
-        sections.append((_block_title(i, block, addr, p, checks.names),
-                         _block_fields(i, block, data, base, side, checks, addr, p)))
+        sections.append(_block_section(i, block, addr, p, data, base, side, checks, memo))
     cut = _cut_block(p, data, base, side, checks, addresses)
     if cut is not None:
         sections.append(cut)
@@ -213,6 +211,91 @@ def annotate(p: Parsed, data: bytes, base: int, checks: Checks,
     return sections
 
 
+
+
+def _header(p: Parsed, data: bytes, base: int, checks: Checks, layout: Layout, side: str) -> list[Field]:
+    """The record header's four fields with their checks (a vendor's own ID with its name)."""
+    head = layout.annotate(data, 0, (p.ref, p.ident, p.do, p.n), base)
+    for i, key in enumerate(("ref", "resp_id" if p.response else "req_id", "do", "n_params")):
+        head[i] = head[i].with_check(_described(checks, f"{side}.{key}", head[i].value))
+    if p.vendor is not None:  # the vendor's own ID: the generic profile does not define it (protocol.md 5.5)
+        head[1] = head[1].replaced(f"0x{p.ident:02x} ({p.vendor.name})", _vendor_check(head[1].check))
+    return list(head)
+
+
+def _address(i: int, a: Address, data: bytes, base: int, checks: Checks, service: VendorRequest | None
+             ) -> tuple[str, tuple[Field, ...]]:
+    """Parameter address `i`: its title and fields with their checks (a vendor service's own attribute and
+    PNU checked against the vendor profile only)."""
+    at = a.offset
+    fields = []
+    for n, key, off, size, v in (("attr", "attribute", 0, 1, a.attr), ("n_elems", "n_elems", 1, 1, a.n_elems),
+                                 ("pnu", "pnu", 2, 2, a.pnu), ("subindex", "subindex", 4, 2, a.subindex)):
+        check = _described(checks, f"request.{key}", v)
+        if service is not None and key in ("attribute", "pnu"):  # the service's, not the profile's
+            check = _vendor_check(check)
+        raw = bytes(data[at + off:at + off + size])
+        fields.append(SharedField.make(f"pd.addr[{i}].{n}", base + at + off, size, raw, v,
+                                       _show_addr(n, v, service, checks.names), check))
+    return f"Parameter address [{i}]: {_named(a.label(), a.pnu, checks.names)}", tuple(fields)
+
+
+def _block_section(i: int, block: Block, addr: Address | None, p: Parsed, data: bytes, base: int, side: str,
+                   checks: Checks, memo: dict[tuple, Any]) -> Section:
+    """Value block `i` of `p` (named after `addr`): its title and fields (_block_title, _block_fields) kept in
+    `memo`. A block of numbers is kept without its values (they change), each value by its bytes."""
+    numbers = not block.is_error and not _is_text(block) and not _is_description(block, addr)
+    key = ("block", i, base + block.offset, block.format, block.n_values, block.size, block.pad, block.unknown_size,
+           None if addr is None else (addr.attr, addr.n_elems, addr.pnu, addr.subindex), p.response,
+           id(p.vendor), None if numbers else block.data)  # (a vendor's Response ID names its errors, 5.5)
+    found = memo.get(key)
+    if found is None:
+        made = tuple(SharedField.make(f.name, f.offset, f.length, f.raw, f.value, f.show, f.check)
+                     for f in _block_fields(i, block, data, base, side, checks, addr, p))
+        title = _block_title(i, block, addr, p, checks.names)
+        if not numbers:
+            memo[key] = (title, made, ())
+            return title, list(made)
+        found = memo[key] = (title, made[:2], made[2 + block.n_values:])
+        for f in made[2:2 + block.n_values]:
+            memo[("value", f.name, f.offset, block.format, f.raw)] = f
+        return title, list(made)
+    title, head, tail = found
+    if not numbers:
+        return title, list(head)
+    fields = list(head)
+    size, fmt, values = block.size, block.format, block.data
+    at = base + block.offset + 2
+    for j in range(block.n_values):  # as _block_fields shows the values of a block of numbers (values_of)
+        raw = values[j * size:(j + 1) * size]
+        name = f"pd.val[{i}].value[{j}]"
+        f = memo.get(("value", name, at + j * size, fmt, raw))
+        if f is None:
+            value, shown = value_of(fmt, raw)
+            f = memo[("value", name, at + j * size, fmt, raw)] = SharedField.make(name, at + j * size, size, raw,
+                                                                                  value, shown)
+        fields.append(f)
+    fields += tail
+    return title, fields
+
+
+def _memo(checks: Checks) -> dict[tuple, Any]:
+    """The sections made for the checker `checks` (its texts and names), by what decides them: the header,
+    each address and each value block by its bytes, offset and what names it. A commissioning reads and
+    writes the same few parameters over and over, so most sections are met again, with their texts kept on
+    their SharedFields."""
+    memo = _SECTIONS.get(id(checks))
+    if memo is None or memo[0] is not checks:  # another run's checker (the id of one gone)
+        if len(_SECTIONS) >= 16:
+            _SECTIONS.clear()
+        memo = _SECTIONS[id(checks)] = (checks, {})
+    if len(memo[1]) >= _SECTIONS_KEPT:
+        memo[1].clear()
+    return memo[1]
+
+
+_SECTIONS: dict[int, tuple[Checks, dict[tuple, Any]]] = {}  # by checker: (checker, sections)
+_SECTIONS_KEPT = 16_384  # sections per checker (a section with its texts: some 2 KB)
 
 
 _ADDRESS_PARTS = (("attr", 1), ("n_elems", 1), ("pnu", 2), ("subindex", 2))
@@ -333,8 +416,7 @@ def _block_fields(i: int, block: Block, data: bytes, base: int, side: str, check
             else:
                 fields.append(Field(f"pd.val[{i}].value[{k}]", base + pos + 2 + 2 * k, 2, bytes(word), value,
                                     f"{value} (extra error value)"))
-    elif addr is not None and addr.attr == pt.ATTR_DESCRIPTION and addr.subindex == 0 \
-            and len(block.data) == pt.DESCRIPTION_SIZE:
+    elif _is_description(block, addr):
         fields += description_fields(block, i, base)
     else:
         for j, (off, size, value, shown) in enumerate(values_of(block)):
@@ -344,6 +426,12 @@ def _block_fields(i: int, block: Block, data: bytes, base: int, side: str, check
         fields.append(Field(f"pd.val[{i}].pad", base + block.pad_offset, 1, bytes([block.pad]), block.pad,
                             f"0x{block.pad:02x} (word-alignment pad)"))
     return fields
+
+
+def _is_description(block: Block, addr: Address | None) -> bool:
+    """The block holds a complete description (attribute 0x20, subindex 0), shown element by element."""
+    return addr is not None and addr.attr == pt.ATTR_DESCRIPTION and addr.subindex == 0 \
+        and len(block.data) == pt.DESCRIPTION_SIZE
 
 
 def _is_text(block: Block) -> bool:
