@@ -123,16 +123,73 @@ def _is_hex(text: str) -> bool:
 
 
 Predicate = Callable[[FrameView], bool]
+Each = Callable[[object], bool]
+
+
+# --- the parsed filter as a tree (the column path judges it node by node, output.dump_prefilter) -------
+@dataclass(frozen=True, slots=True)
+class Test:
+    """One test of a field: `each` holds of one occurrence; the frame passes when any occurrence does, or
+    (`every`) when the field is present and every occurrence does (tshark 4's !=: present and none equal, and
+    ===). A bare field is `each` always true."""
+
+    ref: FieldRef
+    each: Each
+    every: bool = False
+
+    def judge(self, found: list[object]) -> bool:
+        """The test over a frame's occurrences of the field."""
+        each = self.each
+        if self.every:
+            return bool(found) and all(each(x) for x in found)
+        return any(each(x) for x in found)
+
+
+@dataclass(frozen=True, slots=True)
+class Not:
+    item: Node
+
+
+@dataclass(frozen=True, slots=True)
+class All:
+    """and: every item holds."""
+
+    items: tuple[Node, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class Any:
+    """or: some item holds."""
+
+    items: tuple[Node, ...]
+
+
+Node = Test | Not | All | Any
+
+
+def compiled(node: Node) -> Predicate:
+    """The predicate of a tree over one frame's view."""
+    if isinstance(node, Test):
+        values, ref, judge = FrameView.values, node.ref, node.judge
+        return lambda v: judge(values(v, ref))
+    if isinstance(node, Not):
+        inner = compiled(node.item)
+        return lambda v: not inner(v)
+    terms = [compiled(item) for item in node.items]
+    if isinstance(node, All):
+        return lambda v: all(t(v) for t in terms)
+    return lambda v: any(t(v) for t in terms)
 
 
 @dataclass(frozen=True)
 class DisplayFilter:
-    """A parsed filter: `matches(view)`; `needs_analysis`: it names txn.* or finding.* (the report's analysis
-    is read first)."""
+    """A parsed filter: `matches(view)`, its tree (`node`); `needs_analysis`: it names txn.* or finding.* (the
+    report's analysis is read first)."""
 
     text: str
     matches: Predicate
     refs: tuple[FieldRef, ...]
+    node: Node
 
     @property
     def needs_analysis(self) -> bool:
@@ -144,11 +201,11 @@ def parse(text: str) -> DisplayFilter:
     parser = _Parser(text)
     if parser.peek().kind == "end":
         raise FilterError("empty filter", 1)
-    matches = parser.expr()
+    node = parser.expr()
     tok = parser.peek()
     if tok.kind != "end":
         raise FilterError(f"unexpected {tok.text!r}" + (" (a missing ( ?)" if tok.kind == ")" else ""), tok.column)
-    return DisplayFilter(text, matches, tuple(parser.refs))
+    return DisplayFilter(text, compiled(node), tuple(parser.refs), node)
 
 
 class _Parser:
@@ -165,25 +222,24 @@ class _Parser:
         self.pos += 1
         return tok
 
-    def expr(self) -> Predicate:
+    def expr(self) -> Node:
         terms = [self.and_expr()]
         while self.peek().kind == "or":
             self.take()
             terms.append(self.and_expr())
-        return terms[0] if len(terms) == 1 else (lambda v: any(t(v) for t in terms))
+        return terms[0] if len(terms) == 1 else Any(tuple(terms))
 
-    def and_expr(self) -> Predicate:
+    def and_expr(self) -> Node:
         terms = [self.unary()]
         while self.peek().kind == "and":
             self.take()
             terms.append(self.unary())
-        return terms[0] if len(terms) == 1 else (lambda v: all(t(v) for t in terms))
+        return terms[0] if len(terms) == 1 else All(tuple(terms))
 
-    def unary(self) -> Predicate:
+    def unary(self) -> Node:
         tok = self.take()
         if tok.kind == "not":
-            inner = self.unary()
-            return lambda v: not inner(v)
+            return Not(self.unary())
         if tok.kind == "(":
             inner = self.expr()
             close = self.take()
@@ -195,13 +251,12 @@ class _Parser:
             return self.test(tok)
         raise FilterError(f"expected a field name, found {_found(tok)}", tok.column)
 
-    def test(self, name: Token) -> Predicate:
+    def test(self, name: Token) -> Test:
         ref = resolve(name.text)
         if ref is None:
             raise FilterError(f"{name.text!r} is neither a field of the registry nor a tshark name it maps "
                               "(see `pd-analyze fields`)", name.column)
         self.refs.append(ref)
-        values = FrameView.values
         tok = self.peek()
         if tok.kind == "rel":
             self.take()
@@ -214,7 +269,7 @@ class _Parser:
         if tok.kind == "in":
             self.take()
             members = self.members(ref)
-            return lambda v: any(any(m(x) for m in members) for x in values(v, ref))
+            return Test(ref, lambda x: any(m(x) for m in members))
         if tok.kind == "contains":
             self.take()
             value_tok = self.value(tok)
@@ -222,12 +277,12 @@ class _Parser:
                 raise FilterError(f"contains needs a text or bytes field, {ref.text} holds {_holds(ref)}", tok.column)
             # the text as written, whatever value names the field has: a part of a name is no name
             literal = value_tok.text if ref.fdef.type == registry.TEXT else self.literal(ref, value_tok)
-            return lambda v: any(_contains(x, literal) for x in values(v, ref))
+            return Test(ref, lambda x: _contains(x, literal))
         if tok.kind == "matches":
             self.take()
             pattern = self.pattern(ref, tok)
-            return lambda v: any(_matches(x, pattern) for x in values(v, ref))
-        return lambda v: bool(values(v, ref))
+            return Test(ref, lambda x: _matches(x, pattern))
+        return Test(ref, lambda _x: True)
 
     def pattern(self, ref: FieldRef, tok: Token) -> re.Pattern[str]:
         """The regular expression after `matches`: a double-quoted string, case-insensitive as tshark's (PCRE2)
@@ -395,16 +450,12 @@ def _matches(value: object, pattern: re.Pattern[str]) -> bool:
     return isinstance(value, str) and pattern.search(value) is not None
 
 
-def _relation(ref: FieldRef, relation: str, literal: object) -> Predicate:
-    values = FrameView.values
+def _relation(ref: FieldRef, relation: str, literal: object) -> Test:
     if relation in _ORDER:
-        test = _ordered(relation, literal)
-        return lambda v: any(test(x) for x in values(v, ref))
+        return Test(ref, _ordered(relation, literal))
     equal = _equals(literal)
     if relation == "eq":
-        return lambda v: any(equal(x) for x in values(v, ref))
-    if relation == "all_ne":
-        return lambda v: bool(found := values(v, ref)) and not any(equal(x) for x in found)
-    if relation == "any_ne":
-        return lambda v: any(not equal(x) for x in values(v, ref))
-    return lambda v: bool(found := values(v, ref)) and all(equal(x) for x in found)  # all_eq
+        return Test(ref, equal)
+    if relation in ("all_ne", "any_ne"):  # present and none equal; some occurrence differs
+        return Test(ref, lambda x: not equal(x), every=relation == "all_ne")
+    return Test(ref, equal, every=True)  # all_eq
