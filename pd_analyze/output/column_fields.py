@@ -73,9 +73,10 @@ class Occurrences:
         """Each distinct occurrence's value (FrameView.values)."""
         return [f.value for f in self.fields]
 
-    def texts(self) -> list[str]:
-        """Each distinct occurrence as `-T fields` prints it (FrameView.shown)."""
-        return [text for f in self.fields for text in _tshark_text(f, 0.0)]
+    def text_lists(self) -> list[list[str]]:
+        """Each distinct occurrence as `-T fields` prints it (FrameView.shown: one text, or one per item of a
+        list value)."""
+        return [_tshark_text(f, 0.0) for f in self.fields]
 
 
 @dataclass(slots=True)
@@ -523,3 +524,20 @@ def _assemble(data: np.ndarray, known: np.ndarray, pieces: list[_Piece], by_offs
     second = np.concatenate(offsets) if by_offset else order
     sort = np.lexsort((second, owner))
     return Occurrences(known, owner[sort], code[sort], fields)
+
+
+class OtherFrames:
+    """The fields of frames the column decode skips (not PNIO RPC, output.frame_layers shows their headers):
+    the link, IPv4, UDP and DCE/RPC headers are read per frame (unknown here); no other layer is there."""
+
+    def __init__(self, count: int) -> None:
+        self.count = count
+
+    def occurrences(self, ref: FieldRef) -> Occurrences | None:
+        if any(name.partition(".")[0] in _HEADER_FAMILIES or name in rpc.HEADER_LE.positions for name in ref.names):
+            return None
+        empty = np.zeros(0, np.int64)
+        return Occurrences(np.ones(self.count, bool), empty, empty, [])
+
+
+_HEADER_FAMILIES = frozenset({"eth", "vlan", "sll", "ip", "udp"})
