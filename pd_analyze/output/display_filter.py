@@ -33,7 +33,8 @@ from typing import NamedTuple
 from pd_analyze.model import fields as registry
 from pd_analyze.model.rules import RULES, SEVERITIES
 from pd_analyze.model.verdicts import VERDICTS
-from pd_analyze.output.frame_view import ANALYSIS, FieldRef, FrameView, resolve
+from pd_analyze.output.filter_tree import All, Any, Node, Not, Predicate, Test, compiled
+from pd_analyze.output.frame_view import ANALYSIS, FieldRef, resolve
 
 RELATIONS = {"==": "eq", "eq": "eq", "any_eq": "eq", "!=": "all_ne", "ne": "all_ne", "all_ne": "all_ne",
              "~=": "any_ne", "any_ne": "any_ne", "===": "all_eq", "all_eq": "all_eq", "<": "lt", "lt": "lt",
@@ -120,65 +121,6 @@ def _string(text: str, start: int) -> tuple[str, int]:
 
 def _is_hex(text: str) -> bool:
     return len(text) == 2 and all(c in "0123456789abcdefABCDEF" for c in text)
-
-
-Predicate = Callable[[FrameView], bool]
-Each = Callable[[object], bool]
-
-
-# --- the parsed filter as a tree (the column path judges it node by node, output.dump_prefilter) -------
-@dataclass(frozen=True, slots=True)
-class Test:
-    """One test of a field: `each` holds of one occurrence; the frame passes when any occurrence does, or
-    (`every`) when the field is present and every occurrence does (tshark 4's !=: present and none equal, and
-    ===). A bare field is `each` always true."""
-
-    ref: FieldRef
-    each: Each
-    every: bool = False
-
-    def judge(self, found: list[object]) -> bool:
-        """The test over a frame's occurrences of the field."""
-        each = self.each
-        if self.every:
-            return bool(found) and all(each(x) for x in found)
-        return any(each(x) for x in found)
-
-
-@dataclass(frozen=True, slots=True)
-class Not:
-    item: Node
-
-
-@dataclass(frozen=True, slots=True)
-class All:
-    """and: every item holds."""
-
-    items: tuple[Node, ...]
-
-
-@dataclass(frozen=True, slots=True)
-class Any:
-    """or: some item holds."""
-
-    items: tuple[Node, ...]
-
-
-Node = Test | Not | All | Any
-
-
-def compiled(node: Node) -> Predicate:
-    """The predicate of a tree over one frame's view."""
-    if isinstance(node, Test):
-        values, ref, judge = FrameView.values, node.ref, node.judge
-        return lambda v: judge(values(v, ref))
-    if isinstance(node, Not):
-        inner = compiled(node.item)
-        return lambda v: not inner(v)
-    terms = [compiled(item) for item in node.items]
-    if isinstance(node, All):
-        return lambda v: all(t(v) for t in terms)
-    return lambda v: any(t(v) for t in terms)
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ must be dissected and judged on its tree (`flt.matches(FrameView(...))`); every 
 not match. The rows are the PNIO RPC frames the columns decoded regularly (`Decoded.rows`); a frame the
 columns do not decode is dissected and judged frame by frame, as before.
 
-Each test of the filter's tree (display_filter.Test) is three-valued per row: true, false, or unknown when the
+Each test of the filter's tree (filter_tree.Test) is three-valued per row: true, false, or unknown when the
 row's tree may hold occurrences of the field the columns do not read (output.column_fields: a value block's
 values where a description may show instead, the links a pairing adds, a response decoded in its tree as the
 answer to another operation than its own). `not`, `and`, `or` combine by Kleene's logic (false and unknown is
@@ -36,8 +36,9 @@ import numpy as np
 
 from pd_analyze.model.values import PTYPE_RESPONSE
 from pd_analyze.output.column_fields import PartFields
-from pd_analyze.output.display_filter import All, Any, DisplayFilter, Node, Not, Test
+from pd_analyze.output.display_filter import DisplayFilter
 from pd_analyze.output.dump_facts import FileLinks
+from pd_analyze.output.filter_tree import All, Any, Node, Not, Test
 from pd_analyze.output.frame_notes import FrameNote
 from pd_analyze.output.frame_view import ANALYSIS, FRAME, FrameView
 

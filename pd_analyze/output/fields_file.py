@@ -194,29 +194,33 @@ class FieldsFile:
     def _events(self, batch: FrameBatch, view: BatchView, rows: np.ndarray, at: np.ndarray, tree: np.ndarray,
                 lines: dict[int, str]) -> None:
         d, p = self.d, view.p
-        clock = np.fmax.accumulate(batch.ts)  # the dissector's clock: the latest time read so far
+        if not len(batch):
+            return
+        clock = np.fmax.accumulate(batch.ts).tolist()  # the dissector's clock: the latest time read so far
         row_of = np.full(len(batch), -1, np.int64)
         row_of[p.pos[rows]] = np.arange(len(rows))
+        rows_at, tree_of = row_of[at].tolist(), tree.tolist()
         cols = _RowColumns(batch, view, rows)
-        for i in at.tolist():
-            if i:
-                d.advance(float(clock[i - 1]))
-            k = int(row_of[i])
-            if k >= 0 and not tree[k] and cols.passable(k, d):
-                self._results(cols.pass_by(k, d))
-                line = lines.get(k)
+        passable, pass_by, results, get_line = cols.passable, cols.pass_by, self._results, lines.get
+        now = float("-inf")
+        for i, k in zip(at.tolist(), rows_at, strict=True):
+            if i and clock[i - 1] > now:  # the frames since the last one it read moved its clock on
+                now = clock[i - 1]
+                d.advance(now)
+            if k >= 0 and not tree_of[k] and passable(k, d):
+                results(pass_by(k, d))
+                line = get_line(k)
                 if line is not None:
-                    heapq.heappush(self._lines, (int(batch.number[i]), line))
+                    heapq.heappush(self._lines, (cols.frame[k], line))
                 continue
             frame = batch.raw_frame(i)
             self._fed[frame.number] = (frame.ts, frame.linktype, int(batch.caplen[i]), frame.iface,
                                        int(batch.ns[i]), frame.data)
-            self._results(d.feed(frame))
-        if len(batch):
-            d.advance(float(clock[-1]))
+            results(d.feed(frame))
+        d.advance(clock[-1])
 
     def _results(self, results: list[FrameResult]) -> None:
-        for res in results:
+        for res in results:  # (most calls: none)
             self._line_of(res.frame, res)
 
     def _line_of(self, frame: int, res: FrameResult | None) -> None:
@@ -332,10 +336,14 @@ class _RowColumns:
         hi = p.act_hi[rows].astype(">u8").tobytes()
         lo = p.act_lo[rows].astype(">u8").tobytes()
         self.activity = [hi[8 * k:8 * k + 8] + lo[8 * k:8 * k + 8] for k in range(len(rows))]
-        self._if = (p.if_hi[rows].astype(">u8").tobytes(), p.if_lo[rows].astype(">u8").tobytes())
-        self._src = p.src[rows].astype(">u4").tobytes()
-        self._dst = p.dst[rows].astype(">u4").tobytes()
-        self.body = (p.body_start[rows].astype(np.int64).tolist(), p.body_len[rows].astype(np.int64).tolist())
+        interface = np.stack([p.if_hi[rows], p.if_lo[rows]], 1).astype(">u8").tobytes()
+        self.interface = [interface[16 * k:16 * k + 16] for k in range(len(rows))]
+        src, dst = p.src[rows].astype(">u4").tobytes(), p.dst[rows].astype(">u4").tobytes()
+        self.src = [src[4 * k:4 * k + 4] for k in range(len(rows))]
+        self.dst = [dst[4 * k:4 * k + 4] for k in range(len(rows))]
+        start, length = p.body_start[rows].astype(np.int64).tolist(), p.body_len[rows].astype(np.int64).tolist()
+        buf = memoryview(batch.buf)  # a call keeps its body's length and digest, not its bytes
+        self.body = [buf[a:a + n] for a, n in zip(start, length, strict=True)]
         self.has_block = p.has_block[rows].tolist()
         self.record_len = np.where(p.opnum[rows] == OP_WRITE, p.record_len[rows], 0).tolist()
         self.rec_of = view.rec_of[rows].tolist()
@@ -352,9 +360,7 @@ class _RowColumns:
         return opnum is None or opnum == self.opnum[k]
 
     def pass_by(self, k: int, d: Dissector) -> list[FrameResult]:
-        start, length = self.body[0][k], self.body[1][k]
-        src, dst = self._src[4 * k:4 * k + 4], self._dst[4 * k:4 * k + 4]
-        interface = self._if[0][8 * k:8 * k + 8] + self._if[1][8 * k:8 * k + 8]
+        src, dst = self.src[k], self.dst[k]
         channel: tuple = ()
         unparsed = None
         request = self.ptype[k] == PTYPE_REQUEST
@@ -368,5 +374,5 @@ class _RowColumns:
             unparsed = Unparsed(bytes(self.batch.buf[at:at + size]),
                                 footprint_of(size, int(r.n_addr[rec]), int(r.n_blocks[rec])))
         return d.pass_pdu(self.frame[k], self.ts[k], self.ptype[k], (self.activity[k], self.seq[k]), src, dst,
-                          interface, self.opnum[k], bytes(self.batch.buf[start:start + length]),
+                          self.interface[k], self.opnum[k], self.body[k],
                           self.record_len[k] if request and self.has_block[k] else -1, channel, unparsed)

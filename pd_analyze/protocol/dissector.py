@@ -136,7 +136,7 @@ class Dissector:
         return call.opnum if call is not None else None
 
     def pass_pdu(self, number: int, ts: float, ptype: int, key: tuple[bytes, int], src: bytes, dst: bytes,
-                 interface: bytes, opnum: int, body: bytes, record_len: int = -1, channel: tuple = (),
+                 interface: bytes, opnum: int, body: bytes | memoryview, record_len: int = -1, channel: tuple = (),
                  request: Unparsed | None = None) -> list[FrameResult]:
         """A PNIO RPC request or response the column decode read whole and regular (no fragment, a record
         service, an ordinary stub), passed by without its tree: what `feed` leaves of it in the state (its
@@ -166,7 +166,9 @@ class Dissector:
                 answered.response_frame = number
                 if self.hold is not None:
                     self.hold.link_response(answered.frame, number)
-        return self._leaving(self.hold.release(out, self._now)) if self.hold is not None else out
+        if self.hold is None or not (out or self.hold.first_held()):  # nothing to release (most rows)
+            return out
+        return self._leaving(self.hold.release(out, self._now))
 
     def adopt_request(self, frame: capture.RawFrame) -> rpc_calls.Call | None:
         """Open the call of a request frame counted elsewhere (the columnar path hands its group over):
