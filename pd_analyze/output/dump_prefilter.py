@@ -1,13 +1,19 @@
 """A display filter judged on the column decode of a batch, without a tree (issue 24 point 1): `dump -Y`,
 `dump -T fields -Y`, and for `annotate -Y` and `extract -Y`.
 
-    judge = candidates_of(flt)                  # once per filter
-    sure, maybe = judge(rows)                   # per part: a `Rows` of its column rows
+    judge = candidates_of(flt)                                    # once per filter
+    # per part (engine.decode.Decoded: `part.view`, `part.rows`) and the notes of its frames by frame:
+    known = stub_known_by_links(part.view, part.rows, links)      # the report's pairing (FileLinks) ...
+    fields = PartFields(part.view, part.rows, known)              # ... or np.ones: no response asks a request
+    sure, maybe = judge(Rows(fields, part.view.frame_no[part.rows], part.view.ts[part.rows], notes))
 
 `sure` (bool per row): the filter matches the frame, certainly; `maybe`: the columns cannot tell, the frame
 must be dissected and judged on its tree (`flt.matches(FrameView(...))`); every other row certainly does
 not match. The rows are the PNIO RPC frames the columns decoded regularly (`Decoded.rows`); a frame the
-columns do not decode is dissected and judged frame by frame, as before.
+columns do not decode is dissected and judged frame by frame, as before. `known` says per row whether its
+tree decodes its stub as the columns do: a response is decoded as the answer to its request's operation, as
+the dissector finds it (`stub_known_by_links` for a dissector told the report's pairing; a dissector with its
+own pairing: Dissector.answered_as, output.fields_file); where it is False the row's stub fields are unknown.
 
 Each test of the filter's tree (filter_tree.Test) is three-valued per row: true, false, or unknown when the
 row's tree may hold occurrences of the field the columns do not read (output.column_fields: a value block's
@@ -34,6 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.model.values import PTYPE_RESPONSE
 from pd_analyze.output.column_fields import PartFields
 from pd_analyze.output.display_filter import DisplayFilter
@@ -80,16 +87,21 @@ def candidates_of(flt: DisplayFilter) -> Judge:
     return judge
 
 
-def stub_known_by_links(view: object, rows: np.ndarray, links: FileLinks) -> np.ndarray:
+def stub_known_by_links(view: BatchView, rows: np.ndarray, links: FileLinks) -> np.ndarray:
     """Per row (indices into view.p): its stub is decoded in its tree as the columns decode it. With the report's
     pairing (a dissector told `links`), a response is decoded as the answer to its request's operation as the
-    report pairs it (its own when it pairs none): the columns decode it with its own."""
-    p = view.p  # type: ignore[attr-defined]
+    report pairs it (FileLinks.request; its own when it pairs none): the columns decode it with its own."""
+    p = view.p
     out = np.ones(len(rows), bool)
-    frames = view.frame_no[rows]  # type: ignore[attr-defined]
-    for k in np.flatnonzero(p.ptype[rows] == PTYPE_RESPONSE).tolist():
-        request = links.request(int(frames[k]))
-        out[k] = request is None or request.opnum == int(p.opnum[rows[k]])
+    responses = np.flatnonzero(p.ptype[rows] == PTYPE_RESPONSE)
+    if not len(responses) or not len(links.answer_at):
+        return out
+    frames = view.frame_no[rows[responses]]
+    at = np.minimum(np.searchsorted(links.answer_at, frames), len(links.answer_at) - 1)
+    paired = links.answer_at[at] == frames
+    seen = links.seen
+    opnum = [seen.get(m, (0.0, -1))[1] for m in links.request_of[at[paired]].tolist()]
+    out[responses[paired]] = np.array(opnum, np.int64) == p.opnum[rows[responses[paired]]]
     return out
 
 
