@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING
 
 import click
 
@@ -30,6 +31,10 @@ from pd_analyze.output.display_filter import DisplayFilter, FilterError, parse
 from pd_analyze.protocol.dissector import Dissector
 from pd_analyze.protocol.frames import FrameResult
 from pd_analyze.protocol.profidrive_checks import Checker
+
+if TYPE_CHECKING:
+    from pd_analyze.output.frame_select import FieldsFormat
+    from pd_analyze.output.frame_view import FieldRef
 
 ANNOTATE_EXAMPLES = """\b
 Examples:
@@ -200,16 +205,17 @@ def fields_dump(paths: list[str], settings: Settings, checker: Checker, flt: str
     return status
 
 
-def _fields_file(path: str, settings: Settings, checker: Checker, refs: list, fmt: object,
+def _fields_file(path: str, settings: Settings, checker: Checker, refs: list[FieldRef], fmt: FieldsFormat,
                  flt: DisplayFilter | None, ranges: list[tuple[int, int]], status: int) -> int:
     """`-T fields` of one capture file read as batches (output.fields_file), after files that ended with
     `status`: the exit code so far (as the per-frame path below says it)."""
     from pd_analyze.output import frame_notes
     from pd_analyze.output.fields_file import FieldsFile
+    from pd_analyze.output.frame_view import ANALYSIS
 
-    needs_notes = any(r.kind == "analysis" for r in refs) or (flt is not None and flt.needs_analysis)
+    needs_notes = any(r.kind == ANALYSIS for r in refs) or (flt is not None and flt.needs_analysis)
     notes = None
-    lines = FieldsFile(path, settings, checker, refs, fmt, flt, None, ranges)  # type: ignore[arg-type]
+    lines = FieldsFile(path, settings, checker, refs, fmt, flt, None, ranges)
     try:
         notes = lines.notes = frame_notes.collect(path, settings) if needs_notes else None
         write = sys.stdout.write

@@ -37,17 +37,18 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.model.values import PTYPE_RESPONSE
-from pd_analyze.output.column_fields import PartFields
+from pd_analyze.output.column_read import Occurrences
 from pd_analyze.output.display_filter import DisplayFilter
 from pd_analyze.output.dump_facts import FileLinks
 from pd_analyze.output.filter_tree import All, Any, Node, Not, Test
 from pd_analyze.output.frame_notes import FrameNote
-from pd_analyze.output.frame_view import ANALYSIS, FRAME, FrameView
+from pd_analyze.output.frame_view import ANALYSIS, FRAME, FieldRef, FrameView
 
 Tri = tuple[np.ndarray, np.ndarray]  # (true, unknown) per row; false elsewhere
 PER_FRAME_ENV = "PD_ANALYZE_PER_FRAME"  # "1": every frame dissected and judged on its tree (the tests' reference)
@@ -59,6 +60,12 @@ def per_frame_forced() -> bool:
     return os.environ.get(PER_FRAME_ENV, "") == "1"
 
 
+class Fields(Protocol):
+    """Where a part's rows' fields come from: output.column_fields.PartFields (the column rows) or OtherFrames."""
+
+    def occurrences(self, ref: FieldRef) -> Occurrences | None: ...
+
+
 @dataclass(slots=True)
 class Rows:
     """A part's column rows as a filter judges them: their fields (`fields.rows` index the part's PDUs), frame
@@ -67,7 +74,7 @@ class Rows:
     read (`record`; None: the frames have none, as the dump's). `stamped`: every row's record has a time (False:
     a pcapng file, whose Simple Packet Blocks have none: frame.time_epoch is unknown)."""
 
-    fields: PartFields
+    fields: Fields
     frames: np.ndarray
     ts: np.ndarray
     notes: Mapping[int, FrameNote] | None = None

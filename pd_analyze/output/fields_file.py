@@ -43,7 +43,7 @@ from pd_analyze.output.frame_notes import FrameNote, Notes
 from pd_analyze.output.frame_select import FieldsFormat, fields_line
 from pd_analyze.output.frame_view import ANALYSIS, FRAME, FieldRef, FrameView
 from pd_analyze.protocol.dissector import Dissector, Unparsed
-from pd_analyze.protocol.frames import FrameResult
+from pd_analyze.protocol.frames import Accounting, FrameResult
 from pd_analyze.protocol.pnio_batch import SKIP_REASONS
 from pd_analyze.protocol.profidrive import footprint_of
 from pd_analyze.protocol.profidrive_checks import Checker
@@ -83,7 +83,7 @@ class FieldsFile:
         self._lines: list[tuple[int, str]] = []  # a heap of (frame, line) to write
 
     @property
-    def accounting(self):  # noqa: ANN201 (Accounting)
+    def accounting(self) -> Accounting:
         return self.d.accounting
 
     def lines(self) -> Iterator[str]:
@@ -129,12 +129,11 @@ class FieldsFile:
             out |= (frames >= lo) & (frames <= hi)
         return out
 
-    def _judged(self, fields: object, batch: FrameBatch, at: np.ndarray,
+    def _judged(self, fields: dump_prefilter.Fields, batch: FrameBatch, at: np.ndarray,
                 wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The frames `at` (positions in the batch): certainly printed, printed if their tree says so, and
         per frame whether every cell is known from `fields`."""
-        rows = dump_prefilter.Rows(fields, batch.number[at], batch.ts[at], self._notes,  # type: ignore[arg-type]
-                                   _record(batch, at))
+        rows = dump_prefilter.Rows(fields, batch.number[at], batch.ts[at], self._notes, _record(batch, at))
         if self._judge is None:
             sure, maybe = np.ones(len(at), bool), np.zeros(len(at), bool)
         else:
@@ -143,7 +142,7 @@ class FieldsFile:
         for ref in self.refs:
             if ref.kind == FRAME or ref.kind == ANALYSIS:
                 continue
-            occ = fields.occurrences(ref)  # type: ignore[attr-defined]
+            occ = fields.occurrences(ref)
             if occ is None or any(len(t) != 1 for t in occ.text_lists()):
                 known[:] = False
                 break
@@ -245,7 +244,8 @@ class FieldsFile:
             del self._notes[frame]
 
     # --- cells from the columns ----------------------------------------------------------------------
-    def _lines_of(self, fields: object, batch: FrameBatch, at: np.ndarray, chosen: np.ndarray) -> list[str]:
+    def _lines_of(self, fields: dump_prefilter.Fields, batch: FrameBatch, at: np.ndarray,
+                  chosen: np.ndarray) -> list[str]:
         """The lines of the frames `at[chosen]`, every cell from the columns."""
         if not len(chosen):
             return []
@@ -266,7 +266,7 @@ def _block(batch: FrameBatch, i: int) -> Block:
                  int(batch.linktype[i]), 0, caplen, int(batch.iface[i]), 1e9, 0, int(batch.ns[i]))
 
 
-def _cells(ref: FieldRef, fields: object, batch: FrameBatch, at: np.ndarray, frames: np.ndarray,
+def _cells(ref: FieldRef, fields: dump_prefilter.Fields, batch: FrameBatch, at: np.ndarray, frames: np.ndarray,
            notes: Mapping[int, FrameNote], fmt: FieldsFormat) -> np.ndarray:
     """One column of cells (an object array of str, one per frame of `at`), as frame_select.fields_line makes
     them."""
@@ -287,7 +287,8 @@ def _cells(ref: FieldRef, fields: object, batch: FrameBatch, at: np.ndarray, fra
             if note is not None:
                 out[k] = _cell(FrameView(frame, 0.0, None, None, note).shown(ref), fmt)
         return out
-    occ = fields.occurrences(ref)  # type: ignore[attr-defined]
+    occ = fields.occurrences(ref)
+    assert occ is not None  # (_judged: every cell of the frames whose cells are made here is known)
     texts = [t[0] for t in occ.text_lists()]
     single = np.array([_quoted(safe(t), fmt) for t in texts] + [""], object)
     owner, code = occ.owner, occ.code
