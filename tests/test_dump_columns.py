@@ -56,7 +56,7 @@ FIELDS = (
     "pd.val.error_subindex", "pd.val.pad", "pd.val.desc.name", "pd.val.desc.low_limit", "eth.vlan_ids",
     "rpc.fragments", "rpc.reassembled_in", "ip.reassembled_from")
 ANALYSIS = ("txn.id", "txn.verdict", "txn.b5_retries", "finding.rule", "finding.severity")
-# every operator (== != ~= === < <= > >=, in with ranges, contains, matches, a bare field, not and or, brackets)
+# every operator (== != ~= === < <= > >=, in with ranges, &, contains, matches, a bare field, not and or, brackets)
 # over every family, the analysis fields too
 FILTERS = [
     "pn_io.profidrive.parameter.number == 964",
@@ -74,6 +74,7 @@ FILTERS = [
     'pd.val.string contains "a" or pd.req_id == "change parameter (write)"',
     "frame.caplen > 200 and dcerpc.opnum in {2 3}",
     "record.data or pd.trailing or iod.record_len < 8",
+    "dcerpc.dg_flags1 & 0x20 and not pd.addr.pnu bitwise_and 0x3",
 ]
 
 

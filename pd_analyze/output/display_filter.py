@@ -7,6 +7,7 @@ recursive-descent parser into closures (never Python's eval).
     test    := FIELD                                     the field is present
              | FIELD relation value                      == != ~= === < <= > >= (or eq ne any_ne all_eq lt le gt ge)
              | FIELD "in" "{" member ([","] member)* "}"  member: value, or value..value (a range)
+             | FIELD ("&" | "bitwise_and") value            an integer field: some bit of the mask set
              | FIELD "contains" value                      a text field: a substring (case-sensitive); bytes: a run
              | FIELD ("matches" | "~") "string"            a text or bytes field: a regular expression, case-
                                                            insensitive unless it starts with (?-i), as tshark's PCRE2
@@ -39,8 +40,9 @@ from pd_analyze.output.frame_view import ANALYSIS, FieldRef, resolve
 RELATIONS = {"==": "eq", "eq": "eq", "any_eq": "eq", "!=": "all_ne", "ne": "all_ne", "all_ne": "all_ne",
              "~=": "any_ne", "any_ne": "any_ne", "===": "all_eq", "all_eq": "all_eq", "<": "lt", "lt": "lt",
              "<=": "le", "le": "le", ">": "gt", "gt": "gt", ">=": "ge", "ge": "ge"}
-_SYMBOLS = ("===", "==", "!=", "~=", "<=", ">=", "&&", "||", "<", ">", "!", "(", ")", "{", "}", ",", "~")
+_SYMBOLS = ("===", "==", "!=", "~=", "<=", ">=", "&&", "||", "<", ">", "!", "&", "(", ")", "{", "}", ",", "~")
 _KEYWORDS = {"and": "and", "&&": "and", "or": "or", "||": "or", "not": "not", "!": "not", "in": "in",
+             "&": "bitand", "bitwise_and": "bitand",
              "contains": "contains", "matches": "matches", "~": "matches"}
 _WORD = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.:-/[]")
 _INTEGER = frozenset({registry.UINT, registry.HEX, registry.INT, registry.FLAGS, registry.FRAMEREF, registry.LIST})
@@ -61,7 +63,8 @@ class FilterError(ValueError):
 
 
 class Token(NamedTuple):
-    kind: str  # "word", "string", "rel", "and", "or", "not", "in", "contains", "matches", a bracket or comma, "end"
+    kind: str  # "word", "string", "rel", "and", "or", "not", "in", "bitand", "contains", "matches", a bracket or
+    # comma, "end"
     text: str
     column: int
 
@@ -212,6 +215,14 @@ class _Parser:
             self.take()
             members = self.members(ref)
             return Test(ref, lambda x: any(m(x) for m in members))
+        if tok.kind == "bitand":
+            self.take()
+            value_tok = self.value(tok)
+            if ref.fdef.type not in _INTEGER or ref.names[0] in _CHOICES:
+                raise FilterError(f"{tok.text} needs an integer field, {ref.text} holds {_holds(ref)}", tok.column)
+            mask = self.literal(ref, value_tok)
+            assert isinstance(mask, int)  # (literal: an integer field's literal is an integer)
+            return Test(ref, lambda x: isinstance(x, int) and not isinstance(x, bool) and x & mask != 0)
         if tok.kind == "contains":
             self.take()
             value_tok = self.value(tok)
