@@ -270,6 +270,8 @@ def test_filter_selects(capture: Path, expression: str, frames: list[int]) -> No
     ('txn.verdict == "out"', 16, "'out' is not a verdict (ok, nak, reference_mismatch, timeout, pnio_error, "
                                  "malformed)"),
     ('pd.ref contains "1"', 8, "contains needs a text or bytes field, pd.ref holds integers"),
+    ("ip.src & 1", 8, "& needs an integer field, ip.src holds addresses"),
+    ("pd.ref & x", 10, "'x' is not an integer (pd.ref holds integers)"),
     ('ip.src matches "168"', 8, "matches needs a text or bytes field, ip.src holds addresses"),
     ("txn.verdict matches nak", 21, "matches needs a regular expression in double quotes, found 'nak'"),
     ('finding.rule ~ "("', 16, "'(' is not a regular expression (missing ), unterminated subpattern"),
@@ -303,6 +305,8 @@ def test_filter_error_is_one_line_and_exit_2() -> None:
     "pn_io.profidrive.parameter.request_reference == 0x01", "pn_io.profidrive.parameter.number ~= 964",
     "pn_io.profidrive.parameter.number != 964", "not pn_io.profidrive.parameter.request_reference",
     "pn_io.error_code1 == 0xb5", "pn_io.profidrive.parameter.error_num == 0x02 || dcerpc.dg_seqnum > 300",
+    "dcerpc.dg_flags1 & 0x20", "pn_io.profidrive.parameter.request_reference & 0x02",
+    "dcerpc.dg_flags1 bitwise_and 0x08 && !(pn_io.index & 0x0001)",
 ])
 def test_tshark_names_select_what_tshark_selects(expression: str) -> None:
     for capture in (WORKED, FAULT):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING
 
 import click
 
@@ -30,6 +31,10 @@ from pd_analyze.output.display_filter import DisplayFilter, FilterError, parse
 from pd_analyze.protocol.dissector import Dissector
 from pd_analyze.protocol.frames import FrameResult
 from pd_analyze.protocol.profidrive_checks import Checker
+
+if TYPE_CHECKING:
+    from pd_analyze.output.frame_select import FieldsFormat
+    from pd_analyze.output.frame_view import FieldRef
 
 ANNOTATE_EXAMPLES = """\b
 Examples:
@@ -149,7 +154,7 @@ def fields_dump(paths: list[str], settings: Settings, checker: Checker, flt: str
                 render: Callable[[Iterator[FrameResult]], object]) -> int:
     """`dump -Y` and `dump -T fields` (of the frames in `ranges`, --frames; all when empty): the exit code.
     `render(results)` writes the text or JSON dump of the frames kept."""
-    from pd_analyze.output import frame_select
+    from pd_analyze.output import fields_file, frame_select
 
     parsed = display_filter(flt)
     try:
@@ -175,6 +180,9 @@ def fields_dump(paths: list[str], settings: Settings, checker: Checker, flt: str
             click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
             status = EXIT_USAGE
             continue
+        if out_type == "fields" and facts is None and fields_file.takes(path, refs, parsed):
+            status = _fields_file(path, settings, checker, refs, fmt, parsed, ranges, status)
+            continue
         d = Dissector(annotate=True, rpc_timeout=settings.rpc_timeout, checker=checker,
                       links=facts.links if facts is not None else None)
         try:
@@ -194,4 +202,31 @@ def fields_dump(paths: list[str], settings: Settings, checker: Checker, flt: str
             status = EXIT_USAGE
         frames_beyond(path, ranges, d.accounting.read, status == EXIT_USAGE)
         frames_read(path, d.accounting, status == EXIT_USAGE)
+    return status
+
+
+def _fields_file(path: str, settings: Settings, checker: Checker, refs: list[FieldRef], fmt: FieldsFormat,
+                 flt: DisplayFilter | None, ranges: list[tuple[int, int]], status: int) -> int:
+    """`-T fields` of one capture file read as batches (output.fields_file), after files that ended with
+    `status`: the exit code so far (as the per-frame path below says it)."""
+    from pd_analyze.output import frame_notes
+    from pd_analyze.output.fields_file import FieldsFile
+    from pd_analyze.output.frame_view import ANALYSIS
+
+    needs_notes = any(r.kind == ANALYSIS for r in refs) or (flt is not None and flt.needs_analysis)
+    notes = None
+    lines = FieldsFile(path, settings, checker, refs, fmt, flt, None, ranges)
+    try:
+        notes = lines.notes = frame_notes.collect(path, settings) if needs_notes else None
+        write = sys.stdout.write
+        for line in lines.lines():
+            write(line + "\n")
+    except CaptureError as exc:
+        click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
+        status = EXIT_USAGE
+    finally:
+        if notes is not None:
+            notes.close()
+    frames_beyond(path, ranges, lines.accounting.read, status == EXIT_USAGE)
+    frames_read(path, lines.accounting, status == EXIT_USAGE)
     return status

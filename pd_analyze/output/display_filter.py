@@ -7,6 +7,7 @@ recursive-descent parser into closures (never Python's eval).
     test    := FIELD                                     the field is present
              | FIELD relation value                      == != ~= === < <= > >= (or eq ne any_ne all_eq lt le gt ge)
              | FIELD "in" "{" member ([","] member)* "}"  member: value, or value..value (a range)
+             | FIELD ("&" | "bitwise_and") value            an integer field: some bit of the mask set
              | FIELD "contains" value                      a text field: a substring (case-sensitive); bytes: a run
              | FIELD ("matches" | "~") "string"            a text or bytes field: a regular expression, case-
                                                            insensitive unless it starts with (?-i), as tshark's PCRE2
@@ -33,13 +34,15 @@ from typing import NamedTuple
 from pd_analyze.model import fields as registry
 from pd_analyze.model.rules import RULES, SEVERITIES
 from pd_analyze.model.verdicts import VERDICTS
-from pd_analyze.output.frame_view import ANALYSIS, FieldRef, FrameView, resolve
+from pd_analyze.output.filter_tree import All, Any, Node, Not, Predicate, Test, compiled
+from pd_analyze.output.frame_view import ANALYSIS, FieldRef, resolve
 
 RELATIONS = {"==": "eq", "eq": "eq", "any_eq": "eq", "!=": "all_ne", "ne": "all_ne", "all_ne": "all_ne",
              "~=": "any_ne", "any_ne": "any_ne", "===": "all_eq", "all_eq": "all_eq", "<": "lt", "lt": "lt",
              "<=": "le", "le": "le", ">": "gt", "gt": "gt", ">=": "ge", "ge": "ge"}
-_SYMBOLS = ("===", "==", "!=", "~=", "<=", ">=", "&&", "||", "<", ">", "!", "(", ")", "{", "}", ",", "~")
+_SYMBOLS = ("===", "==", "!=", "~=", "<=", ">=", "&&", "||", "<", ">", "!", "&", "(", ")", "{", "}", ",", "~")
 _KEYWORDS = {"and": "and", "&&": "and", "or": "or", "||": "or", "not": "not", "!": "not", "in": "in",
+             "&": "bitand", "bitwise_and": "bitand",
              "contains": "contains", "matches": "matches", "~": "matches"}
 _WORD = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.:-/[]")
 _INTEGER = frozenset({registry.UINT, registry.HEX, registry.INT, registry.FLAGS, registry.FRAMEREF, registry.LIST})
@@ -60,7 +63,8 @@ class FilterError(ValueError):
 
 
 class Token(NamedTuple):
-    kind: str  # "word", "string", "rel", "and", "or", "not", "in", "contains", "matches", a bracket or comma, "end"
+    kind: str  # "word", "string", "rel", "and", "or", "not", "in", "bitand", "contains", "matches", a bracket or
+    # comma, "end"
     text: str
     column: int
 
@@ -122,17 +126,15 @@ def _is_hex(text: str) -> bool:
     return len(text) == 2 and all(c in "0123456789abcdefABCDEF" for c in text)
 
 
-Predicate = Callable[[FrameView], bool]
-
-
 @dataclass(frozen=True)
 class DisplayFilter:
-    """A parsed filter: `matches(view)`; `needs_analysis`: it names txn.* or finding.* (the report's analysis
-    is read first)."""
+    """A parsed filter: `matches(view)`, its tree (`node`); `needs_analysis`: it names txn.* or finding.* (the
+    report's analysis is read first)."""
 
     text: str
     matches: Predicate
     refs: tuple[FieldRef, ...]
+    node: Node
 
     @property
     def needs_analysis(self) -> bool:
@@ -144,11 +146,11 @@ def parse(text: str) -> DisplayFilter:
     parser = _Parser(text)
     if parser.peek().kind == "end":
         raise FilterError("empty filter", 1)
-    matches = parser.expr()
+    node = parser.expr()
     tok = parser.peek()
     if tok.kind != "end":
         raise FilterError(f"unexpected {tok.text!r}" + (" (a missing ( ?)" if tok.kind == ")" else ""), tok.column)
-    return DisplayFilter(text, matches, tuple(parser.refs))
+    return DisplayFilter(text, compiled(node), tuple(parser.refs), node)
 
 
 class _Parser:
@@ -165,25 +167,24 @@ class _Parser:
         self.pos += 1
         return tok
 
-    def expr(self) -> Predicate:
+    def expr(self) -> Node:
         terms = [self.and_expr()]
         while self.peek().kind == "or":
             self.take()
             terms.append(self.and_expr())
-        return terms[0] if len(terms) == 1 else (lambda v: any(t(v) for t in terms))
+        return terms[0] if len(terms) == 1 else Any(tuple(terms))
 
-    def and_expr(self) -> Predicate:
+    def and_expr(self) -> Node:
         terms = [self.unary()]
         while self.peek().kind == "and":
             self.take()
             terms.append(self.unary())
-        return terms[0] if len(terms) == 1 else (lambda v: all(t(v) for t in terms))
+        return terms[0] if len(terms) == 1 else All(tuple(terms))
 
-    def unary(self) -> Predicate:
+    def unary(self) -> Node:
         tok = self.take()
         if tok.kind == "not":
-            inner = self.unary()
-            return lambda v: not inner(v)
+            return Not(self.unary())
         if tok.kind == "(":
             inner = self.expr()
             close = self.take()
@@ -195,13 +196,12 @@ class _Parser:
             return self.test(tok)
         raise FilterError(f"expected a field name, found {_found(tok)}", tok.column)
 
-    def test(self, name: Token) -> Predicate:
+    def test(self, name: Token) -> Test:
         ref = resolve(name.text)
         if ref is None:
             raise FilterError(f"{name.text!r} is neither a field of the registry nor a tshark name it maps "
                               "(see `pd-analyze fields`)", name.column)
         self.refs.append(ref)
-        values = FrameView.values
         tok = self.peek()
         if tok.kind == "rel":
             self.take()
@@ -214,7 +214,15 @@ class _Parser:
         if tok.kind == "in":
             self.take()
             members = self.members(ref)
-            return lambda v: any(any(m(x) for m in members) for x in values(v, ref))
+            return Test(ref, lambda x: any(m(x) for m in members))
+        if tok.kind == "bitand":
+            self.take()
+            value_tok = self.value(tok)
+            if ref.fdef.type not in _INTEGER or ref.names[0] in _CHOICES:
+                raise FilterError(f"{tok.text} needs an integer field, {ref.text} holds {_holds(ref)}", tok.column)
+            mask = self.literal(ref, value_tok)
+            assert isinstance(mask, int)  # (literal: an integer field's literal is an integer)
+            return Test(ref, lambda x: isinstance(x, int) and not isinstance(x, bool) and x & mask != 0)
         if tok.kind == "contains":
             self.take()
             value_tok = self.value(tok)
@@ -222,12 +230,12 @@ class _Parser:
                 raise FilterError(f"contains needs a text or bytes field, {ref.text} holds {_holds(ref)}", tok.column)
             # the text as written, whatever value names the field has: a part of a name is no name
             literal = value_tok.text if ref.fdef.type == registry.TEXT else self.literal(ref, value_tok)
-            return lambda v: any(_contains(x, literal) for x in values(v, ref))
+            return Test(ref, lambda x: _contains(x, literal))
         if tok.kind == "matches":
             self.take()
             pattern = self.pattern(ref, tok)
-            return lambda v: any(_matches(x, pattern) for x in values(v, ref))
-        return lambda v: bool(values(v, ref))
+            return Test(ref, lambda x: _matches(x, pattern))
+        return Test(ref, lambda _x: True)
 
     def pattern(self, ref: FieldRef, tok: Token) -> re.Pattern[str]:
         """The regular expression after `matches`: a double-quoted string, case-insensitive as tshark's (PCRE2)
@@ -395,16 +403,12 @@ def _matches(value: object, pattern: re.Pattern[str]) -> bool:
     return isinstance(value, str) and pattern.search(value) is not None
 
 
-def _relation(ref: FieldRef, relation: str, literal: object) -> Predicate:
-    values = FrameView.values
+def _relation(ref: FieldRef, relation: str, literal: object) -> Test:
     if relation in _ORDER:
-        test = _ordered(relation, literal)
-        return lambda v: any(test(x) for x in values(v, ref))
+        return Test(ref, _ordered(relation, literal))
     equal = _equals(literal)
     if relation == "eq":
-        return lambda v: any(equal(x) for x in values(v, ref))
-    if relation == "all_ne":
-        return lambda v: bool(found := values(v, ref)) and not any(equal(x) for x in found)
-    if relation == "any_ne":
-        return lambda v: any(not equal(x) for x in values(v, ref))
-    return lambda v: bool(found := values(v, ref)) and all(equal(x) for x in found)  # all_eq
+        return Test(ref, equal)
+    if relation in ("all_ne", "any_ne"):  # present and none equal; some occurrence differs
+        return Test(ref, lambda x: not equal(x), every=relation == "all_ne")
+    return Test(ref, equal, every=True)  # all_eq

@@ -10,7 +10,7 @@ frames are printed: `dump -Y` prints the frames the full dump prints, byte for b
 findings are those the report has at it, in the findings table's order, and mark its fields.
 
 Which frames are printed is a `Selection`'s choice: every PNIO RPC frame, those with a finding, those a
-display filter matches (on the columns, or frame by frame for a field the columns do not hold).
+display filter matches (judged on the columns, and frame by frame where the columns cannot tell).
 """
 
 from __future__ import annotations
@@ -28,11 +28,12 @@ from pd_analyze.capture.batches import FrameBatch, batches
 from pd_analyze.model.rules import Finding
 from pd_analyze.model.values import PTYPE_REQUEST
 from pd_analyze.output import dump_prefilter
+from pd_analyze.output.column_fields import PartFields
 from pd_analyze.output.display_filter import DisplayFilter
 from pd_analyze.output.dump import Clock
 from pd_analyze.output.dump_facts import DumpFacts, FileLinks
 from pd_analyze.output.frame_notes import FrameNote
-from pd_analyze.output.frame_view import ANALYSIS, LAYERS, FrameView
+from pd_analyze.output.frame_view import ANALYSIS, FrameView
 from pd_analyze.protocol.dissector import MAX_LOOSE_FINDINGS, Dissector
 from pd_analyze.protocol.frames import FrameResult, mark_checks
 from pd_analyze.protocol.pnio_checks import CHECKED_FIELDS
@@ -80,34 +81,39 @@ class WithFindings(Selection):
 
 class Filtered(Selection):
     """The frames a display filter matches (`dump -Y`), those with a finding among them (`findings_only`).
-    A filter that names only analysis fields (txn.*, finding.*) and frame.no/frame.ts is judged on the
-    columns with the report's notes, without a tree; one that names a dissected field, frame by frame."""
+    The filter is judged on the columns first (output.dump_prefilter): a row it certainly matches is printed
+    without being judged again, one it certainly does not match is not dissected, and only the rows the
+    columns cannot decide (and the frames they do not decode) are judged on their trees."""
+
+    per_frame = True
 
     def __init__(self, flt: DisplayFilter, ranges: list[tuple[int, int]] | None = None,
                  findings_only: bool = False) -> None:
         super().__init__(ranges)
         self.flt, self.findings_only = flt, findings_only
-        self.per_frame = any(r.kind == LAYERS for r in flt.refs)
         self.needs_txns = any(r.kind == ANALYSIS and r.names[0].startswith("txn.") for r in flt.refs)
-        self._candidates = dump_prefilter.candidates_of(flt)
+        self._judge = dump_prefilter.candidates_of(flt)
+        self._sure: set[int] = set()  # frames of the part the columns judged matched
 
     def columns(self, part: Decoded, rows: np.ndarray, notes: dict[int, FrameNote], links: FileLinks) -> np.ndarray:
-        frames = part.view.frame_no[rows]
+        view = part.view
+        frames = view.frame_no[rows]
         out = self.wanted(frames)
         if self.findings_only:
             out &= np.isin(frames, np.fromiter((f for f, n in notes.items() if n.findings), np.int64))
-        if self.per_frame:  # the rows the filter may match: dissected, then judged on their trees
-            return out & self._candidates(part, rows, links) if self._candidates is not None else out
-        matches = self.flt.matches
-        for k in np.flatnonzero(out).tolist():
-            frame = int(frames[k])
-            note = notes.get(frame)
-            out[k] = matches(FrameView(frame, float(part.view.ts[rows[k]]), None, None, note))
-        return out
+        if dump_prefilter.per_frame_forced():
+            self._sure = set()
+            return out
+        fields = PartFields(view, rows, dump_prefilter.stub_known_by_links(view, rows, links))
+        sure, maybe = self._judge(dump_prefilter.Rows(fields, frames, view.ts[rows], notes))
+        self._sure = set(frames[out & sure].tolist())
+        return out & (sure | maybe)
 
     def frame(self, res: FrameResult, note: FrameNote | None) -> bool:
         if self.findings_only and (note is None or not note.findings):
             return False
+        if res.frame in self._sure:
+            return True
         return super().frame(res, note) and self.flt.matches(FrameView(res.frame, res.ts, res, None, note))
 
 

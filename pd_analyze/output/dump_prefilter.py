@@ -1,61 +1,186 @@
-"""The frames of a batch's column decode that a display filter may match, judged without a tree (`dump -Y`,
-issue 24 point 1): a superset, never smaller than the frames the filter matches, so that dissecting only
-these and judging each on its tree gives the per-frame result exactly.
+"""A display filter judged on the column decode of a batch, without a tree (issue 24 point 1): `dump -Y`,
+`dump -T fields -Y`, and for `annotate -Y` and `extract -Y`.
 
-One form is known today, the commonest question of a day's trace: `pd.addr.pnu == N` (or its tshark name
-pn_io.profidrive.parameter.number). A parameter address is in a tree only inside a parameter request's
-record, or in a response's echo of addresses, which the column decode never calls regular (protocol
-.profidrive_batch); so a frame is left out when the columns decoded its record as regular and none of its
-addresses has PNU N, when it is a read request (an IODReadReqHeader carries no record), and when it is a
-write response decoded as one (its request's operation, as the report pairs it, is a write too).
+    judge = candidates_of(flt)                                    # once per filter
+    # per part (engine.decode.Decoded: `part.view`, `part.rows`) and the notes of its frames by frame:
+    known = stub_known_by_links(part.view, part.rows, links)      # the report's pairing (FileLinks) ...
+    fields = PartFields(part.view, part.rows, known)              # ... or np.ones: no response asks a request
+    sure, maybe = judge(Rows(fields, part.view.frame_no[part.rows], part.view.ts[part.rows], notes))
+
+`sure` (bool per row): the filter matches the frame, certainly; `maybe`: the columns cannot tell, the frame
+must be dissected and judged on its tree (`flt.matches(FrameView(...))`); every other row certainly does
+not match. The rows are the PNIO RPC frames the columns decoded regularly (`Decoded.rows`); a frame the
+columns do not decode is dissected and judged frame by frame, as before. `known` says per row whether its
+tree decodes its stub as the columns do: a response is decoded as the answer to its request's operation, as
+the dissector finds it (`stub_known_by_links` for a dissector told the report's pairing; a dissector with its
+own pairing: Dissector.answered_as, output.fields_file); where it is False the row's stub fields are unknown.
+
+Each test of the filter's tree (filter_tree.Test) is three-valued per row: true, false, or unknown when the
+row's tree may hold occurrences of the field the columns do not read (output.column_fields: a value block's
+values where a description may show instead, the links a pairing adds, a response decoded in its tree as the
+answer to another operation than its own). `not`, `and`, `or` combine by Kleene's logic (false and unknown is
+false, true or unknown is true), so a filter is decided wherever its decided parts decide it. A test's
+operator is applied by the filter's own closure, once per distinct value of the field in the part, on the
+same values the tree holds (FrameView.values): the semantics of every operator, repeated fields and tshark's
+names are the per-frame path's by construction.
+
+The analysis fields (txn.*, finding.*) are judged from the report's notes of the frames (frame_notes): known
+for every row. frame.number and frame.time_epoch are the row's; frame.iface, frame.linktype and frame.caplen
+are the record's (`Rows.record`), absent where no record is read (the dump's frames).
+
+The environment variable PD_ANALYZE_PER_FRAME=1 turns the column path off (`per_frame_forced`): the tests'
+reference, never a user's setting.
 """
 
 from __future__ import annotations
 
-import re
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
-from pd_analyze.analysis.engine.decode import Decoded
-from pd_analyze.model.values import OP_READ, OP_READ_IMPLICIT, OP_WRITE, PTYPE_REQUEST, PTYPE_RESPONSE
+from pd_analyze.analysis.engine.view import BatchView
+from pd_analyze.model.values import PTYPE_RESPONSE
+from pd_analyze.output.column_read import Occurrences
 from pd_analyze.output.display_filter import DisplayFilter
 from pd_analyze.output.dump_facts import FileLinks
+from pd_analyze.output.filter_tree import All, Any, Node, Not, Test
+from pd_analyze.output.frame_notes import FrameNote
+from pd_analyze.output.frame_view import ANALYSIS, FRAME, FieldRef, FrameView
 
-Candidates = Callable[[Decoded, np.ndarray, FileLinks], np.ndarray]
-_PNU = "pd.addr[i].pnu"
-_EQUALS = re.compile(r"^\s*[\w.]+\s*(?:==|eq|any_eq)\s*(0x[0-9a-fA-F]+|\d+)\s*$")
-
-
-def candidates_of(flt: DisplayFilter) -> Candidates | None:
-    """The column test of a filter of a known form; None for any other filter (every frame is a candidate)."""
-    match = _EQUALS.match(flt.text)
-    if match is None or len(flt.refs) != 1:
-        return None
-    ref = flt.refs[0]
-    if ref.names != (_PNU,) or ref.exact or ref.width != -1:
-        return None
-    pnu = int(match.group(1), 0)
-    return lambda part, rows, links: _with_pnu(part, rows, links, pnu)
+Tri = tuple[np.ndarray, np.ndarray]  # (true, unknown) per row; false elsewhere
+PER_FRAME_ENV = "PD_ANALYZE_PER_FRAME"  # "1": every frame dissected and judged on its tree (the tests' reference)
 
 
-def _with_pnu(part: Decoded, rows: np.ndarray, links: FileLinks, pnu: int) -> np.ndarray:
-    view = part.view
-    p, rec = view.p, view.records
-    rec_of = view.rec_of[rows]
-    decoded = rec_of >= 0
+def per_frame_forced() -> bool:
+    """The tests' switch to the per-frame path (`PER_FRAME_ENV`): the column judging and cells are then left
+    out, every frame judged and shown from its tree, so the two paths' outputs can be compared."""
+    return os.environ.get(PER_FRAME_ENV, "") == "1"
+
+
+class Fields(Protocol):
+    """Where a part's rows' fields come from: output.column_fields.PartFields (the column rows) or OtherFrames."""
+
+    def occurrences(self, ref: FieldRef) -> Occurrences | None: ...
+
+
+@dataclass(slots=True)
+class Rows:
+    """A part's column rows as a filter judges them: their fields (`fields.rows` index the part's PDUs), frame
+    numbers and times, the report's notes by frame (None: no analysis read; a filter naming txn.* or finding.*
+    then needs one), and the records' frame.iface / frame.linktype / frame.caplen per row when the records are
+    read (`record`; None: the frames have none, as the dump's). `stamped`: every row's record has a time (False:
+    a pcapng file, whose Simple Packet Blocks have none: frame.time_epoch is unknown)."""
+
+    fields: Fields
+    frames: np.ndarray
+    ts: np.ndarray
+    notes: Mapping[int, FrameNote] | None = None
+    record: Mapping[str, np.ndarray] | None = None
+    stamped: bool = True
+
+
+Judge = Callable[[Rows], tuple[np.ndarray, np.ndarray]]
+
+
+def candidates_of(flt: DisplayFilter) -> Judge:
+    """The column judge of a filter: rows -> (sure, maybe) masks (module docstring)."""
+
+    def judge(rows: Rows) -> tuple[np.ndarray, np.ndarray]:
+        true, unknown = _tri(flt.node, rows)
+        return true & ~unknown, unknown
+    return judge
+
+
+def stub_known_by_links(view: BatchView, rows: np.ndarray, links: FileLinks) -> np.ndarray:
+    """Per row (indices into view.p): its stub is decoded in its tree as the columns decode it. With the report's
+    pairing (a dissector told `links`), a response is decoded as the answer to its request's operation as the
+    report pairs it (FileLinks.request; its own when it pairs none): the columns decode it with its own."""
+    p = view.p
     out = np.ones(len(rows), bool)
-    if len(rec.addresses.pnu):  # records decoded as regular: a candidate when one of its addresses is N
-        hit = np.zeros(len(rec.records.regular), bool)
-        hit[rec.addresses.record[rec.addresses.pnu == pnu]] = True
-        r = rec_of[decoded]
-        out[decoded] = ~rec.records.regular[r] | hit[r]
-    else:
-        out[decoded] = ~rec.records.regular[rec_of[decoded]]
-    ptype, opnum = p.ptype[rows], p.opnum[rows]
-    bare = ~decoded & view.pnio[rows]
-    out[bare & (ptype == PTYPE_REQUEST) & ((opnum == OP_READ) | (opnum == OP_READ_IMPLICIT))] = False
-    for k in np.flatnonzero(bare & (ptype == PTYPE_RESPONSE) & (opnum == OP_WRITE)).tolist():
-        request = links.request(int(view.frame_no[rows[k]]))
-        out[k] = request is not None and request.opnum != OP_WRITE
+    responses = np.flatnonzero(p.ptype[rows] == PTYPE_RESPONSE)
+    if not len(responses) or not len(links.answer_at):
+        return out
+    frames = view.frame_no[rows[responses]]
+    at = np.minimum(np.searchsorted(links.answer_at, frames), len(links.answer_at) - 1)
+    paired = links.answer_at[at] == frames
+    seen = links.seen
+    opnum = [seen.get(m, (0.0, -1))[1] for m in links.request_of[at[paired]].tolist()]
+    out[responses[paired]] = np.array(opnum, np.int64) == p.opnum[rows[responses[paired]]]
     return out
+
+
+# --- three-valued judging ------------------------------------------------------------------------------
+def _tri(node: Node, rows: Rows) -> Tri:
+    if isinstance(node, Test):
+        return _test(node, rows)
+    if isinstance(node, Not):
+        true, unknown = _tri(node.item, rows)
+        return ~true & ~unknown, unknown
+    parts = [_tri(item, rows) for item in node.items]
+    n = len(rows.frames)
+    if isinstance(node, All):
+        true, false = np.ones(n, bool), np.zeros(n, bool)
+        for t, u in parts:
+            true &= t & ~u
+            false |= ~t & ~u
+    else:
+        assert isinstance(node, Any)
+        true, false = np.zeros(n, bool), np.ones(n, bool)
+        for t, u in parts:
+            true |= t & ~u
+            false &= ~t & ~u
+    return true, ~true & ~false
+
+
+def _test(test: Test, rows: Rows) -> Tri:
+    ref, n = test.ref, len(rows.frames)
+    if ref.kind == FRAME:
+        return _per_row(test, _frame_values(ref.names[0], rows), n)
+    if ref.kind == ANALYSIS:
+        return _analysis(test, rows)
+    occ = rows.fields.occurrences(ref)
+    if occ is None:
+        return np.zeros(n, bool), np.ones(n, bool)
+    each = np.array([bool(test.each(v)) for v in occ.values()], bool)
+    ok = each[occ.code] if len(occ.code) else np.zeros(0, bool)
+    count = np.bincount(occ.owner, minlength=n)
+    passed = np.bincount(occ.owner, weights=ok, minlength=n)
+    true = (count > 0) & (passed == count) if test.every else passed > 0
+    return true & occ.known, ~occ.known
+
+
+def _per_row(test: Test, values: list[list[object]] | None, n: int) -> Tri:
+    if values is None:
+        return np.zeros(n, bool), np.ones(n, bool)
+    judge = test.judge
+    return np.fromiter((judge(v) for v in values), bool, n), np.zeros(n, bool)
+
+
+def _frame_values(name: str, rows: Rows) -> list[list[object]] | None:
+    if name == "frame.no":
+        return [[f] for f in rows.frames.tolist()]
+    if name == "frame.ts":
+        return [[t] for t in rows.ts.tolist()] if rows.stamped else None
+    if rows.record is None:
+        return [[] for _ in range(len(rows.frames))]
+    return [[v] for v in rows.record[name].tolist()]
+
+
+def _analysis(test: Test, rows: Rows) -> Tri:
+    """txn.* and finding.*: a frame without a note has none of them."""
+    n = len(rows.frames)
+    notes = rows.notes
+    if notes is None:
+        return np.zeros(n, bool), np.ones(n, bool)
+    true = np.full(n, test.judge([]), bool)
+    if notes:
+        frames = rows.frames
+        noted = np.flatnonzero(np.isin(frames, np.fromiter(notes, np.int64, len(notes))))
+        ref, judge = test.ref, test.judge
+        for k in noted.tolist():
+            frame = int(frames[k])
+            true[k] = judge(FrameView(frame, 0.0, None, None, notes[frame]).values(ref))
+    return true, np.zeros(n, bool)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import zlib
 from collections.abc import Iterable, Iterator
+from typing import NamedTuple
 
 from pd_analyze import capture
 from pd_analyze.model.capped import (
@@ -82,7 +83,7 @@ class Dissector:
         self.checker = checker or Checker.for_profile()
         self.records_not_profidrive = 0
         # the last parameter request per channel and its frame, to label the blocks of responses
-        self._pd_requests: CappedTable[tuple, tuple[profidrive.Parsed, int]] = CappedTable(CHANNEL_REQUESTS)
+        self._pd_requests: CappedTable[tuple, tuple[profidrive.Parsed | Unparsed, int]] = CappedTable(CHANNEL_REQUESTS)
         self.link = link.LinkDecoder()
         self.frags = rpc_fragments.FragmentTable()
         self.calls = rpc_calls.CallTable()
@@ -126,6 +127,48 @@ class Dissector:
             self._now = now
             out: list[FrameResult] = []
             self._expire(out)
+
+    # --- frames read by the column decode (dump -T fields): their state, not their tree -----------------
+    def answered_as(self, key: tuple[bytes, int]) -> int | None:
+        """The operation a response of call `key` would be decoded as now (its request's, protocol.md 2.4);
+        None when it pairs no request (it is decoded with its own). The clock must stand at its time."""
+        call = self.calls.open.get(key) or self.calls.closed.get(key)
+        return call.opnum if call is not None else None
+
+    def pass_pdu(self, number: int, ts: float, ptype: int, key: tuple[bytes, int], src: bytes, dst: bytes,
+                 interface: bytes, opnum: int, body: bytes | memoryview, record_len: int = -1, channel: tuple = (),
+                 request: Unparsed | None = None) -> list[FrameResult]:
+        """A PNIO RPC request or response the column decode read whole and regular (no fragment, a record
+        service, an ordinary stub), passed by without its tree: what `feed` leaves of it in the state (its
+        activity, its call opened or answered, a parameter request remembered for its channel's responses:
+        `channel` and `request`; `record_len`: the record its IOD header carries, -1 without a header), and
+        the results the hold releases at its time. Its findings are not made."""
+        self.accounting.read += 1
+        out: list[FrameResult] = []
+        if ts > self._now:
+            self._now = ts
+            self._expire(out)
+        if self.pairing and key[0] not in self._activities:
+            self.remember_activity(key[0])
+        self.accounting.decoded += 1
+        if ptype == PTYPE_REQUEST:
+            call = rpc_calls.Call(number, ts, src, dst, interface, opnum, body)
+            known = self.calls.request(key, call, [])
+            if known is call:  # not a retransmission: the call keeps what was decoded of it (_data_pdu)
+                blocks = [(record_len, request.footprint if request is not None else 0)] if record_len >= 0 else []
+                self.calls.charge(key, call, _stub_cost(blocks), [])
+            if request is not None and self.pairing:
+                self._pd_requests.remember(channel, (request, number), request.footprint)
+        else:
+            self.frags.drop_call(key, number, [])
+            answered = self.calls.close(key, ts)
+            if answered is not None:
+                answered.response_frame = number
+                if self.hold is not None:
+                    self.hold.link_response(answered.frame, number)
+        if self.hold is None or not (out or self.hold.first_held()):  # nothing to release (most rows)
+            return out
+        return self._leaving(self.hold.release(out, self._now))
 
     def adopt_request(self, frame: capture.RawFrame) -> rpc_calls.Call | None:
         """Open the call of a request frame counted elsewhere (the columnar path hands its group over):
@@ -491,6 +534,8 @@ class Dissector:
             key = _channel(dgram, v, block.target_ar, response)
             if response:
                 request, request_frame = self._pd_requests.get(key, (None, 0)) if self.pairing else (None, 0)
+                if isinstance(request, Unparsed):  # passed by: parsed as feed parses a request
+                    request = profidrive.parse_request(request.record, request_frame, [], self.checker.ids)
                 if self.links is not None:
                     told = self.links.parameter_request(number, block)
                     request_frame, request = told if told is not None else (0, None)
@@ -545,12 +590,22 @@ def _other_interface(hdr: rpc.Header, frame: int) -> Finding:
 
 def _decoded_cost(stub: rec.Stub) -> int:
     """Bytes a request's decoded stub keeps alive in its open call: blocks, records, parsed PROFIdrive."""
-    cost = 256
-    for block in stub.blocks:
-        cost += 512 + len(block.record)
-        if isinstance(block.pd, tuple):
-            cost += profidrive.footprint(block.pd[0])
-    return cost
+    return _stub_cost([(len(block.record), profidrive.footprint(block.pd[0]) if isinstance(block.pd, tuple) else 0)
+                       for block in stub.blocks])
+
+
+def _stub_cost(blocks: list[tuple[int, int]]) -> int:
+    """_decoded_cost of a stub of these blocks: each one's record length and its PROFIdrive parse's footprint
+    (0 when none)."""
+    return 256 + sum(512 + record_len + footprint for record_len, footprint in blocks)
+
+
+class Unparsed(NamedTuple):
+    """A parameter request passed by (Dissector.pass_pdu): its record, parsed when a response on its channel
+    asks, and the footprint its parse has (profidrive.footprint, known beforehand from the columns)."""
+
+    record: bytes
+    footprint: int
 
 
 def _channel(dgram: link.Datagram, v: tuple, target_ar: bytes, response: bool) -> tuple:

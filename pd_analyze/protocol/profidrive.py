@@ -118,7 +118,12 @@ class Parsed:
 def footprint(p: Parsed) -> int:
     """Bytes a parsed record keeps alive, objects included (roughly): what the caps of the tables that
     keep parsed requests count. A record of n parameters costs some 300 bytes per parameter."""
-    return 256 + 2 * p.length + 128 * len(p.addresses) + 192 * len(p.blocks)  # block data <= p.length
+    return footprint_of(p.length, len(p.addresses), len(p.blocks))
+
+
+def footprint_of(length: int, addresses: int, blocks: int) -> int:
+    """`footprint` of a record of `length` bytes parsed into so many addresses and blocks."""
+    return 256 + 2 * length + 128 * addresses + 192 * blocks  # block data <= length
 
 
 # --- parsing ----------------------------------------------------------------------------------

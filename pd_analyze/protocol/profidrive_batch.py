@@ -87,10 +87,20 @@ class BlockColumns:
     data_len: np.ndarray  # int32: n_values x the format's size
     error: np.ndarray  # int32: error number of an error block (Format 0x44), -1 otherwise
     error_subindex: np.ndarray  # int32: its second value when it has one, -1 otherwise
-    # The block's values as the tables show them: analysis.rows.block_values(block), "" for error and
-    # Zero blocks (a pyarrow string array, or a numpy object array of str)
-    text: object
     pad: np.ndarray  # int16: the pad byte consumed after the block's values (Block.pad), -1 when none
+    made_text: object = None  # `text` once made
+    buf: np.ndarray | None = None  # the bytes `text` is made from, until it is
+
+    @property
+    def text(self) -> object:
+        """The block's values as the tables show them: analysis.rows.block_values(block), "" for error and
+        Zero blocks (a pyarrow string array, or a numpy object array of str); made on first use (the dump's
+        paths never ask, and pyarrow's conversion of Python strings loads pandas)."""
+        if self.made_text is None:
+            self.made_text = batch_text.block_text(self.buf, self.format, self.n_values, self.data_start,
+                                                   self.data_len)
+            self.buf = None
+        return self.made_text
 
 
 @dataclass(slots=True)
@@ -249,8 +259,7 @@ def _assemble(b: np.ndarray, walk: _Walk, regular: np.ndarray, first_block: np.n
     error[one] = _be16(b, data_start[one])
     two = np.flatnonzero(is_error & (m >= 2))
     error_subindex[two] = _be16(b, data_start[two] + 2)
-    text = batch_text.block_text(b, fmt, m, data_start, data_len)
-    return BlockColumns(record, fmt, m, data_start, data_len, error, error_subindex, text, pad), position
+    return BlockColumns(record, fmt, m, data_start, data_len, error, error_subindex, pad, buf=b), position
 
 
 def _addresses(b: np.ndarray, start: np.ndarray, n_addr: np.ndarray, first_addr: np.ndarray) -> AddressColumns:
@@ -313,14 +322,14 @@ def merge_records(a: DecodedRecords, b: DecodedRecords) -> DecodedRecords:
     shift = len(ra.ref)
     addresses = AddressColumns(*(np.concatenate([getattr(a.addresses, f), getattr(b.addresses, f) + (
         shift if f == "record" else 0)]) for f in AddressColumns.__dataclass_fields__))
-    columns = {}
+    columns: dict[str, object] = {}
     for f in BlockColumns.__dataclass_fields__:
-        x, y = getattr(a.blocks, f), getattr(b.blocks, f)
-        if f == "text":
-            columns[f] = _concat_text(x, y)
-        else:
+        if f == "made_text":  # each made from its own buffer first
+            columns[f] = _concat_text(a.blocks.text, b.blocks.text)
+        elif f != "buf":
+            x, y = getattr(a.blocks, f), getattr(b.blocks, f)
             columns[f] = np.concatenate([x, y + (shift if f == "record" else 0)])
-    return DecodedRecords(records, addresses, BlockColumns(**columns))
+    return DecodedRecords(records, addresses, BlockColumns(**columns))  # type: ignore[arg-type]
 
 
 def _concat_text(x: object, y: object) -> object:

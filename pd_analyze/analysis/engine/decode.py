@@ -56,6 +56,22 @@ def packed(status: Status | None) -> int:
     return status.code << 24 | status.decode << 16 | status.code1 << 8 | status.code2
 
 
+def column_rows(view: BatchView) -> tuple[np.ndarray, np.ndarray]:
+    """The PNIO PDUs the columns decode (indices into view.p, frame order): every ROUTE_PNIO one but for an
+    irregular record (the per-frame parse's); and the positions in the batch of the frames the per-frame
+    dissector decodes: those the columns route to it, the DECIDE ones, and the PNIO ones taken back."""
+    p = view.p
+    f = view.decoded.frames
+    pnio = view.pnio.copy()
+    sel = np.flatnonzero(view.rec_of >= 0)
+    r = view.records.records
+    odd_record = ~r.regular[view.rec_of[sel]] | ((p.index[sel] == INDEX_PD_DPV1) & ~r.plausible[view.rec_of[sel]])
+    pnio[sel[odd_record]] = False
+    take = (f.route == ROUTE_FRAMES) | (f.route == ROUTE_DECIDE)
+    take[p.pos[view.pnio & ~pnio]] = True
+    return np.flatnonzero(pnio), np.flatnonzero(take)
+
+
 @dataclass(slots=True)
 class Decoded:
     """One batch (or part of one) as the engine reads it."""
@@ -96,7 +112,6 @@ class Decoder:
         return self._decode(batch, view)
 
     def _decode(self, batch: FrameBatch, view: BatchView) -> Decoded:
-        p = view.p
         f = view.decoded.frames
         out = Decoded(batch, view, np.empty(0, np.int64), np.empty(0, np.int64))
         acc = out.accounting
@@ -105,20 +120,8 @@ class Decoder:
         for code, count in enumerate(counts.tolist()):
             if count:
                 acc.skipped[SKIP_REASONS[code]] += count
-        # the PNIO PDUs the columns decoded, but for an irregular record (the per-frame parse's)
-        pnio = view.pnio.copy()
-        sel = np.flatnonzero(view.rec_of >= 0)
-        r = view.records.records
-        odd_record = ~r.regular[view.rec_of[sel]] | ((p.index[sel] == INDEX_PD_DPV1) & ~r.plausible[view.rec_of[sel]])
-        pnio[sel[odd_record]] = False
-        rows = np.flatnonzero(pnio)
-        acc.decoded = len(rows)
-        out.rows = rows
-        # the frames the per-frame dissector decodes: those the columns route to it, the DECIDE ones, and
-        # the PNIO ones just taken back
-        take = (f.route == ROUTE_FRAMES) | (f.route == ROUTE_DECIDE)
-        take[p.pos[view.pnio & ~pnio]] = True
-        out.odd = np.flatnonzero(take)
+        out.rows, out.odd = column_rows(view)
+        acc.decoded = len(out.rows)
         acc.read -= len(out.odd)  # the dissector counts them
         self._odd_rows(out)
         return out
