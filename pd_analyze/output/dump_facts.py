@@ -26,7 +26,6 @@ from pd_analyze.protocol.links import Request
 from pd_analyze.protocol.profidrive import Parsed
 
 _E = np.empty(0, np.int64)
-_FINAL_ANSWER = frozenset({"response", "pnio_error"})
 
 
 def _sorted_pairs(keys: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -162,7 +161,7 @@ class _Calls:
         self.decided.update(decided)
 
     def transaction(self, row: Any) -> None:
-        if row.read_res_frame is not None and row.closed_by in _FINAL_ANSWER:
+        if row.read_res_frame is not None and row.closed_by in frame_notes.FINAL_ANSWER:
             self.final.append((int(row.read_res_frame), int(row.write_res_frame or 0), int(row.write_req_frame or 0)))
 
     def links(self, rpc_timeout: float) -> FileLinks:
