@@ -269,6 +269,20 @@ class View:
         if made is not None:
             return "\n".join([line(f, indent) for f in made])
         parts = found.text if found.indent == indent else found.texts(indent, line)
+        return self._filled(parts, buf, offset, values, base, checks, slot, indent, "\n")
+
+    def json(self, buf: bytes, offset: int, values: tuple, base: int, checks: tuple[str, ...],
+             obj: Callable[[Field], str], slot: Slot) -> str:
+        """The fields' JSON objects joined by commas, kept and written as `text` keeps and writes the lines."""
+        found, made = self._find(buf, offset, values, base, checks)
+        if made is not None:
+            return ",".join([obj(f) for f in made])
+        parts = found.json or found.jsons(obj)
+        return self._filled(parts, buf, offset, values, base, checks, slot, "", ",")
+
+    def _filled(self, parts: Sequence[str], buf: bytes, offset: int, values: tuple, base: int,
+                checks: tuple[str, ...], slot: Slot, indent: str, sep: str) -> str:
+        """The kept parts with each changing field's part written in its slot, joined by `sep`."""
         slots = self._slots
         if not slots:
             return parts[0]
@@ -278,25 +292,7 @@ class View:
             value = values[src] if conv is None else conv(values[src])
             start = offset + rel
             out[j] = slot(name, at + rel, size, buf[start:start + size], value, show_value(value), checks[i], indent)
-        return "\n".join(out)
-
-    def json(self, buf: bytes, offset: int, values: tuple, base: int, checks: tuple[str, ...],
-             obj: Callable[[Field], str], slot: Slot) -> str:
-        """The fields' JSON objects joined by commas, kept and written as `text` keeps and writes the lines."""
-        found, made = self._find(buf, offset, values, base, checks)
-        if made is not None:
-            return ",".join([obj(f) for f in made])
-        parts = found.json or found.jsons(obj)
-        slots = self._slots
-        if not slots:
-            return parts[0]
-        out = list(parts)
-        at = base + offset
-        for j, (name, rel, size, _memo, conv, show_value, src, i) in slots:
-            value = values[src] if conv is None else conv(values[src])
-            start = offset + rel
-            out[j] = slot(name, at + rel, size, buf[start:start + size], value, show_value(value), checks[i], "")
-        return ",".join(out)
+        return sep.join(out)
 
     def _find(self, buf: bytes, offset: int, values: tuple, base: int, checks: tuple[str, ...]
               ) -> tuple[Template, None] | tuple[None, list[Field]]:

@@ -40,6 +40,16 @@ from pd_analyze.protocol.pnio_checks import CHECKED_FIELDS
 from pd_analyze.protocol.profidrive_checks import Checker
 
 
+def in_ranges(frames: np.ndarray, ranges: list[tuple[int, int]]) -> np.ndarray:
+    """Per frame number: within one of the --frames ranges (every frame when none is given)?"""
+    if not ranges:
+        return np.ones(len(frames), bool)
+    out = np.zeros(len(frames), bool)
+    for lo, hi in ranges:
+        out |= (frames >= lo) & (frames <= hi)
+    return out
+
+
 class Selection:
     """Which frames the dump prints (every PNIO RPC frame in `ranges`, all when empty)."""
 
@@ -50,12 +60,7 @@ class Selection:
         self.ranges = ranges or []
 
     def wanted(self, frames: np.ndarray) -> np.ndarray:
-        if not self.ranges:
-            return np.ones(len(frames), bool)
-        out = np.zeros(len(frames), bool)
-        for lo, hi in self.ranges:
-            out |= (frames >= lo) & (frames <= hi)
-        return out
+        return in_ranges(frames, self.ranges)
 
     def columns(self, part: Decoded, rows: np.ndarray, notes: dict[int, FrameNote], links: FileLinks) -> np.ndarray:
         """Per column row `rows` (indices into the part's PDU columns, frame order): printed? (per_frame: may

@@ -39,6 +39,7 @@ from pd_analyze.output import dump_prefilter
 from pd_analyze.output.column_fields import OtherFrames, PartFields
 from pd_analyze.output.display_filter import DisplayFilter
 from pd_analyze.output.dump import safe
+from pd_analyze.output.dump_file import in_ranges
 from pd_analyze.output.frame_notes import FrameNote, Notes
 from pd_analyze.output.frame_select import FieldsFormat, fields_line
 from pd_analyze.output.frame_view import ANALYSIS, FRAME, FieldRef, FrameView
@@ -122,12 +123,7 @@ class FieldsFile:
         self._events(batch, view, rows, np.flatnonzero(kind > 0), tree, lines)
 
     def _wanted(self, frames: np.ndarray) -> np.ndarray:
-        if not self.ranges:
-            return np.ones(len(frames), bool)
-        out = np.zeros(len(frames), bool)
-        for lo, hi in self.ranges:
-            out |= (frames >= lo) & (frames <= hi)
-        return out
+        return in_ranges(frames, self.ranges)
 
     def _judged(self, fields: dump_prefilter.Fields, batch: FrameBatch, at: np.ndarray,
                 wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
