@@ -9,6 +9,7 @@ reference's everywhere. A batch decodes as its records one at a time.
 
 from __future__ import annotations
 
+import pickle
 import random
 from functools import cache
 from pathlib import Path
@@ -279,6 +280,22 @@ def test_every_block_row_belongs_to_its_record() -> None:
         np.dtype(np.uint8)}
     assert a.pnu.dtype == a.subindex.dtype == np.uint16
     assert k.error.dtype == k.error_subindex.dtype == np.int32
+
+
+def test_the_texts_are_made_on_first_use_and_before_pickling() -> None:
+    """The value blocks' table texts are made when asked (the dump's paths never ask), and when the columns are
+    pickled (a worker's decode sent to the engine): then in the worker, and without the batch's buffer."""
+    records = list(all_records())[:300]
+    d = batch.decode(*packed(records), checker("generic"))
+    blocks = d.blocks
+    assert blocks.made_text is None and blocks.buf is not None
+    again = pickle.loads(pickle.dumps(blocks))
+    assert blocks.buf is None and again.buf is None
+    expected = [block_values(b) for i, (data, response) in enumerate(records) if d.records.regular[i]
+                for b in reference(data, response, checker("generic"))[0].blocks]
+    assert len(expected) > 100
+    assert again.text.to_pylist() == blocks.text.to_pylist() == expected
+    assert np.array_equal(again.data_start, blocks.data_start) and np.array_equal(again.format, blocks.format)
 
 
 def _one(d: batch.DecodedRecords, i: int, start: int) -> tuple:

@@ -102,6 +102,16 @@ class BlockColumns:
             self.buf = None
         return self.made_text
 
+    def __getstate__(self) -> tuple:
+        """Pickled (a worker's decode sent to the engine, analysis.split): the texts made here, where the
+        columns were decoded, and the buffer left behind."""
+        self.text  # noqa: B018 (made now)
+        return tuple(getattr(self, name) for name in self.__dataclass_fields__)
+
+    def __setstate__(self, state: tuple) -> None:
+        for name, value in zip(self.__dataclass_fields__, state, strict=True):
+            object.__setattr__(self, name, value)
+
 
 @dataclass(slots=True)
 class DecodedRecords:
