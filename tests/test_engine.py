@@ -187,10 +187,12 @@ def test_late_copies_are_counted_and_noted_as_in_one_batch(tmp_path: Path) -> No
     path = tmp_path / "mutated.pcap"
     mutated_capture(path, 2000)
     want = analysed(str(path), vector=False)
-    row = want.transactions.set_index("txn").loc[46]
-    assert (row["frames"], row["rpc_retransmissions"]) == ("431 432 1180 1181", 0)
-    at = want.findings[want.findings.frame == 1200]
-    assert at[["txn", "rule", "name"]].values.tolist() == [[52, "R7", "rpc_key_reused"], [52, "H4", "padding_nonzero"]]
+    if shared_captures():  # the capture is made of the corpus's seeds, the shared captures among them (CI)
+        row = want.transactions.set_index("txn").loc[46]
+        assert (row["frames"], row["rpc_retransmissions"]) == ("431 432 1180 1181", 0)
+        at = want.findings[want.findings.frame == 1200]
+        assert at[["txn", "rule", "name"]].values.tolist() == [[52, "R7", "rpc_key_reused"],
+                                                               [52, "H4", "padding_nonzero"]]
     for size in (7, 1000):
         assert_same(analysed(str(path), size, vector=False), want)
 
@@ -205,9 +207,11 @@ def test_a_key_the_loop_meets_is_never_the_vector_paths(tmp_path: Path) -> None:
     path = tmp_path / "mutated.pcap"
     mutated_capture(path, 14100)
     want = analysed(str(path), vector=False)
-    txns = want.transactions.set_index("txn")
-    assert (txns.loc[385, "frames"], txns.loc[385, "rpc_retransmissions"]) == ("2552 2553 2554 2555 14004 14005", 1)
-    assert txns.loc[1153, ["frames", "verdict", "closed_by"]].tolist() == ["14002", "timeout", "capture_end"]
+    if shared_captures():  # (the seeds of CI: with the shared captures; a plain clone's capture differs)
+        txns = want.transactions.set_index("txn")
+        assert (txns.loc[385, "frames"], txns.loc[385, "rpc_retransmissions"]) == ("2552 2553 2554 2555 14004 14005",
+                                                                                    1)
+        assert txns.loc[1153, ["frames", "verdict", "closed_by"]].tolist() == ["14002", "timeout", "capture_end"]
     for size in (0, 1000):
         assert_same(analysed(str(path), size), want)
 
