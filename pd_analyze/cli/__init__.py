@@ -5,12 +5,11 @@ diff; annotate, extract), what they share in `base`.
 Exit codes: 0 done, 1 a finding reached the --fail-on threshold (audit) or the states differ (diff), 2
 unreadable input or bad usage, 141 the reader of stdout went away (as a Unix tool killed by SIGPIPE). Data
 goes to stdout, progress and errors to stderr; no traceback ever reaches the user.
+
+Each command's module is imported when the command is run (base.COMMAND_MODULES): start-up loads only what
+the command needs.
 """
 
-from pd_analyze.cli import decode, dump, params, report, wireshark
 from pd_analyze.cli.base import EXIT_CLOSED_PIPE, EXIT_FINDINGS, EXIT_OK, EXIT_USAGE, main
 
-for _command in (wireshark.annotate_command, wireshark.extract_command):
-    main.add_command(_command)
-
-__all__ = ["EXIT_CLOSED_PIPE", "EXIT_FINDINGS", "EXIT_OK", "EXIT_USAGE", "decode", "dump", "main", "params", "report"]
+__all__ = ["EXIT_CLOSED_PIPE", "EXIT_FINDINGS", "EXIT_OK", "EXIT_USAGE", "main"]

@@ -5,6 +5,7 @@ work starts."""
 from __future__ import annotations
 
 import gc
+import importlib
 import os
 import sys
 from collections.abc import Callable
@@ -48,7 +49,22 @@ def _batch_gc() -> None:
     gc.set_threshold(50_000, 20, 20)
 
 
+# Each command's module, imported when the command is run or listed: `report` of a small capture should not
+# first load the dump's filter engine, the capture copier and the decoders (about a third of a second).
+COMMAND_MODULES = {"annotate": "wireshark", "audit": "report", "decode": "decode", "diff": "params", "dump": "dump",
+                   "extract": "wireshark", "fields": "decode", "params": "params", "profiles": "decode",
+                   "report": "report"}
+
+
 class _Group(click.Group):
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(set(self.commands) | set(COMMAND_MODULES))
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name not in self.commands and cmd_name in COMMAND_MODULES:
+            importlib.import_module(f"pd_analyze.cli.{COMMAND_MODULES[cmd_name]}")  # its decorators add it
+        return self.commands.get(cmd_name)
+
     def invoke(self, ctx: click.Context) -> object:
         try:
             return super().invoke(ctx)

@@ -21,6 +21,7 @@ from pd_analyze.cli.base import (
     checker_for,
     frames_beyond,
     frames_read,
+    main,
     profile_option,
     timeout_options,
 )
@@ -108,7 +109,7 @@ def _usage(run: Callable[[], Copied]) -> Copied:
         raise click.ClickException(dump.safe(str(exc))) from None
 
 
-@click.command("annotate", epilog=ANNOTATE_EXAMPLES)
+@main.command("annotate", epilog=ANNOTATE_EXAMPLES)
 @_common
 def annotate_command(capture: str, out: str, flt: str | None, profile: str, timeout: float,
                      rpc_timeout: float) -> None:
@@ -122,7 +123,7 @@ def annotate_command(capture: str, out: str, flt: str | None, profile: str, time
     _finish(result, f"{result.frames} frames written, {result.comments} with a pd-analyze comment")
 
 
-@click.command("extract", epilog=EXTRACT_EXAMPLES)
+@main.command("extract", epilog=EXTRACT_EXAMPLES)
 @_common
 @click.option("--verdict", metavar="LIST", default="", help="Transactions with one of these verdicts, e.g. "
               f"nak,timeout,pnio_error ({', '.join(VERDICTS)}).")
