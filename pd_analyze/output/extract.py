@@ -32,6 +32,7 @@ from pd_analyze.capture.records import CaptureCopy
 from pd_analyze.model.verdicts import VERDICTS
 from pd_analyze.output import frame_notes
 from pd_analyze.output.capture_copy import Copied, UsageError, check_paths, dissector_for, frames, output
+from pd_analyze.output.copy_filter import matching
 from pd_analyze.output.display_filter import DisplayFilter
 
 
@@ -242,8 +243,16 @@ def _chosen(capture: str, settings: Settings, selection: Selection) -> tuple[_Ch
 
 def _matching(capture: str, settings: Settings, flt: DisplayFilter, notes: frame_notes.Notes | None,
               candidates: dict[int, list[int]]) -> set[int]:
-    """Transactions with a frame the filter matches, among `candidates` (frame: its kept transactions)."""
+    """Transactions with a frame the filter matches, among `candidates` (frame: its kept transactions): the
+    filter judged on the columns where it can be, else frame by frame on the records and trees."""
     found: set[int] = set()
+    matched = matching(capture, settings, flt, notes)
+    if matched is not None:  # judged on the columns (output.copy_filter)
+        for frame in matched:
+            txns = candidates.get(frame)
+            if txns is not None:
+                found.update(txns)
+        return found
     with CaptureCopy(capture) as copy:
         try:
             for _block, view in frames(copy, dissector_for(settings, flt), notes):
