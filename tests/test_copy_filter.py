@@ -25,7 +25,6 @@ from pd_analyze.output import dump_prefilter, frame_notes
 from pd_analyze.output.capture_copy import dissector_for, frames
 from pd_analyze.output.copy_filter import NotesAhead, matching
 from pd_analyze.output.display_filter import DisplayFilter, parse
-from pd_analyze.output.fields_file import _RECORD_FIELDS
 from tests.support import shared_captures, unavailable
 from tests.test_dump_columns import FILTERS, SAMPLE_FILES, SAMPLES
 
@@ -49,32 +48,21 @@ def _per_frame(path: Path, flt: DisplayFilter) -> list[int]:
     return out
 
 
-def _columns(path: Path, flt: DisplayFilter) -> list[int] | None:
+def _columns(path: Path, flt: DisplayFilter) -> list[int]:
     notes = frame_notes.collect(str(path), SETTINGS) if flt.needs_analysis else None
     try:
         matched = matching(str(path), SETTINGS, flt, notes)
-        return None if matched is None else list(matched)
+        assert matched is not None, path.name  # a file: judged on the columns, never the per-frame fallback
+        return list(matched)
     finally:
         if notes is not None:
             notes.close()
 
 
-def _classic_pcap(path: Path) -> bool:
-    with CaptureCopy(str(path)) as copy:
-        return copy.format == "pcap"
-
-
 def same_frames(path: Path, filters: list[str]) -> None:
-    """The columns' frames are the per-frame judgement's; the per-frame fallback (None) only where a filter names
-    a record field of a file that is not a classic pcap."""
     for expression in filters:
         flt = parse(expression)
-        columns = _columns(path, flt)
-        if columns is None:
-            assert {n for r in flt.refs for n in r.names} & _RECORD_FIELDS and not _classic_pcap(path), \
-                (path.name, expression)
-            continue
-        assert columns == _per_frame(path, flt), (path.name, expression)
+        assert _columns(path, flt) == _per_frame(path, flt), (path.name, expression)
 
 
 def _copy(command: list[str], out: Path, per_frame: bool) -> tuple[bytes, str, int]:
@@ -131,15 +119,14 @@ def test_on_real_captures(tmp_path: Path) -> None:
         same_copies(path, FILTERS[::8], tmp_path)
 
 
-def test_a_record_field_of_a_pcapng_file_is_judged_frame_by_frame() -> None:
-    """A pcapng's interfaces may count time in units the batches' nanoseconds do not hold: a filter naming a
-    record field there is left to the per-frame judgement (None), a classic pcap's is read from the columns."""
-    pcapng, pcap = SAMPLES / "two_interfaces.pcapng", SAMPLES / "pd_negative.pcap"
-    assert matching(str(pcapng), SETTINGS, parse("frame.iface == 1"), None) is None
-    assert matching(str(pcapng), SETTINGS, parse("pd.ref == 1"), None) is not None
-    flt = parse("frame.caplen > 100")
-    columns = _columns(pcap, flt)
-    assert columns is not None and columns == _per_frame(pcap, flt) and columns
+def test_record_fields_of_a_pcapng_file_are_judged_on_the_columns() -> None:
+    """frame.iface, frame.caplen and frame.time_epoch of a pcapng's records, judged on the columns as on the
+    records (tests/test_dump_columns.py has pcapng files of every time unit)."""
+    pcapng = SAMPLES / "two_interfaces.pcapng"
+    for expression in ("frame.iface == 1", "frame.caplen > 100", "frame.time_epoch > 1767225600.01"):
+        flt = parse(expression)
+        columns = _columns(pcapng, flt)
+        assert columns and columns == _per_frame(pcapng, flt), expression
 
 
 def test_the_notes_read_ahead_are_held_until_the_copy_passes_them(tmp_path: Path) -> None:

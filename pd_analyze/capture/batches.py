@@ -53,6 +53,9 @@ class FrameBatch:
     # decimals of a second the capture's times carry (CaptureInfo.digits as far as the file was read): the
     # tables' files write its times and durations with as many (model.times)
     digits: int = DEFAULT_DIGITS
+    # the frames whose time `ns` does not give as their record holds it (a pcapng's Simple Packet Blocks, units
+    # in powers of two or finer than a nanosecond): frame -> their record's stamp (pcapng_chunks.Stamps)
+    stamps: dict[int, tuple[int, float, int, int]] | None = None
 
     def __len__(self) -> int:
         return len(self.number)
@@ -63,7 +66,7 @@ class FrameBatch:
             return self
         return FrameBatch(self.buf, self.number[start:stop], self.ts[start:stop], self.linktype[start:stop],
                           self.start[start:stop], self.caplen[start:stop], self.iface[start:stop], self.ns[start:stop],
-                          self.digits)
+                          self.digits, self.stamps)
 
     def raw_frame(self, i: int) -> RawFrame:
         """Frame i as the per-frame dissector takes it."""
@@ -129,8 +132,8 @@ def batches(path: str, size: int = BATCH_FRAMES, info: CaptureInfo | None = None
             for _base, batch in _pcap_batches(path, stream, info, size, stream.read(24), 24, 1):
                 yield batch
         else:
-            for columns in pcapng_columns(path, stream, info):
-                chunk = FrameBatch(*columns, info.digits)
+            for columns, stamps in pcapng_columns(path, stream, info):
+                chunk = FrameBatch(*columns, info.digits, stamps or None)
                 for i in range(0, len(chunk), size):
                     yield chunk.part(i, i + size)
 

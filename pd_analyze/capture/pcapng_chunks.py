@@ -6,6 +6,10 @@ A chunk's blocks are found by a loop of one unpack and one append each (the bloc
 numpy then reads their headers and picks the ordinary ones: type EPB, a valid length repeated in the
 trailer, caplen within the block and the limit. Their interface ids are checked against the section's
 interfaces run by run (an interface description between two runs adds one).
+
+A frame whose time its nanoseconds do not give as tshark prints frame.time_epoch (a Simple Packet Block, which
+has none; units in powers of two or finer than a nanosecond, rounded down in `ns`; a time clamped to int64)
+is listed with its record's stamp (`Stamps`), so the batches' frame.time_epoch is the record's exactly.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ import numpy as np
 from pd_analyze.capture.chunks import ChunkReads
 from pd_analyze.capture.pcapng import (
     _PCAPNG_MAX_BLOCK,
+    NS_LIMIT,
     PCAPNG_SHB,
     Section,
     block_length,
@@ -28,10 +33,14 @@ from pd_analyze.capture.pcapng import (
     shb_little,
     ticks_ns,
 )
+from pd_analyze.capture.pcapng_write import BT_SPB
 from pd_analyze.capture.raw import MAX_CAPLEN, CaptureError, CaptureInfo
 
-# buf, number, ts, linktype, start, caplen, iface: the columns of FrameBatch, over one chunk
+# buf, number, ts, linktype, start, caplen, iface, ns: the columns of FrameBatch, over one chunk
 Columns = tuple[bytes, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+# frame number: (block type, units per second, offset in seconds, stamp in those units), as output.frame_view's
+# record_time reads a record; only the frames whose `ns` is not that time exactly
+Stamps = dict[int, tuple[int, float, int, int]]
 Packet = tuple[float, int, int, int, int, int]  # as read_block returns it
 
 _EPB = 6
@@ -40,9 +49,10 @@ _LENGTH = {True: struct.Struct("<4xI").unpack_from, False: struct.Struct(">4xI")
 _SHB_AT = struct.Struct("<I").unpack_from
 
 
-def pcapng_columns(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[Columns]:
-    """The frames of a pcapng stream (standing at its first byte) as columns, a chunk at a time; a
-    damaged file: the frames before the damage, then the CaptureError pcapng_frames raises."""
+def pcapng_columns(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[tuple[Columns, Stamps]]:
+    """The frames of a pcapng stream (standing at its first byte) as columns, a chunk at a time, with the
+    stamps of its frames whose `ns` is not their record's time (module docstring); a damaged file: the
+    frames before the damage, then the CaptureError pcapng_frames raises."""
     section = Section()
     reads = ChunkReads(path, stream, 0)
     buf, base = b"", 0  # base: the file offset of buf[0], always a block's start
@@ -52,10 +62,10 @@ def pcapng_columns(path: str, stream: BinaryIO, info: CaptureInfo) -> Iterator[C
             pos = chunk.read()
         except CaptureError:
             if chunk.count():
-                yield chunk.columns()
+                yield chunk.columns(), chunk.stamps
             raise
         if chunk.count():
-            yield chunk.columns()
+            yield chunk.columns(), chunk.stamps
         rest, at = len(buf) - pos, base + pos
         buf, base = reads.chunk(at, buf[pos:]), at
         if len(buf) == rest:  # nothing more came
@@ -75,6 +85,7 @@ class _Chunk:
         self.first = section.number + 1  # the chunk's first frame
         self.segments: list[tuple[np.ndarray, ...]] = []  # (ts, linktype, start, caplen, iface) in frame order
         self.packets: list[Packet] = []  # read one by one since the last segment
+        self.stamps: Stamps = {}
 
     def count(self) -> int:
         return self.section.number + 1 - self.first
@@ -145,6 +156,10 @@ class _Chunk:
             # as read_block: offset + ticks / divisor, each int made a float (rounded alike) before the division
             ts = offset + ticks.astype(np.float64) / divisor
             ns = _ns(ifaces, ids, ticks)
+            inexact = np.array([not _exact(i.resol) for i in ifaces], bool)[ids] | (np.abs(ns) == NS_LIMIT)
+            for k in np.flatnonzero(inexact).tolist():
+                i = ifaces[int(ids[k])]
+                self.stamps[self.section.number + 1 + k] = (_EPB, i.divisor, i.offset, int(ticks[k]))
             self._flush()
             self.segments.append((ts, linktype, st[:stop] + 28, caplen[:stop].astype(np.int64), ids.astype(np.int32),
                                   ns))
@@ -172,6 +187,13 @@ class _Chunk:
         packet = read_block(self.path, section, self.info, buf, at, pos)
         if packet is not None:
             self.packets.append(packet)
+            btype = struct.unpack_from("<I" if section.little else ">I", buf, at)[0]
+            iface = section.ifaces[packet[4]]
+            if btype == BT_SPB:
+                self.stamps[section.number] = (BT_SPB, iface.divisor, iface.offset, 0)
+            elif not _exact(iface.resol) or abs(packet[5]) == NS_LIMIT:
+                high, low = struct.unpack_from("<II" if section.little else ">II", buf, at + 12)
+                self.stamps[section.number] = (btype, iface.divisor, iface.offset, (high << 32) | low)
         return at + blen
 
     def _flush(self) -> None:
@@ -186,6 +208,11 @@ class _Chunk:
         ts, linktype, start, caplen, iface, ns = (np.concatenate(c) for c in zip(*self.segments, strict=True))
         number = np.arange(self.first, self.first + len(ts), dtype=np.int64)
         return self.buf, number, ts, linktype, start, caplen, iface, ns
+
+
+def _exact(resol: int) -> bool:
+    """Units of 10^-resol s down to the nanosecond: `ns` holds a stamp exactly."""
+    return not resol & 0x80 and resol <= 9
 
 
 def _ns(ifaces: list, ids: np.ndarray, ticks: np.ndarray) -> np.ndarray:

@@ -181,7 +181,7 @@ def fields_dump(paths: list[str], settings: Settings, checker: Checker, flt: str
             click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
             status = EXIT_USAGE
             continue
-        if out_type == "fields" and facts is None and fields_file.takes(path, refs, parsed):
+        if out_type == "fields" and facts is None and fields_file.takes(path):
             status = _fields_file(path, settings, checker, refs, fmt, parsed, ranges, status)
             continue
         d = Dissector(annotate=True, rpc_timeout=settings.rpc_timeout, checker=checker,

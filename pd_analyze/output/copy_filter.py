@@ -5,8 +5,8 @@ the columns cannot tell; asked for one cell, frame.number, its lines are the num
 in frame order. The frames are the same as the per-frame judgement's, frame for frame
 (tests/test_copy_filter.py holds both against each other).
 
-Where FieldsFile cannot read the capture (a pcapng file whose filter names a record field, standard input, the
-per-frame reference forced) `matching` is None and the caller judges frame by frame, as before.
+Where FieldsFile does not read the capture (standard input, the per-frame reference forced) `matching` is None
+and the caller judges frame by frame, as before.
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ def matching(capture: str, settings: Settings, flt: DisplayFilter,
     """The numbers of the frames `flt` matches, in increasing order, or None when only the per-frame judgement
     can read this capture. `notes` (the analysis's, when the filter names txn.* or finding.*) is read through
     `upto`. The iterator stops at a damaged record (the copy meets and reports the same damage)."""
-    if not takes(capture, _NUMBER, flt):
+    if not takes(capture):
         return None
     fields = FieldsFile(capture, settings, settings.checker(), _NUMBER, FieldsFormat(), flt,
                         notes if flt.needs_analysis else None, [])  # type: ignore[arg-type]

@@ -15,8 +15,9 @@ A frame's line is written in frame order: a dissected frame's result may come ou
 (a request waits for its answer), and the lines after it wait with it.
 
 Used for a capture file whose fields and filter name no link (those are the report's pairing: the per-frame
-path, frame_select) and, for frame.time_epoch, frame.iface, frame.linktype and frame.caplen, a classic pcap
-(a pcapng file's interfaces may have timestamp units the batches' nanoseconds do not hold exactly).
+path, frame_select). frame.time_epoch is a record's time as tshark prints it: the batches' nanoseconds, or, for
+the frames whose nanoseconds do not hold it (a pcapng's Simple Packet Blocks, which have none, and units in
+powers of two or finer than a nanosecond), their record's stamp (FrameBatch.stamps).
 """
 
 from __future__ import annotations
@@ -32,8 +33,7 @@ from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.capture import CaptureError
 from pd_analyze.capture.batches import FrameBatch, batches
 from pd_analyze.capture.pcapng import Block
-from pd_analyze.capture.raw import CaptureInfo
-from pd_analyze.capture.reader import open_capture
+from pd_analyze.capture.pcapng_write import BT_SPB
 from pd_analyze.model.values import OP_WRITE, PTYPE_FAULT, PTYPE_REJECT, PTYPE_REQUEST, PTYPE_RESPONSE
 from pd_analyze.output import dump_prefilter
 from pd_analyze.output.column_fields import OtherFrames, PartFields
@@ -42,31 +42,20 @@ from pd_analyze.output.dump import safe
 from pd_analyze.output.dump_file import in_ranges
 from pd_analyze.output.frame_notes import FrameNote, Notes
 from pd_analyze.output.frame_select import FieldsFormat, fields_line
-from pd_analyze.output.frame_view import ANALYSIS, FRAME, FieldRef, FrameView
+from pd_analyze.output.frame_view import ANALYSIS, FRAME, FieldRef, FrameView, record_time
 from pd_analyze.protocol.dissector import Dissector, Unparsed
 from pd_analyze.protocol.frames import Accounting, FrameResult
 from pd_analyze.protocol.pnio_batch import SKIP_REASONS
 from pd_analyze.protocol.profidrive import footprint_of
 from pd_analyze.protocol.profidrive_checks import Checker
 
-_RECORD_FIELDS = frozenset({"frame.ts", "frame.iface", "frame.linktype", "frame.caplen"})
-_RECORD_TYPE = 0  # the Block type of a frame made from a batch (a classic pcap record has no other)
+_RECORD_TYPE = 0  # the Block type of a frame made from a batch whose nanoseconds hold its time (record_time)
 
 
-def takes(path: str, refs: list[FieldRef], flt: DisplayFilter | None) -> bool:
-    """This path reads the capture (else the per-frame path does): a file whose fields and filter name no
-    record field but of a classic pcap (module docstring)."""
-    if path == "-" or dump_prefilter.per_frame_forced():
-        return False
-    named = {n for r in [*refs, *(flt.refs if flt is not None else ())] for n in r.names}
-    if not named & _RECORD_FIELDS:
-        return True
-    try:
-        stream, fmt = open_capture(path, CaptureInfo(path))
-    except CaptureError:
-        return False  # the per-frame path says why it cannot read it
-    stream.close()
-    return fmt == "pcap"
+def takes(path: str) -> bool:
+    """This path reads the capture (else the per-frame path does): a file, not standard input (the analysis
+    and this read would both need it), unless the per-frame reference is forced."""
+    return path != "-" and not dump_prefilter.per_frame_forced()
 
 
 class FieldsFile:
@@ -129,7 +118,8 @@ class FieldsFile:
                 wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The frames `at` (positions in the batch): certainly printed, printed if their tree says so, and
         per frame whether every cell is known from `fields`."""
-        rows = dump_prefilter.Rows(fields, batch.number[at], batch.ts[at], self._notes, _record(batch, at))
+        rows = dump_prefilter.Rows(fields, batch.number[at], batch.ts[at], self._notes, _record(batch, at),
+                                   stamped=not _unstamped(batch, at))
         if self._judge is None:
             sure, maybe = np.ones(len(at), bool), np.zeros(len(at), bool)
         else:
@@ -210,7 +200,7 @@ class FieldsFile:
                 continue
             frame = batch.raw_frame(i)
             self._fed[frame.number] = (frame.ts, frame.linktype, int(batch.caplen[i]), frame.iface,
-                                       int(batch.ns[i]), frame.data)
+                                       int(batch.ns[i]), frame.data, _stamp(batch, frame.number))
             results(d.feed(frame))
         d.advance(clock[-1])
 
@@ -222,8 +212,8 @@ class FieldsFile:
         meta = self._fed.pop(frame, None)
         if meta is None or (self.ranges and not any(lo <= frame <= hi for lo, hi in self.ranges)):
             return
-        ts, linktype, caplen, iface, ns, data = meta
-        block = Block(data, _RECORD_TYPE, True, frame, ts, linktype, 0, caplen, iface, 1e9, 0, ns)
+        ts, linktype, caplen, iface, ns, data, stamp = meta
+        block = _record_block(data, frame, ts, linktype, caplen, iface, ns, stamp)
         view = FrameView(frame, ts, res, block, self._notes.get(frame))
         if self.flt is None or self.flt.matches(view):
             heapq.heappush(self._lines, (frame, fields_line(view, self.refs, self.fmt)))
@@ -256,10 +246,35 @@ def _record(batch: FrameBatch, at: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def _block(batch: FrameBatch, i: int) -> Block:
-    """Frame i of the batch as the record FrameView reads (a classic pcap's: its time exact in nanoseconds)."""
-    start, caplen = int(batch.start[i]), int(batch.caplen[i])
-    return Block(bytes(batch.buf[start:start + caplen]), _RECORD_TYPE, True, int(batch.number[i]), float(batch.ts[i]),
-                 int(batch.linktype[i]), 0, caplen, int(batch.iface[i]), 1e9, 0, int(batch.ns[i]))
+    """Frame i of the batch as the record FrameView reads."""
+    start, caplen, frame = int(batch.start[i]), int(batch.caplen[i]), int(batch.number[i])
+    return _record_block(bytes(batch.buf[start:start + caplen]), frame, float(batch.ts[i]), int(batch.linktype[i]),
+                         caplen, int(batch.iface[i]), int(batch.ns[i]), _stamp(batch, frame))
+
+
+def _stamp(batch: FrameBatch, frame: int) -> tuple[int, float, int, int] | None:
+    """The record's own stamp of a frame whose nanoseconds do not hold its time (FrameBatch.stamps)."""
+    return batch.stamps.get(frame) if batch.stamps else None
+
+
+def _record_block(data: bytes, frame: int, ts: float, linktype: int, caplen: int, iface: int, ns: int,
+                  stamp: tuple[int, float, int, int] | None) -> Block:
+    """A frame's record as FrameView reads it: its time exact in nanoseconds, or its record's own stamp."""
+    if stamp is None:
+        return Block(data, _RECORD_TYPE, True, frame, ts, linktype, 0, caplen, iface, 1e9, 0, ns)
+    btype, divisor, offset, ticks = stamp
+    return Block(data, btype, True, frame, ts, linktype, 0, caplen, iface, divisor, offset, ticks)
+
+
+def _unstamped(batch: FrameBatch, at: np.ndarray) -> bool:
+    """A frame of `at` has no time (a Simple Packet Block): frame.time_epoch is then left to the trees."""
+    stamps = batch.stamps
+    return bool(stamps) and any(stamps[f][0] == BT_SPB for f in batch.number[at].tolist() if f in stamps)
+
+
+def _time_text(batch: FrameBatch, frame: int, ns: int) -> str:
+    stamp = _stamp(batch, frame)
+    return _seconds(ns) if stamp is None else record_time(_record_block(b"", frame, 0.0, 0, 0, 0, ns, stamp))
 
 
 def _cells(ref: FieldRef, fields: dump_prefilter.Fields, batch: FrameBatch, at: np.ndarray, frames: np.ndarray,
@@ -272,7 +287,7 @@ def _cells(ref: FieldRef, fields: dump_prefilter.Fields, batch: FrameBatch, at: 
         if name == "frame.no":
             texts = [str(f) for f in frames.tolist()]
         elif name == "frame.ts":
-            texts = [_seconds(ns) for ns in batch.ns[at].tolist()]
+            texts = [_time_text(batch, f, ns) for f, ns in zip(frames.tolist(), batch.ns[at].tolist(), strict=True)]
         else:
             texts = [str(v) for v in _record(batch, at)[name].tolist()]
         return np.array([_quoted(safe(t), fmt) for t in texts], object)
