@@ -58,7 +58,7 @@ def matching(capture: str, settings: Settings, flt: DisplayFilter,
     if not takes(capture):
         return None
     fields = FieldsFile(capture, settings, settings.checker(), _NUMBER, FieldsFormat(), flt,
-                        notes if flt.needs_analysis else None, [])  # type: ignore[arg-type]
+                        notes if flt.needs_analysis else None, [])
     return _numbers(fields)
 
 

@@ -40,7 +40,7 @@ from pd_analyze.output.column_fields import OtherFrames, PartFields
 from pd_analyze.output.display_filter import DisplayFilter
 from pd_analyze.output.dump import safe
 from pd_analyze.output.dump_file import in_ranges
-from pd_analyze.output.frame_notes import FrameNote, Notes
+from pd_analyze.output.frame_notes import FrameNote, NotesUpto
 from pd_analyze.output.frame_select import FieldsFormat, fields_line
 from pd_analyze.output.frame_view import ANALYSIS, FRAME, FieldRef, FrameView, record_time
 from pd_analyze.protocol.dissector import Dissector, Unparsed
@@ -63,7 +63,7 @@ class FieldsFile:
     counted)."""
 
     def __init__(self, path: str, settings: Settings, checker: Checker, refs: list[FieldRef], fmt: FieldsFormat,
-                 flt: DisplayFilter | None, notes: Notes | None, ranges: list[tuple[int, int]]) -> None:
+                 flt: DisplayFilter | None, notes: NotesUpto | None, ranges: list[tuple[int, int]]) -> None:
         self.path, self.settings, self.checker = path, settings, checker
         self.refs, self.fmt, self.flt, self.notes, self.ranges = refs, fmt, flt, notes, ranges
         self.d = Dissector(annotate=True, rpc_timeout=settings.rpc_timeout, checker=checker)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 from pd_analyze.analysis.capture_run import CaptureResult, Settings
 from pd_analyze.analysis.rows import Rows
@@ -182,6 +182,12 @@ class _Sink:
     def extend(self, rows: Any) -> None:
         for row in rows:
             self.append(row)
+
+
+class NotesUpto(Protocol):
+    """What reads a capture's notes a batch at a time, in frame order (Notes; copy_filter.NotesAhead)."""
+
+    def upto(self, last: int) -> list[FrameNote]: ...
 
 
 class Notes:
