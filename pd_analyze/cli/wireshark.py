@@ -181,7 +181,8 @@ def fields_dump(paths: list[str], settings: Settings, checker: Checker, flt: str
             click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
             status = EXIT_USAGE
             continue
-        if out_type == "fields" and facts is None and fields_file.takes(path):
+        columns = fields_file.takes(path, frame_select.reads_analysis(refs, parsed))
+        if out_type == "fields" and facts is None and columns:
             status = _fields_file(path, settings, checker, refs, fmt, parsed, ranges, status)
             continue
         d = Dissector(annotate=True, rpc_timeout=settings.rpc_timeout, checker=checker,
@@ -210,11 +211,10 @@ def _fields_file(path: str, settings: Settings, checker: Checker, refs: list[Fie
                  flt: DisplayFilter | None, ranges: list[tuple[int, int]], status: int) -> int:
     """`-T fields` of one capture file read as batches (output.fields_file), after files that ended with
     `status`: the exit code so far (as the per-frame path below says it)."""
-    from pd_analyze.output import frame_notes
+    from pd_analyze.output import frame_notes, frame_select
     from pd_analyze.output.fields_file import FieldsFile
-    from pd_analyze.output.frame_view import ANALYSIS
 
-    needs_notes = any(r.kind == ANALYSIS for r in refs) or (flt is not None and flt.needs_analysis)
+    needs_notes = frame_select.reads_analysis(refs, flt)
     notes = None
     lines = FieldsFile(path, settings, checker, refs, fmt, flt, None, ranges)
     try:

@@ -52,10 +52,11 @@ from pd_analyze.protocol.profidrive_checks import Checker
 _RECORD_TYPE = 0  # the Block type of a frame made from a batch whose nanoseconds hold its time (record_time)
 
 
-def takes(path: str) -> bool:
-    """This path reads the capture (else the per-frame path does): a file, not standard input (the analysis
-    and this read would both need it), unless the per-frame reference is forced."""
-    return path != "-" and not dump_prefilter.per_frame_forced()
+def takes(path: str, needs_notes: bool = False) -> bool:
+    """This path reads the capture (else the per-frame path does), unless the per-frame reference is forced;
+    standard input only when no analysis is read first (the analysis and this read would both need it: the
+    per-frame path says so)."""
+    return (path != "-" or not needs_notes) and not dump_prefilter.per_frame_forced()
 
 
 class FieldsFile:

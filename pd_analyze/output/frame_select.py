@@ -89,6 +89,11 @@ def fields_line(view: FrameView, refs: list[FieldRef], fmt: FieldsFormat) -> str
     return fmt.separator.join(cells)
 
 
+def reads_analysis(refs: list[FieldRef], flt: DisplayFilter | None) -> bool:
+    """The fields or the filter name txn.* or finding.*: the analysis is read before the frames."""
+    return any(r.kind == ANALYSIS for r in refs) or (flt is not None and flt.needs_analysis)
+
+
 def report_facts(path: str, settings: Settings, flt: DisplayFilter | None,
                  refs: list[FieldRef]) -> DumpFacts | None:
     """The report's facts of a capture file when the fields or the filter name a link (rpc.request_frame,
@@ -106,7 +111,7 @@ def views(path: str, settings: Settings, dissector: Dissector, flt: DisplayFilte
     """The frames of one capture the filter keeps, in frame order: every frame (`every_frame`) or only
     PNIO RPC frames. The analysis is read first when the filter or the fields name analysis fields (or
     given: `facts`, whose links `dissector` was told)."""
-    needs_notes = any(r.kind == ANALYSIS for r in refs) or (flt is not None and flt.needs_analysis)
+    needs_notes = reads_analysis(refs, flt)
     if path == "-":
         if needs_notes:
             raise UsageError("txn.* and finding.* need the capture read twice: give a file, not - (standard "
