@@ -39,6 +39,16 @@ def shared_captures(patterns: tuple[str, ...] = ("*.pcap", "*.pcapng", "*.gz")) 
     return sorted({p for pattern in patterns for p in SHARED_CAPTURES.glob(pattern) if p.is_file()})
 
 
+def every_shared_capture() -> list[Path]:
+    """Every shared capture, for a test that runs on all of them: skipped with the reason on a plain clone, a
+    failure in CI (unavailable)."""
+    real = shared_captures()
+    if not real:
+        unavailable("the shared real-world captures are beside the repository in CI, not in a clone of the "
+                    "project alone")
+    return real
+
+
 def shared_capture(name: str) -> Path:
     """One shared capture; the test is skipped, with the reason, when it is absent (a plain clone)."""
     path = SHARED_CAPTURES / name

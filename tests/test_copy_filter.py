@@ -25,7 +25,7 @@ from pd_analyze.output import dump_prefilter, frame_notes
 from pd_analyze.output.capture_copy import dissector_for, frames
 from pd_analyze.output.copy_filter import NotesAhead, matching
 from pd_analyze.output.display_filter import DisplayFilter, parse
-from tests.support import shared_captures, unavailable
+from tests.support import every_shared_capture
 from tests.test_dump_columns import FILTERS, SAMPLE_FILES, SAMPLES
 
 SETTINGS = Settings()
@@ -110,11 +110,7 @@ def test_on_mutated_captures_of_the_fuzz_corpus(tmp_path: Path) -> None:
 
 
 def test_on_real_captures(tmp_path: Path) -> None:
-    real = shared_captures()
-    if not real:
-        unavailable("the shared real-world captures are beside the repository in CI, not in a clone of the "
-                    "project alone")
-    for path in real:
+    for path in every_shared_capture():
         same_frames(path, FILTERS[::2])
         same_copies(path, FILTERS[::8], tmp_path)
 

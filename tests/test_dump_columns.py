@@ -28,7 +28,7 @@ from pd_analyze.output.column_fields import PartFields
 from pd_analyze.output.display_filter import parse
 from pd_analyze.output.frame_view import LAYERS, OWN, TSHARK, FrameView, _tshark_text, resolve
 from pd_analyze.protocol.dissector import Dissector, dissect
-from tests.support import shared_captures, unavailable
+from tests.support import every_shared_capture
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "sample_pcaps"
@@ -127,11 +127,7 @@ def test_columns_on_mutated_captures_of_the_fuzz_corpus(tmp_path: Path) -> None:
 
 
 def test_columns_on_real_captures() -> None:
-    real = shared_captures()
-    if not real:
-        unavailable("the shared real-world captures are beside the repository in CI, not in a clone of the "
-                    "project alone")
-    for path in real:
+    for path in every_shared_capture():
         differential(path, FILTERS[::2], FILTERS[1::5])
 
 

@@ -22,7 +22,7 @@ from pd_analyze.cli.base import main
 from pd_analyze.output.display_filter import parse
 from pd_analyze.output.frame_select import views
 from pd_analyze.protocol.dissector import Dissector
-from tests.support import shared_captures, unavailable
+from tests.support import every_shared_capture
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "sample_pcaps"
@@ -127,9 +127,5 @@ def test_filter_on_mutated_captures_of_the_fuzz_corpus(tmp_path: Path) -> None:
 
 
 def test_filter_on_real_captures() -> None:
-    real = shared_captures()
-    if not real:
-        unavailable("the shared real-world captures are beside the repository in CI, not in a clone of the "
-                    "project alone")
-    for path in real:
+    for path in every_shared_capture():
         differential(path, FILTERS[::2])
