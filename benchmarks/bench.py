@@ -25,7 +25,8 @@ wait4's ru_maxrss of the children: the largest single process, --jobs workers in
               `tshark -Y ... -V` (both counted: the same frames?), `dump -Y 'pd.addr.pnu == 964'` against
               `tshark -Y 'pn_io.profidrive.parameter.number == 964' -V`, `dump -T fields` of three fields against
               tshark's, `dump` text of every frame against `tshark -V` (--skip-tshark-v leaves these two out),
-              `dump --format json` against `tshark -T json`; `annotate`, `extract --verdict nak`, `params`
+              `dump --format json` against `tshark -T json`; `annotate`, `extract --verdict nak`, `annotate -Y` and
+              `extract -Y` of one parameter, `params`
               and `audit` against `report` (--skip-dumps)
   jobs        issue #25 on dense and fault-rich: `report`, `audit` and `params` with --jobs N (--jobs, 2 by
               default; 1 leaves the step out) against one process, their output files and stdout compared
@@ -254,6 +255,10 @@ def dumps(b: Bench, r: Run) -> None:
         b.time(name(cap, "pd-analyze annotate"), [*PD, "annotate", path, "-w", str(annotated)], n)
         b.time(name(cap, "pd-analyze extract --verdict nak"),
                [*PD, "extract", path, "-w", str(extracted), "--verdict", "nak"], n)
+        b.time(name(cap, "pd-analyze annotate -Y pnu"), [*PD, "annotate", path, "-w", str(annotated), "-Y", ONE_PNU[0]],
+               n)
+        b.time(name(cap, "pd-analyze extract -Y pnu"), [*PD, "extract", path, "-w", str(extracted), "-Y", ONE_PNU[0]],
+               n)
         annotated.unlink()
         extracted.unlink()
         _params_audit(b, r, cap, 1)

@@ -119,7 +119,7 @@ def _dumps(b: Any, caps: list[str], args: argparse.Namespace, tshark: bool) -> l
             rows.append([f"{cap}: {target}", _x(r, skipped) + (f"; {note}" if note else ""),
                          _met(_at_least(r, speed))])
         report = b.get(f"{cap}: pd-analyze report")
-        for what in ("annotate", "extract --verdict nak", "params", "audit"):
+        for what in ("annotate", "extract --verdict nak", "annotate -Y pnu", "extract -Y pnu", "params", "audit"):
             t = b.get(f"{cap}: pd-analyze {what}")
             r = t.wall / report.wall if t and report else None
             measured = f"{r:.2f}x report's time ({t.wall:.2f} s)" if r is not None and t else "n/a (--skip-dumps)"
