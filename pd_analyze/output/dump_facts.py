@@ -58,9 +58,9 @@ class FileLinks:
     rpc_timeout: float = 5.0
     # filled by the second pass: each request's time and operation (by frame), each parameter request whose
     # final response is still to come (its raw frame, dissected by `dissect` when a response asks, or its
-    # result), the requests of the last rpc_timeout (activity, seq, frame, ts) for control PDUs
+    # stub), the requests of the last rpc_timeout (activity, seq, frame, ts) for control PDUs
     seen: dict[int, tuple[float, int]] = field(default_factory=dict)
-    kept: dict[int, object] = field(default_factory=dict)
+    kept: dict[int, RawFrame | rec.Stub | None] = field(default_factory=dict)
     dissect: Callable[[RawFrame], FrameResult | None] = lambda _frame: None
     recent: list[tuple[bytes, int, int, float]] = field(default_factory=list)
 
@@ -88,17 +88,18 @@ class FileLinks:
         frame, pdu = res.frame, res.pdu
         if _has(self.request_at, frame):
             self.seen[frame] = (res.ts, pdu.opnum)  # type: ignore[union-attr]
-        if _has(self.pd_requests, frame):
-            self.kept[frame] = res
+        if _has(self.pd_requests, frame):  # its stub alone: the result is printed and let go (output.dump_file)
+            self.kept[frame] = pdu.stub if pdu is not None else None
         if res.key is not None:
             self.recent.append((res.key[0], res.key[1], frame, res.ts))
 
     def stub_of(self, frame: int) -> rec.Stub | None:
         """The stub of parameter request `frame` (its records parsed), dissected when first asked."""
         kept = self.kept.get(frame)
-        if kept is not None and not isinstance(kept, FrameResult):
-            kept = self.kept[frame] = self.dissect(kept)  # type: ignore[arg-type]
-        return kept.pdu.stub if kept is not None and kept.pdu is not None else None  # type: ignore[union-attr]
+        if isinstance(kept, RawFrame):
+            res = self.dissect(kept)
+            kept = self.kept[frame] = res.pdu.stub if res is not None and res.pdu is not None else None
+        return kept  # type: ignore[return-value]
 
     def parameter_request(self, frame: int, block: rec.Block) -> tuple[int, Parsed | None] | None:
         m = _lookup(self.pd_response_at, self.pd_request_of, frame)
