@@ -30,7 +30,7 @@ from pd_analyze.model.values import PTYPE_REQUEST
 from pd_analyze.output import dump_prefilter
 from pd_analyze.output.column_fields import PartFields
 from pd_analyze.output.display_filter import DisplayFilter
-from pd_analyze.output.dump import Clock
+from pd_analyze.output.dump import Clock, Spool, Spooled
 from pd_analyze.output.dump_facts import DumpFacts, FileLinks
 from pd_analyze.output.frame_notes import FrameNote
 from pd_analyze.output.frame_view import ANALYSIS, FrameView
@@ -122,7 +122,8 @@ class Filtered(Selection):
         return super().frame(res, note) and self.flt.matches(FrameView(res.frame, res.ts, res, None, note))
 
 
-CHUNK_FRAMES = 256  # frames of a part walked at once (DumpFrames): the results held at once, but for a hold
+CHUNK_FRAMES = 256  # frames of a part walked at once (DumpFrames)
+HELD_RESULTS = 512  # results held at once at most (DumpFrames with a Spool): the others wait on disk
 
 
 class DumpFrames:
@@ -133,9 +134,10 @@ class DumpFrames:
     A part of a batch (up to a batch of frames) is walked CHUNK_FRAMES frames at a time: the chunk's odd
     frames go to the per-frame dissector, its printed column rows are dissected, and every result before
     the next chunk leaves at once, unless the per-frame dissector holds a frame back (a fragment waiting
-    for the frame that reassembles its PDU): the results after it wait for it. So the results held at once
-    (`held_most`) are a chunk's, and those behind a held fragment, whatever the part's size; the report's
-    notes of the part's frames are kept as before (the selection judges the part's rows at once)."""
+    for the frame that reassembles its PDU): the results after it wait for it, beyond HELD_RESULTS written
+    ahead to a `dump.Spool` (when `results` is given one). So the results held at once (`held_most`) are
+    a chunk's, at most HELD_RESULTS, whatever the part's size; the report's notes of the part's frames are
+    kept as before (the selection judges the part's rows at once)."""
 
     def __init__(self, path: str, settings: Settings, checker: Checker, facts: DumpFacts) -> None:
         self.path, self.settings, self.facts = path, settings, facts
@@ -149,12 +151,14 @@ class DumpFrames:
         self.loose_dropped = 0
         self.first_ts: float | None = None  # the first PNIO RPC frame's time (dump -t r counts from it)
         self.held_most = 0  # the most results held at once, waiting to be printed in frame order
-        self._ready: list[tuple[int, int, FrameResult]] = []  # a heap of (frame, tie, result) to print
+        self._ready: list[tuple[int, int, FrameResult | Spooled]] = []  # a heap of (frame, tie, result) to print
+        self._live = 0  # results in it (not Spooled)
+        self._spool: Spool | None = None
         self._tie = 0
         self._notes: dict[int, FrameNote] = {}  # the notes of the frames read, not yet passed
         self._pnio: list[np.ndarray] = []  # PNIO RPC frames read, not yet passed (their findings are not loose)
 
-    def timed(self, results: Iterator[FrameResult], clock: Clock) -> Iterator[FrameResult]:
+    def timed(self, results: Iterator[FrameResult | Spooled], clock: Clock) -> Iterator[FrameResult | Spooled]:
         """The results, `clock` counting relative times from the capture's first PNIO RPC frame."""
         for res in results:
             if clock.first is None:
@@ -162,8 +166,10 @@ class DumpFrames:
             yield res
 
     # --- the loop --------------------------------------------------------------------------------------
-    def results(self, selection: Selection) -> Iterator[FrameResult]:
-        """The printed frames; CaptureError after those before the damage."""
+    def results(self, selection: Selection, spool: Spool | None = None) -> Iterator[FrameResult | Spooled]:
+        """The printed frames; CaptureError after those before the damage. With a `spool`, the frames that
+        must wait beyond HELD_RESULTS are written to it ahead of their turn (dump.render takes them back)."""
+        self._spool = spool
         source = batches(self.path, self.settings.batch_frames) if self.settings.batch_frames else \
             batches(self.path)
         last = 0
@@ -180,7 +186,7 @@ class DumpFrames:
             raise
         yield from self._end(last, selection)
 
-    def _end(self, last: int, selection: Selection) -> Iterator[FrameResult]:
+    def _end(self, last: int, selection: Selection) -> Iterator[FrameResult | Spooled]:
         """The frames the per-frame dissector still held, and every result not yet released."""
         rows, _loose = self.odd.finish(last)
         self._odd_results([row.raw for row in rows], selection)
@@ -188,7 +194,7 @@ class DumpFrames:
         yield from self._release(None)
         self._settle(None)
 
-    def _part(self, batch: FrameBatch, view: BatchView, selection: Selection) -> Iterator[FrameResult]:
+    def _part(self, batch: FrameBatch, view: BatchView, selection: Selection) -> Iterator[FrameResult | Spooled]:
         """One part, chunk by chunk (the class's docstring). Its rows are chosen at once, before its odd
         frames are dissected: a response whose request is one of those frames is then not known to be
         decoded as the columns decode it (dump_prefilter.stub_known_by_links) and is judged on its tree."""
@@ -241,9 +247,14 @@ class DumpFrames:
 
     def _push(self, res: FrameResult) -> None:
         self._tie += 1
+        if self._spool is not None and self._live >= HELD_RESULTS:
+            self._finish(res)  # (nothing changes a result once it is pushed: its text can be written now)
+            heapq.heappush(self._ready, (res.frame, self._tie, self._spool.put(res)))
+            return
         heapq.heappush(self._ready, (res.frame, self._tie, res))
-        if len(self._ready) > self.held_most:
-            self.held_most = len(self._ready)
+        self._live += 1
+        if self._live > self.held_most:
+            self.held_most = self._live
 
     def _odd_results(self, results: list, selection: Selection) -> None:
         pnio = []
@@ -259,15 +270,21 @@ class DumpFrames:
     def _is_pnio(self, res: FrameResult) -> bool:
         return not res.decide or res.frame in self.links.decided
 
-    def _release(self, before: int | None) -> Iterator[FrameResult]:
+    def _release(self, before: int | None) -> Iterator[FrameResult | Spooled]:
         """The results of the frames before `before` (all: None), in frame order, with their findings."""
-        ready, notes = self._ready, self._notes
+        ready = self._ready
         while ready and (before is None or ready[0][0] < before):
-            frame, _tie, res = heapq.heappop(ready)
-            note = notes.get(frame)
-            res.findings = [f.finding(frame) for f in note.findings] if note is not None else []
-            mark_checks(res, CHECKED_FIELDS)
+            res = heapq.heappop(ready)[2]
+            if res.__class__ is not Spooled:
+                self._live -= 1
+                self._finish(res)  # type: ignore[arg-type]
             yield res
+
+    def _finish(self, res: FrameResult) -> None:
+        """A result as printed: the report's findings at its frame, and the fields they mark."""
+        note = self._notes.get(res.frame)
+        res.findings = [f.finding(res.frame) for f in note.findings] if note is not None else []
+        mark_checks(res, CHECKED_FIELDS)
 
     def _settle(self, before: int | None) -> None:
         """The notes of the frames before `before` (all: None) are done with: the findings of those that are
