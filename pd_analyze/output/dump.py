@@ -409,10 +409,11 @@ def fewer_collections(young: int = 20_000, older: int = 100) -> Iterator[None]:
     the older ones every `older` collections of the one before (default 10), and what exists before the
     dump (modules, the first pass's facts) out of its sight (gc.freeze) until it ends. A dumped frame
     allocates some 200 objects that live until it is written (its result, layers, texts), and the second
-    pass holds a part's frames until its odd frames are known: at the defaults, a collection ran every few
-    frames and walked the held frames again each time (a quarter of the dump's time), and each collection
-    of the middle generation walked them all once more (a tenth of it, measured on a 50,000-frame fault-rich
-    capture). Cycles are rare here (none in the frames of that capture), so little waits longer to be freed."""
+    pass held a part's frames until its odd frames were known (it holds a few hundred since): at the
+    defaults, a collection ran every few frames and walked the held frames again each time (a quarter of the
+    dump's time), and each collection of the middle generation walked them all once more (a tenth of it,
+    measured on a 50,000-frame fault-rich capture). Cycles are rare here (none in the frames of that
+    capture), so little waits longer to be freed."""
     before = gc.get_threshold()
     gc.freeze()
     gc.set_threshold(max(young, before[0]), max(older, before[1]), max(older, before[2]))

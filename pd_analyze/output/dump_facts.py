@@ -154,7 +154,9 @@ class _Calls:
         self.requests: list[np.ndarray] = []
         self.answers: list[np.ndarray] = []
         self.decided: set[int] = set()
-        self.final: list[tuple[int, int, int]] = []  # (final read response, write response, write request)
+        # (final read response, write response, write request): blocks, and the rows given one by one since
+        self.final: list[np.ndarray] = []
+        self.rows: list[tuple[int, int, int]] = []
 
     def add(self, requests: np.ndarray, answers: np.ndarray, decided: list[int]) -> None:
         self.requests.append(np.asarray(requests, np.int64))
@@ -163,17 +165,43 @@ class _Calls:
 
     def transaction(self, row: Any) -> None:
         if row.read_res_frame is not None and row.closed_by in frame_notes.FINAL_ANSWER:
-            self.final.append((int(row.read_res_frame), int(row.write_res_frame or 0), int(row.write_req_frame or 0)))
+            self.rows.append((int(row.read_res_frame), int(row.write_res_frame or 0), int(row.write_req_frame or 0)))
+
+    def table(self, name: str, table: Any) -> None:
+        """An engine's table whole (frame_notes.collect's `on_table`): a transactions table's final answers, as
+        `transaction` takes them, in its order. (Its rows and the parameters' are then not made one by one.)"""
+        if name != "transactions" or not table.num_rows:
+            return
+        import pyarrow as pa
+        import pyarrow.compute as pc
+
+        closed_by = table.column("closed_by")
+        final = pc.is_in(closed_by, value_set=pa.array(sorted(frame_notes.FINAL_ANSWER), closed_by.type))
+        final = pc.and_(final.fill_null(False), pc.is_valid(table.column("read_res_frame")))
+        rows = table.filter(final)
+        self._flush()
+        self.final.append(np.stack([rows.column(name).fill_null(0).to_numpy().astype(np.int64)
+                                    for name in ("read_res_frame", "write_res_frame", "write_req_frame")], axis=1))
+
+    def _flush(self) -> None:
+        if self.rows:
+            self.final.append(np.array(self.rows, np.int64).reshape(-1, 3))
+            self.rows = []
 
     def links(self, rpc_timeout: float) -> FileLinks:
         req = np.concatenate(self.requests) if self.requests else _E
         ans = np.concatenate(self.answers) if self.answers else _E
         answer_at, request_of = _sorted_pairs(ans, req)
         request_at, answer_of = _sorted_pairs(req, ans)
-        final = np.array(self.final, np.int64).reshape(-1, 3)
+        self._flush()
+        final = np.concatenate(self.final) if self.final else np.empty((0, 3), np.int64)
         # the parameter request: the frame its PDU is decoded in (the write response's call: a fragmented
         # request's last fragment), else the write request's frame
-        via_call = np.array([_lookup(answer_at, request_of, w) for w in final[:, 1].tolist()], np.int64)
+        via_call = np.zeros(len(final), np.int64)
+        if len(answer_at) and len(final):
+            at = np.minimum(np.searchsorted(answer_at, final[:, 1]), len(answer_at) - 1)
+            found = answer_at[at] == final[:, 1]
+            via_call[found] = request_of[at[found]]
         pd_request = np.where(via_call > 0, via_call, final[:, 2]) if len(final) else _E
         pd_response_at, pd_request_of = _sorted_pairs(final[:, 0], pd_request)
         return FileLinks(answer_at, request_of, request_at, answer_of, pd_response_at, pd_request_of,
@@ -184,5 +212,6 @@ def collect(path: str, settings: Settings, txns: bool = True) -> DumpFacts:
     """The report's facts of one capture file (`txns` False: the transactions are not noted per frame, only
     the findings and the pairing)."""
     calls = _Calls()
-    notes = frame_notes.collect(path, settings, calls.transaction, on_calls=calls.add, txns=txns)
+    notes = frame_notes.collect(path, settings, calls.transaction, on_calls=calls.add, txns=txns,
+                                on_table=calls.table)
     return DumpFacts(notes, calls.links(settings.rpc_timeout), notes.captures)
