@@ -7,14 +7,20 @@ those that must wait behind a fragment still to be reassembled wait on disk beyo
 from __future__ import annotations
 
 import io
+import struct
+from pathlib import Path
 
 import pytest
+from click.testing import CliRunner
 
 from devtools import hostile
 from devtools.synth.fault_rich import make_fault_rich
 from pd_analyze.analysis.capture_run import Settings
+from pd_analyze.cli.base import main
 from pd_analyze.output import dump, dump_facts, dump_file
 from pd_analyze.output.display_filter import parse
+
+SAMPLES = Path(__file__).resolve().parents[1] / "sample_pcaps"
 
 
 def _dump(path: str, fmt: str = "text", spool: bool = True, time_format: str = "e",
@@ -71,3 +77,31 @@ def test_a_filtered_dump_is_bounded_alike(flood):
         parse("pd.ref or dcerpc.opnum == 3")))
     assert held > dump_file.HELD_RESULTS >= held_spooled
     assert (bounded, printed_spooled) == (unbounded, printed)
+
+
+def _retimed(src: Path, dst: Path, frame: int, sec: int, usec: int) -> None:
+    """A copy of a little-endian microsecond pcap with one frame's time changed."""
+    data = bytearray(src.read_bytes())
+    assert struct.unpack_from("<I", data)[0] == 0xA1B2C3D4
+    at, number = 24, 0
+    while at < len(data):
+        number += 1
+        if number == frame:
+            struct.pack_into("<II", data, at, sec, usec)
+        at += 16 + struct.unpack_from("<I", data, at + 8)[0]
+    dst.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("chunk", [2, dump_file.CHUNK_FRAMES])
+def test_relative_times_count_from_an_earlier_odd_frame_of_the_first_part(tmp_path, monkeypatch, chunk):
+    """-t r counts from the least time of the first part's first column row and its odd PNIO RPC frames, as
+    when the part was printed whole: frames already dissected wait until no odd frame left can be earlier."""
+    monkeypatch.setattr(dump_file, "CHUNK_FRAMES", chunk)
+    path = tmp_path / "retimed.pcap"
+    # frame 7 (cut by the snaplen: the per-frame dissector's) one second before frame 3 (the first PNIO RPC frame)
+    _retimed(SAMPLES / "truncated_snaplen.pcap", path, 7, 1767225599, 680)
+    result = CliRunner().invoke(main, ["dump", str(path), "-t", "r"])
+    heads = [line.split("  ")[:2] for line in result.output.splitlines() if line.startswith("Frame ")]
+    assert heads == [["Frame 3", "1.000000"], ["Frame 4", "1.001500"], ["Frame 5", "1.002500"],
+                     ["Frame 6", "1.004000"], ["Frame 7", "0.000000"], ["Frame 8", "1.006500"],
+                     ["Frame 9", "1.007500"], ["Frame 10", "1.009000"]]
