@@ -147,13 +147,15 @@ def _dump_file(path: str, settings: Settings, checker: Checker, selection: dump_
         return EXIT_USAGE
     frames = dump_file.DumpFrames(path, settings, checker, facts)
     clock = dump.Clock(time_format)
+    spool = dump.Spool(fmt, style, findings_only)  # (frames that wait behind a fragment wait on disk)
     failed = False
     try:
-        dump.render(frames.timed(frames.results(selection), clock), fmt, out, style, findings_only, clock)
+        dump.render(frames.timed(frames.results(selection, spool), clock), fmt, out, style, findings_only, clock)
     except CaptureError as exc:
         click.echo(dump.safe(f"pd-analyze: {exc}"), err=True)
         failed = True
     finally:
+        spool.close()
         facts.close()
     frames_beyond(path, ranges, facts.accounting.read, failed)
     wanted = dump_file.Selection(ranges).wanted

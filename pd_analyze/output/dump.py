@@ -5,9 +5,12 @@ from __future__ import annotations
 import gc
 import json
 import math
+import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from datetime import UTC, datetime
+from typing import IO
 
 from pd_analyze.model.rules import ERROR, INFO, WARNING, Finding
 from pd_analyze.model.shown import Annotated, Field, SharedField, json_value
@@ -138,10 +141,18 @@ class Clock:
 
 def frame_text(result: FrameResult, style: Style = plain_style, findings_only: bool = False,
                clock: Clock | None = None) -> str:
+    return frame_head(result, style, clock) + frame_body(result, style, findings_only)
+
+
+def frame_head(result: FrameResult | Spooled, style: Style = plain_style, clock: Clock | None = None) -> str:
+    """A frame's first line: number, time (`clock`'s, in the order the frames are written), addresses, summary."""
     when = clock.text(result.ts) if clock is not None else f"{result.ts:.6f}"
-    head = style(f"Frame {result.frame}", "frame") + \
-        f"  {when}  {result.src} -> {result.dst}  {safe(result.summary)}"
-    lines = [head]
+    return style(f"Frame {result.frame}", "frame") + f"  {when}  {result.src} -> {result.dst}  {safe(result.summary)}"
+
+
+def frame_body(result: FrameResult, style: Style = plain_style, findings_only: bool = False) -> str:
+    """The lines of a frame's text after its head, each after a newline: its layers and fields, its findings."""
+    lines = [""]
     if not findings_only:
         add = lines.append
         kept = style is plain_style  # without colour, a Layout's fields keep their lines (SharedField, Template)
@@ -164,7 +175,68 @@ def frame_text(result: FrameResult, style: Style = plain_style, findings_only: b
                         add(_field_line(f, indent, style))
     if result.findings:
         lines += [finding_line(f, "  ", style) for f in result.findings]
-    return "\n".join(lines)
+    return "\n".join(lines) if len(lines) > 1 else ""
+
+
+class Spool:
+    """Frames written before their turn and kept on disk until it comes: a dump that must hold many frames
+    back (behind a fragment whose PDU is still to be reassembled: output.dump_file) holds a few hundred as
+    results and writes the others here. A frame's text is written whole but for its head line, made in turn
+    (its time may count from the frame shown before it: -t dd); a JSON object is written whole."""
+
+    def __init__(self, fmt: str, style: Style = plain_style, findings_only: bool = False) -> None:
+        self.json_lines, self.style, self.findings_only = fmt == "json", style, findings_only
+        self._file: IO[bytes] | None = None
+        self._end = 0  # where the next frame is written
+        self.held = 0  # frames on disk, not yet taken
+
+    def put(self, result: FrameResult) -> Spooled:
+        """`result` (its findings set) written to disk; what stands for it until its turn."""
+        text = frame_json(result) if self.json_lines else frame_body(result, self.style, self.findings_only)
+        data = text.encode("utf-8", "surrogatepass")
+        if self._file is None:
+            self._file = tempfile.TemporaryFile()  # noqa: SIM115  (open while frames wait: close())
+        self._file.seek(self._end)
+        self._file.write(data)
+        out = Spooled(result.frame, result.ts, result.src, result.dst, result.summary, bool(result.findings), self,
+                      self._end, len(data))
+        self._end += len(data)
+        self.held += 1
+        return out
+
+    def take(self, spooled: Spooled) -> str:
+        assert self._file is not None
+        self._file.seek(spooled.at)
+        text = self._file.read(spooled.size).decode("utf-8", "surrogatepass")
+        self.held -= 1
+        if not self.held:  # every frame written has been taken: the file starts again
+            self._end = 0
+            self._file.truncate(0)
+        return text
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+
+@dataclass(slots=True)
+class Spooled:
+    """A frame on a Spool: what its head line and `render` need; the rest is on disk."""
+
+    frame: int
+    ts: float
+    src: str
+    dst: str
+    summary: str
+    findings: bool
+    spool: Spool
+    at: int
+    size: int
+
+    def text(self, style: Style, clock: Clock | None) -> str:
+        body = self.spool.take(self)
+        return body if self.spool.json_lines else frame_head(self, style, clock) + body
 
 
 _INDENTS = tuple("  " * (depth + 1) for depth in range(8))  # a layer's indent by its depth
@@ -291,7 +363,7 @@ def frame_ranges(spec: str) -> list[tuple[int, int]]:
     return ranges
 
 
-def render(results: Iterable[FrameResult], fmt: str, write: Callable[[str], None], style: Style,
+def render(results: Iterable[FrameResult | Spooled], fmt: str, write: Callable[[str], None], style: Style,
            findings_only: bool, clock: Clock | None = None) -> int:
     """Write each result (`write` takes one frame's text or JSON object and ends it with a newline); returns
     the number of frames written. Frames are handed to `write` in blocks of about BLOCK_CHARS, joined by
@@ -308,7 +380,10 @@ def render(results: Iterable[FrameResult], fmt: str, write: Callable[[str], None
             for result in results:
                 if findings_only and not result.findings:
                     continue
-                text = frame_json(result) if json_lines else frame_text(result, style, findings_only, clock) + "\n"
+                if result.__class__ is Spooled:
+                    text = result.text(style, clock) + ("" if json_lines else "\n")  # type: ignore[union-attr]
+                else:
+                    text = frame_json(result) if json_lines else frame_text(result, style, findings_only, clock) + "\n"
                 add(text)
                 count += 1
                 size += len(text)
@@ -334,10 +409,11 @@ def fewer_collections(young: int = 20_000, older: int = 100) -> Iterator[None]:
     the older ones every `older` collections of the one before (default 10), and what exists before the
     dump (modules, the first pass's facts) out of its sight (gc.freeze) until it ends. A dumped frame
     allocates some 200 objects that live until it is written (its result, layers, texts), and the second
-    pass holds a part's frames until its odd frames are known: at the defaults, a collection ran every few
-    frames and walked the held frames again each time (a quarter of the dump's time), and each collection
-    of the middle generation walked them all once more (a tenth of it, measured on a 50,000-frame fault-rich
-    capture). Cycles are rare here (none in the frames of that capture), so little waits longer to be freed."""
+    pass held a part's frames until its odd frames were known (it holds a few hundred since): at the
+    defaults, a collection ran every few frames and walked the held frames again each time (a quarter of the
+    dump's time), and each collection of the middle generation walked them all once more (a tenth of it,
+    measured on a 50,000-frame fault-rich capture). Cycles are rare here (none in the frames of that
+    capture), so little waits longer to be freed."""
     before = gc.get_threshold()
     gc.freeze()
     gc.set_threshold(max(young, before[0]), max(older, before[1]), max(older, before[2]))

@@ -58,9 +58,9 @@ class FileLinks:
     rpc_timeout: float = 5.0
     # filled by the second pass: each request's time and operation (by frame), each parameter request whose
     # final response is still to come (its raw frame, dissected by `dissect` when a response asks, or its
-    # result), the requests of the last rpc_timeout (activity, seq, frame, ts) for control PDUs
+    # stub), the requests of the last rpc_timeout (activity, seq, frame, ts) for control PDUs
     seen: dict[int, tuple[float, int]] = field(default_factory=dict)
-    kept: dict[int, object] = field(default_factory=dict)
+    kept: dict[int, RawFrame | rec.Stub | None] = field(default_factory=dict)
     dissect: Callable[[RawFrame], FrameResult | None] = lambda _frame: None
     recent: list[tuple[bytes, int, int, float]] = field(default_factory=list)
 
@@ -88,17 +88,18 @@ class FileLinks:
         frame, pdu = res.frame, res.pdu
         if _has(self.request_at, frame):
             self.seen[frame] = (res.ts, pdu.opnum)  # type: ignore[union-attr]
-        if _has(self.pd_requests, frame):
-            self.kept[frame] = res
+        if _has(self.pd_requests, frame):  # its stub alone: the result is printed and let go (output.dump_file)
+            self.kept[frame] = pdu.stub if pdu is not None else None
         if res.key is not None:
             self.recent.append((res.key[0], res.key[1], frame, res.ts))
 
     def stub_of(self, frame: int) -> rec.Stub | None:
         """The stub of parameter request `frame` (its records parsed), dissected when first asked."""
         kept = self.kept.get(frame)
-        if kept is not None and not isinstance(kept, FrameResult):
-            kept = self.kept[frame] = self.dissect(kept)  # type: ignore[arg-type]
-        return kept.pdu.stub if kept is not None and kept.pdu is not None else None  # type: ignore[union-attr]
+        if isinstance(kept, RawFrame):
+            res = self.dissect(kept)
+            kept = self.kept[frame] = res.pdu.stub if res is not None and res.pdu is not None else None
+        return kept  # type: ignore[return-value]
 
     def parameter_request(self, frame: int, block: rec.Block) -> tuple[int, Parsed | None] | None:
         m = _lookup(self.pd_response_at, self.pd_request_of, frame)
@@ -153,7 +154,9 @@ class _Calls:
         self.requests: list[np.ndarray] = []
         self.answers: list[np.ndarray] = []
         self.decided: set[int] = set()
-        self.final: list[tuple[int, int, int]] = []  # (final read response, write response, write request)
+        # (final read response, write response, write request): blocks, and the rows given one by one since
+        self.final: list[np.ndarray] = []
+        self.rows: list[tuple[int, int, int]] = []
 
     def add(self, requests: np.ndarray, answers: np.ndarray, decided: list[int]) -> None:
         self.requests.append(np.asarray(requests, np.int64))
@@ -162,17 +165,43 @@ class _Calls:
 
     def transaction(self, row: Any) -> None:
         if row.read_res_frame is not None and row.closed_by in frame_notes.FINAL_ANSWER:
-            self.final.append((int(row.read_res_frame), int(row.write_res_frame or 0), int(row.write_req_frame or 0)))
+            self.rows.append((int(row.read_res_frame), int(row.write_res_frame or 0), int(row.write_req_frame or 0)))
+
+    def table(self, name: str, table: Any) -> None:
+        """An engine's table whole (frame_notes.collect's `on_table`): a transactions table's final answers, as
+        `transaction` takes them, in its order. (Its rows and the parameters' are then not made one by one.)"""
+        if name != "transactions" or not table.num_rows:
+            return
+        import pyarrow as pa
+        import pyarrow.compute as pc
+
+        closed_by = table.column("closed_by")
+        final = pc.is_in(closed_by, value_set=pa.array(sorted(frame_notes.FINAL_ANSWER), closed_by.type))
+        final = pc.and_(final.fill_null(False), pc.is_valid(table.column("read_res_frame")))
+        rows = table.filter(final)
+        self._flush()
+        self.final.append(np.stack([rows.column(name).fill_null(0).to_numpy().astype(np.int64)
+                                    for name in ("read_res_frame", "write_res_frame", "write_req_frame")], axis=1))
+
+    def _flush(self) -> None:
+        if self.rows:
+            self.final.append(np.array(self.rows, np.int64).reshape(-1, 3))
+            self.rows = []
 
     def links(self, rpc_timeout: float) -> FileLinks:
         req = np.concatenate(self.requests) if self.requests else _E
         ans = np.concatenate(self.answers) if self.answers else _E
         answer_at, request_of = _sorted_pairs(ans, req)
         request_at, answer_of = _sorted_pairs(req, ans)
-        final = np.array(self.final, np.int64).reshape(-1, 3)
+        self._flush()
+        final = np.concatenate(self.final) if self.final else np.empty((0, 3), np.int64)
         # the parameter request: the frame its PDU is decoded in (the write response's call: a fragmented
         # request's last fragment), else the write request's frame
-        via_call = np.array([_lookup(answer_at, request_of, w) for w in final[:, 1].tolist()], np.int64)
+        via_call = np.zeros(len(final), np.int64)
+        if len(answer_at) and len(final):
+            at = np.minimum(np.searchsorted(answer_at, final[:, 1]), len(answer_at) - 1)
+            found = answer_at[at] == final[:, 1]
+            via_call[found] = request_of[at[found]]
         pd_request = np.where(via_call > 0, via_call, final[:, 2]) if len(final) else _E
         pd_response_at, pd_request_of = _sorted_pairs(final[:, 0], pd_request)
         return FileLinks(answer_at, request_of, request_at, answer_of, pd_response_at, pd_request_of,
@@ -183,5 +212,6 @@ def collect(path: str, settings: Settings, txns: bool = True) -> DumpFacts:
     """The report's facts of one capture file (`txns` False: the transactions are not noted per frame, only
     the findings and the pairing)."""
     calls = _Calls()
-    notes = frame_notes.collect(path, settings, calls.transaction, on_calls=calls.add, txns=txns)
+    notes = frame_notes.collect(path, settings, calls.transaction, on_calls=calls.add, txns=txns,
+                                on_table=calls.table)
     return DumpFacts(notes, calls.links(settings.rpc_timeout), notes.captures)

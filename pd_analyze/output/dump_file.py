@@ -21,7 +21,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from pd_analyze.analysis.capture_run import Settings
-from pd_analyze.analysis.engine.decode import Decoded, Decoder
+from pd_analyze.analysis.engine.decode import Decoded, Decoder, column_rows
 from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.capture import CaptureError
 from pd_analyze.capture.batches import FrameBatch, batches
@@ -30,7 +30,7 @@ from pd_analyze.model.values import PTYPE_REQUEST
 from pd_analyze.output import dump_prefilter
 from pd_analyze.output.column_fields import PartFields
 from pd_analyze.output.display_filter import DisplayFilter
-from pd_analyze.output.dump import Clock
+from pd_analyze.output.dump import Clock, Spool, Spooled
 from pd_analyze.output.dump_facts import DumpFacts, FileLinks
 from pd_analyze.output.frame_notes import FrameNote
 from pd_analyze.output.frame_view import ANALYSIS, FrameView
@@ -122,10 +122,22 @@ class Filtered(Selection):
         return super().frame(res, note) and self.flt.matches(FrameView(res.frame, res.ts, res, None, note))
 
 
+CHUNK_FRAMES = 256  # frames of a part walked at once (DumpFrames)
+HELD_RESULTS = 512  # results held at once at most (DumpFrames with a Spool): the others wait on disk
+
+
 class DumpFrames:
     """The frame results of one capture file as the dump prints them, in frame order (`results`), and the
     report's findings at frames that are not PNIO RPC (`loose`, with `loose_dropped` beyond the first
-    MAX_LOOSE_FINDINGS)."""
+    MAX_LOOSE_FINDINGS).
+
+    A part of a batch (up to a batch of frames) is walked CHUNK_FRAMES frames at a time: the chunk's odd
+    frames go to the per-frame dissector, its printed column rows are dissected, and every result before
+    the next chunk leaves at once, unless the per-frame dissector holds a frame back (a fragment waiting
+    for the frame that reassembles its PDU): the results after it wait for it, beyond HELD_RESULTS written
+    ahead to a `dump.Spool` (when `results` is given one). So the results held at once (`held_most`) are
+    a chunk's, at most HELD_RESULTS, whatever the part's size; the report's notes of the part's frames are
+    kept as before (the selection judges the part's rows at once)."""
 
     def __init__(self, path: str, settings: Settings, checker: Checker, facts: DumpFacts) -> None:
         self.path, self.settings, self.facts = path, settings, facts
@@ -138,12 +150,15 @@ class DumpFrames:
         self.loose: list[Finding] = []
         self.loose_dropped = 0
         self.first_ts: float | None = None  # the first PNIO RPC frame's time (dump -t r counts from it)
-        self._ready: list[tuple[int, int, FrameResult]] = []  # a heap of (frame, tie, result) to print
+        self.held_most = 0  # the most results held at once, waiting to be printed in frame order
+        self._ready: list[tuple[int, int, FrameResult | Spooled]] = []  # a heap of (frame, tie, result) to print
+        self._live = 0  # results in it (not Spooled)
+        self._spool: Spool | None = None
         self._tie = 0
         self._notes: dict[int, FrameNote] = {}  # the notes of the frames read, not yet passed
         self._pnio: list[np.ndarray] = []  # PNIO RPC frames read, not yet passed (their findings are not loose)
 
-    def timed(self, results: Iterator[FrameResult], clock: Clock) -> Iterator[FrameResult]:
+    def timed(self, results: Iterator[FrameResult | Spooled], clock: Clock) -> Iterator[FrameResult | Spooled]:
         """The results, `clock` counting relative times from the capture's first PNIO RPC frame."""
         for res in results:
             if clock.first is None:
@@ -151,8 +166,10 @@ class DumpFrames:
             yield res
 
     # --- the loop --------------------------------------------------------------------------------------
-    def results(self, selection: Selection) -> Iterator[FrameResult]:
-        """The printed frames; CaptureError after those before the damage."""
+    def results(self, selection: Selection, spool: Spool | None = None) -> Iterator[FrameResult | Spooled]:
+        """The printed frames; CaptureError after those before the damage. With a `spool`, the frames that
+        must wait beyond HELD_RESULTS are written to it ahead of their turn (dump.render takes them back)."""
+        self._spool = spool
         source = batches(self.path, self.settings.batch_frames) if self.settings.batch_frames else \
             batches(self.path)
         last = 0
@@ -163,43 +180,81 @@ class DumpFrames:
                 last = int(batch.number[-1])
                 for part_batch, view in BatchView.parts(batch, self.checker):
                     self._learn(part_batch, view)
-                    yield from self._part(self.odd.decode(part_batch, view), selection)
+                    yield from self._part(part_batch, view, selection)
         except CaptureError:  # the frames before the damage first (not on GeneratorExit: a closed pipe)
             yield from self._end(last, selection)
             raise
         yield from self._end(last, selection)
 
-    def _end(self, last: int, selection: Selection) -> Iterator[FrameResult]:
+    def _end(self, last: int, selection: Selection) -> Iterator[FrameResult | Spooled]:
         """The frames the per-frame dissector still held, and every result not yet released."""
         rows, _loose = self.odd.finish(last)
         self._odd_results([row.raw for row in rows], selection)
         self._notes.update((n.frame, n) for n in self.facts.notes.upto(1 << 62))
         yield from self._release(None)
+        self._settle(None)
 
-    def _part(self, part: Decoded, selection: Selection) -> Iterator[FrameResult]:
-        batch, view = part.batch, part.view
+    def _part(self, batch: FrameBatch, view: BatchView, selection: Selection) -> Iterator[FrameResult | Spooled]:
+        """One part, chunk by chunk (the class's docstring). Its rows are chosen at once, before its odd
+        frames are dissected: a response whose request is one of those frames is then not known to be
+        decoded as the columns decode it (dump_prefilter.stub_known_by_links) and is judged on its tree."""
         self._notes.update((n.frame, n) for n in self.facts.notes.upto(int(batch.number[-1])))
-        rows = part.rows
-        frames = view.frame_no[rows]
-        self._pnio.append(frames)
-        if self.first_ts is None:
-            times = [float(view.ts[rows[0]])] if len(rows) else []
-            times += [row.raw.ts for row in part.odd_rows if row.raw is not None and self._is_pnio(row.raw)]
-            self.first_ts = min(times) if times else None
-        chosen = selection.columns(part, rows, self._notes, self.links)
-        alone = self.alone
-        for i in rows[chosen].tolist():
-            found = alone.feed(batch.raw_frame(int(view.p.pos[i])))
-            res = found[0] if found else None
-            if res is not None and (not selection.per_frame or selection.frame(res, self._notes.get(res.frame))):
-                self._push(res)
-        self._odd_results([row.raw for row in part.odd_rows], selection)
-        held = self.odd.d.hold.first_held() if self.odd.d.hold is not None else 0
-        yield from self._release(held or int(batch.number[-1]) + 1)
+        rows, odd = column_rows(view)
+        self._pnio.append(view.frame_no[rows])
+        whole = Decoded(batch, view, rows, odd)
+        chosen = rows[selection.columns(whole, rows, self._notes, self.links)]
+        # the first PNIO RPC frame's time: the least of the part's first column row's and its odd PNIO
+        # frames' (min() in that order), known once no odd frame left in the part can be earlier
+        first = self.first_ts is None
+        least = float(view.ts[rows[0]]) if first and len(rows) else None
+        odd_ts = batch.ts[odd]
+        later = np.minimum.accumulate(np.where(np.isnan(odd_ts), np.inf, odd_ts)[::-1])[::-1] if first else odd_ts
+        bounds = np.append(np.arange(0, len(batch), CHUNK_FRAMES), len(batch))  # the chunks' batch positions
+        pos = view.p.pos
+        at_rows, at_chosen = np.searchsorted(pos[rows], bounds), np.searchsorted(pos[chosen], bounds)
+        at_odd = np.searchsorted(odd, bounds)
+        alone, notes = self.alone, self._notes
+        for k in range(len(bounds) - 1):
+            stop, o1 = int(bounds[k + 1]), int(at_odd[k + 1])
+            chunk = Decoded(batch, view, rows[at_rows[k]:at_rows[k + 1]], odd[at_odd[k]:o1])
+            self.odd._odd_rows(chunk)  # (Decoder.decode's walk of a part's odd frames, a chunk at a time)
+            mine = chosen[at_chosen[k]:at_chosen[k + 1]]
+            for i in mine.tolist():
+                found = alone.feed(batch.raw_frame(int(pos[i])))
+                res = found[0] if found else None
+                if res is not None and (not selection.per_frame or selection.frame(res, notes.get(res.frame))):
+                    self._push(res)
+            odd_results = [row.raw for row in chunk.odd_rows]
+            self._odd_results(odd_results, selection)
+            if first:
+                for res in odd_results:
+                    if res is not None and self._is_pnio(res) and (least is None or res.ts < least):
+                        least = res.ts
+                if least is not None and (least != least  # (NaN: nothing is less)
+                                          or (not self._held() and (o1 == len(odd) or later[o1] >= least))):
+                    self.first_ts, first = least, False
+            if not first:
+                yield from self._release(self._held() or int(batch.number[stop - 1]) + 1)
+        if first:
+            self.first_ts = least
+            yield from self._release(self._held() or int(batch.number[-1]) + 1)
+        self._settle(self._held() or int(batch.number[-1]) + 1)
+
+    def _held(self) -> int:
+        """The first frame the per-frame dissector holds back (0: none)."""
+        hold = self.odd.d.hold
+        return hold.first_held() if hold is not None else 0
 
     def _push(self, res: FrameResult) -> None:
         self._tie += 1
+        if self._spool is not None and self._live >= HELD_RESULTS:
+            self._finish(res)  # (nothing changes a result once it is pushed: its text can be written now)
+            heapq.heappush(self._ready, (res.frame, self._tie, self._spool.put(res)))
+            return
         heapq.heappush(self._ready, (res.frame, self._tie, res))
+        self._live += 1
+        if self._live > self.held_most:
+            self.held_most = self._live
 
     def _odd_results(self, results: list, selection: Selection) -> None:
         pnio = []
@@ -215,16 +270,26 @@ class DumpFrames:
     def _is_pnio(self, res: FrameResult) -> bool:
         return not res.decide or res.frame in self.links.decided
 
-    def _release(self, before: int | None) -> Iterator[FrameResult]:
-        """The results of the frames before `before` (all: None), in frame order, with their findings; the
-        findings of the frames before it that are not PNIO RPC go to `loose`."""
-        ready, notes = self._ready, self._notes
+    def _release(self, before: int | None) -> Iterator[FrameResult | Spooled]:
+        """The results of the frames before `before` (all: None), in frame order, with their findings."""
+        ready = self._ready
         while ready and (before is None or ready[0][0] < before):
-            frame, _tie, res = heapq.heappop(ready)
-            note = notes.get(frame)
-            res.findings = [f.finding(frame) for f in note.findings] if note is not None else []
-            mark_checks(res, CHECKED_FIELDS)
+            res = heapq.heappop(ready)[2]
+            if res.__class__ is not Spooled:
+                self._live -= 1
+                self._finish(res)  # type: ignore[arg-type]
             yield res
+
+    def _finish(self, res: FrameResult) -> None:
+        """A result as printed: the report's findings at its frame, and the fields they mark."""
+        note = self._notes.get(res.frame)
+        res.findings = [f.finding(res.frame) for f in note.findings] if note is not None else []
+        mark_checks(res, CHECKED_FIELDS)
+
+    def _settle(self, before: int | None) -> None:
+        """The notes of the frames before `before` (all: None) are done with: the findings of those that are
+        not PNIO RPC go to `loose`."""
+        notes = self._notes
         passed = [f for f in notes if before is None or f < before]
         pnio = np.concatenate(self._pnio) if self._pnio else np.empty(0, np.int64)
         noted = np.array([f for f in passed if notes[f].findings], np.int64)
