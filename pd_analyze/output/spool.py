@@ -9,10 +9,10 @@ run, however long the capture; anything else makes more runs. At the end the run
 memory are merged, at most `FAN_IN` runs at a time. Rows held in memory stay below `memory_rows` plus one
 block per run being merged, whatever the input size.
 
-Spill files are Python's marshal format, a block of entries a record: table rows hold only str, int, float,
-bool, None and tuples of them, which marshal gives back exactly (a row as a plain tuple, as JSON gave it; a lone
-surrogate of an undecodable file name stays itself) several times faster than JSON; marshal builds values and
-never runs code, and the files are the spool's own, in a directory only it writes.
+Spill files hold a block of entries a record (its length, then its marshal bytes): table rows hold only str,
+int, float, bool, None and tuples of them, which marshal gives back exactly (a row as a plain tuple, as JSON
+gave it; a lone surrogate of an undecodable file name stays itself) several times faster than JSON; marshal
+builds values and never runs code, and the files are the spool's own, in a directory only it writes.
 """
 
 from __future__ import annotations
@@ -21,12 +21,14 @@ import heapq
 import marshal
 import os
 import shutil
+import struct
 import tempfile
 from bisect import bisect_left
 from collections.abc import Callable, Iterable, Iterator
 from typing import IO
 
 FAN_IN = 16  # runs merged at once: the merge holds one block of each
+_SIZE = struct.Struct("<Q")  # the length of a block's record in a spill file, before it
 
 
 class Spool:
@@ -140,11 +142,8 @@ class Spool:
 
         def read(i: int, path: str) -> Iterator[tuple]:
             with open(path, "rb") as f:
-                while True:
-                    try:
-                        block = marshal.load(f)
-                    except EOFError:
-                        break
+                while head := f.read(_SIZE.size):
+                    block = marshal.loads(f.read(_SIZE.unpack(head)[0]))  # (marshal.load reads a file in bits)
                     held[i] = len(block)
                     self.peak_held = max(self.peak_held, resident + sum(held))
                     yield from block
@@ -161,7 +160,7 @@ def _dump(entries: list, file: IO[bytes], block: int) -> None:
             data = marshal.dumps(part)
         except ValueError:  # a value of a subclass (an enum, a named tuple inside a row): as its base type
             data = marshal.dumps(_plain(part))
-        file.write(data)
+        file.write(_SIZE.pack(len(data)) + data)
 
 
 def _plain(value: object) -> object:
