@@ -1,7 +1,7 @@
 """The dump's memory is a few hundred frames whatever a part's size (output.dump_file.DumpFrames): a part is
 walked CHUNK_FRAMES frames at a time and its results leave as soon as nothing before them is still to come;
 those that must wait behind a fragment still to be reassembled wait on disk beyond HELD_RESULTS
-(output.dump.Spool). The bound is counted, not timed: `DumpFrames.held_most`, the most results held at once.
+(output.dump.FrameSpool). The bound is counted, not timed: `DumpFrames.held_most`, the most results held at once.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ def _dump(path: str, fmt: str = "text", spool: bool = True, time_format: str = "
     frames = dump_file.DumpFrames(str(path), settings, settings.checker(), facts)
     clock = dump.Clock(time_format)
     out = io.StringIO()
-    kept = dump.Spool(fmt) if spool else None
+    kept = dump.FrameSpool(fmt) if spool else None
     try:
         count = dump.render(frames.timed(frames.results(selection or dump_file.Selection(), kept), clock), fmt,
                             lambda text: out.write(text + "\n"), dump.plain_style, False, clock)

@@ -147,7 +147,7 @@ def _dump_file(path: str, settings: Settings, checker: Checker, selection: dump_
         return EXIT_USAGE
     frames = dump_file.DumpFrames(path, settings, checker, facts)
     clock = dump.Clock(time_format)
-    spool = dump.Spool(fmt, style, findings_only)  # (frames that wait behind a fragment wait on disk)
+    spool = dump.FrameSpool(fmt, style, findings_only)  # (frames that wait behind a fragment wait on disk)
     failed = False
     try:
         dump.render(frames.timed(frames.results(selection, spool), clock), fmt, out, style, findings_only, clock)

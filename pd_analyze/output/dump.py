@@ -178,7 +178,7 @@ def frame_body(result: FrameResult, style: Style = plain_style, findings_only: b
     return "\n".join(lines) if len(lines) > 1 else ""
 
 
-class Spool:
+class FrameSpool:
     """Frames written before their turn and kept on disk until it comes: a dump that must hold many frames
     back (behind a fragment whose PDU is still to be reassembled: output.dump_file) holds a few hundred as
     results and writes the others here. A frame's text is written whole but for its head line, made in turn
@@ -222,7 +222,7 @@ class Spool:
 
 @dataclass(slots=True)
 class Spooled:
-    """A frame on a Spool: what its head line and `render` need; the rest is on disk."""
+    """A frame on a FrameSpool: what its head line and `render` need; the rest is on disk."""
 
     frame: int
     ts: float
@@ -230,7 +230,7 @@ class Spooled:
     dst: str
     summary: str
     findings: bool
-    spool: Spool
+    spool: FrameSpool
     at: int
     size: int
 

@@ -30,7 +30,7 @@ from pd_analyze.model.values import PTYPE_REQUEST
 from pd_analyze.output import dump_prefilter
 from pd_analyze.output.column_fields import PartFields
 from pd_analyze.output.display_filter import DisplayFilter
-from pd_analyze.output.dump import Clock, Spool, Spooled
+from pd_analyze.output.dump import Clock, FrameSpool, Spooled
 from pd_analyze.output.dump_facts import DumpFacts, FileLinks
 from pd_analyze.output.frame_notes import FrameNote
 from pd_analyze.output.frame_view import ANALYSIS, FrameView
@@ -123,7 +123,7 @@ class Filtered(Selection):
 
 
 CHUNK_FRAMES = 256  # frames of a part walked at once (DumpFrames)
-HELD_RESULTS = 512  # results held at once at most (DumpFrames with a Spool): the others wait on disk
+HELD_RESULTS = 512  # results held at once at most (DumpFrames with a FrameSpool): the others wait on disk
 
 
 class DumpFrames:
@@ -135,7 +135,7 @@ class DumpFrames:
     frames go to the per-frame dissector, its printed column rows are dissected, and every result before
     the next chunk leaves at once, unless the per-frame dissector holds a frame back (a fragment waiting
     for the frame that reassembles its PDU): the results after it wait for it, beyond HELD_RESULTS written
-    ahead to a `dump.Spool` (when `results` is given one). So the results held at once (`held_most`) are
+    ahead to a `dump.FrameSpool` (when `results` is given one). So the results held at once (`held_most`) are
     a chunk's, at most HELD_RESULTS, whatever the part's size; the report's notes of the part's frames are
     kept as before (the selection judges the part's rows at once)."""
 
@@ -153,7 +153,7 @@ class DumpFrames:
         self.held_most = 0  # the most results held at once, waiting to be printed in frame order
         self._ready: list[tuple[int, int, FrameResult | Spooled]] = []  # a heap of (frame, tie, result) to print
         self._live = 0  # results in it (not Spooled)
-        self._spool: Spool | None = None
+        self._spool: FrameSpool | None = None
         self._tie = 0
         self._notes: dict[int, FrameNote] = {}  # the notes of the frames read, not yet passed
         self._pnio: list[np.ndarray] = []  # PNIO RPC frames read, not yet passed (their findings are not loose)
@@ -166,7 +166,7 @@ class DumpFrames:
             yield res
 
     # --- the loop --------------------------------------------------------------------------------------
-    def results(self, selection: Selection, spool: Spool | None = None) -> Iterator[FrameResult | Spooled]:
+    def results(self, selection: Selection, spool: FrameSpool | None = None) -> Iterator[FrameResult | Spooled]:
         """The printed frames; CaptureError after those before the damage. With a `spool`, the frames that
         must wait beyond HELD_RESULTS are written to it ahead of their turn (dump.render takes them back)."""
         self._spool = spool
