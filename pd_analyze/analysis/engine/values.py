@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pd_analyze.analysis.engine.records import Element
+from pd_analyze.analysis.engine.vector import pair_ids
 from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.capped import READ_VALUES, CappedTable
@@ -143,8 +144,7 @@ class ReadValues:
             return out
         # elements numbered over reads and changes together
         all1, all2 = np.concatenate([k1, changes.k1]), np.concatenate([k2, changes.k2])
-        _u, ids = np.unique(np.stack([all1, all2], axis=1), axis=0, return_inverse=True)
-        ids = ids.ravel().astype(np.int64)
+        ids, _first = pair_ids(all1, all2)
         rid, cid = ids[:len(k1)], ids[len(k1):]
         order = np.lexsort((frame, rid))  # reads by element, then frame
         combined = (rid[order] << np.int64(40)) | frame[order]
