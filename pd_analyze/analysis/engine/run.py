@@ -22,7 +22,7 @@ from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings, e
 from pd_analyze.analysis.engine.calls import Pairing
 from pd_analyze.analysis.engine.checks import FrameChecks
 from pd_analyze.analysis.engine.decode import Decoded, Decoder, merge_accounting, skipped_decide
-from pd_analyze.analysis.engine.facts import Pdu
+from pd_analyze.analysis.engine.facts import Channel, Pdu
 from pd_analyze.analysis.engine.finals import Finals
 from pd_analyze.analysis.engine.findings import Findings, response_channel, write_names
 from pd_analyze.analysis.engine.late import LateCopies
@@ -204,10 +204,16 @@ class EngineRun:
         pairing, machine, records = self.pairing, self.machine, self.machine.records
         last_request = self.last_request
         first = self.take.first  # activities the vector path's rows make known, at their first frames
-        marks = self._marks(view, calls, ep, stream)
+        channels = self._named(view, stream)  # (the stream's rows stay alive: their ids are theirs)
+        marks = self._marks(view, calls, ep, stream, channels)
         marked = np.zeros(len(ep.w), bool)
         marked[marks] = True
         mark_frames = view.frame_no[calls.q[ep.w[marks]]] if len(marks) else EMPTY
+        # each marked episode's channel and write request record
+        marked_at = dict(zip(marks, zip([ep.channels[c] for c in ep.channel[marks].tolist()],
+                                        view.rec_of[calls.q[ep.w[marks]]].tolist(), strict=True), strict=True)) \
+            if len(marks) else {}
+        request_cost = self.costs.request
         items: list = [*stream, *marks]
         frames = np.concatenate([np.fromiter((r.frame for r in stream), np.int64, len(stream)), mark_frames])
         # (at one frame an episode's marker before... a frame is one PDU: a marker's frame is its write's)
@@ -231,7 +237,7 @@ class EngineRun:
             if isinstance(item, int):  # an episode begins on a channel the loop has rows of
                 k = item
                 machine.advance(now_pnio)
-                channel = ep.channels[int(ep.channel[k])]
+                channel, record = marked_at[k]
                 if machine.pending.get(channel) is not None:
                     rejected.append(k)
                     for row in self._episode_rows(dec, calls, ep, k):
@@ -239,7 +245,7 @@ class EngineRun:
                         at_row = int(np.searchsorted(batch.number, row.frame))
                         heapq.heappush(heap, (row.frame, seq, int(runmax_all[at_row]), int(runmax_pnio[at_row]), row))
                 else:
-                    last_request.remember(channel, int(view.rec_of[calls.q[ep.w[k]]]), self.costs.request)
+                    last_request.remember(channel, record, request_cost)
                 continue
             row = item
             pairing.tick(row_now_all)
@@ -259,7 +265,7 @@ class EngineRun:
                     if w is not None and w.record is not None:
                         last_request.remember(w.channel, w.record, self.costs.request)
             elif row.whole and row.ptype == PTYPE_RESPONSE and row.answer is not None and row.answer.head is not None:
-                request = last_request.get(response_channel(view, row))
+                request = last_request.get(channels[id(row)] if id(row) in channels else response_channel(view, row))
                 row.q7 = self.findings.q7(row, view, records, None if request is None else
                                           unpacked(request) if isinstance(request, bytes)
                                           else tuple(records.addresses(request)))
@@ -282,7 +288,28 @@ class EngineRun:
                 packed = records.packed(request)
                 last.put(channel, packed, 64 + 72 * (len(packed) // 32))  # (the cap's charge as for tuples)
 
-    def _marks(self, view: object, calls: Calls, ep: Episodes, stream: list[Pdu]) -> list[int]:
+    @staticmethod
+    def _named(view: BatchView, stream: list[Pdu]) -> dict[int, Channel | None]:
+        """The channel each response with an answer in the stream names (findings.response_channel), by the
+        row's id: the column rows' as columns."""
+        out: dict[int, Channel | None] = {}
+        column = []
+        for row in stream:
+            if row.ptype == PTYPE_RESPONSE and row.answer is not None:
+                if row.odd:
+                    out[id(row)] = response_channel(view, row)
+                else:
+                    column.append(row)
+        if column:
+            p = view.p
+            i = np.fromiter((row.col for row in column), np.int64, len(column))
+            for row, *named in zip(column, p.ar_hi[i].tolist(), p.ar_lo[i].tolist(), p.api[i].tolist(),
+                                   p.slot[i].tolist(), p.subslot[i].tolist(), p.index[i].tolist(), strict=True):
+                out[id(row)] = (row.src, row.dst, *named)
+        return out
+
+    def _marks(self, view: object, calls: Calls, ep: Episodes, stream: list[Pdu],
+               channels: dict[int, Channel | None]) -> list[int]:
         """The episodes on a channel the loop has rows of in the part, or a transaction pending on: the loop
         meets their first frames (a transaction of its own may still be pending there; and the channel's last
         parameter request must be known in frame order for its reads' Q7)."""
@@ -296,9 +323,9 @@ class EngineRun:
                     mine.add(w.channel)
             if row.read is not None:
                 mine.add(row.read)
-            if row.ptype == PTYPE_RESPONSE:
-                named = response_channel(view, row) if row.answer is not None and (
-                    row.odd or p.has_block[row.col]) else None  # type: ignore[arg-type]
+        for row in stream:
+            if row.ptype == PTYPE_RESPONSE and row.answer is not None and (row.odd or p.has_block[row.col]):
+                named = channels[id(row)]
                 if named is not None:
                     mine.add(named)
         if not mine:
