@@ -8,7 +8,8 @@ from bisect import bisect_right
 from collections.abc import Iterator
 
 from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings, difference, error_text, snapshot
-from pd_analyze.analysis.engine.run import EngineRun, run_batches, spaced_collections
+from pd_analyze.analysis.engine.collector import spaced_collections
+from pd_analyze.analysis.engine.run import EngineRun, run_batches
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.capture import CaptureError
 from pd_analyze.capture.batches import FrameBatch, batches

@@ -202,6 +202,26 @@ def response_channel(view: BatchView, row: Pdu) -> Channel | None:
             int(p.index[i]))
 
 
+def response_channels(view: BatchView, stream: list[Pdu]) -> dict[int, Channel | None]:
+    """`response_channel` of each response with an answer among `stream`, by the row's id (the rows stay
+    alive while it is used): the column rows' read as columns."""
+    out: dict[int, Channel | None] = {}
+    column = []
+    for row in stream:
+        if row.ptype == PTYPE_RESPONSE and row.answer is not None:
+            if row.odd:
+                out[id(row)] = response_channel(view, row)
+            else:
+                column.append(row)
+    if column:
+        p = view.p
+        i = np.fromiter((row.col for row in column), np.int64, len(column))
+        for row, *named in zip(column, p.ar_hi[i].tolist(), p.ar_lo[i].tolist(), p.api[i].tolist(),
+                               p.slot[i].tolist(), p.subslot[i].tolist(), p.index[i].tolist(), strict=True):
+            out[id(row)] = (row.src, row.dst, *named)
+    return out
+
+
 def write_names(view: BatchView, row: Pdu) -> Write | None:
     """The PROFIdrive channel a column write response names (for a write cut before its header)."""
     p = view.p

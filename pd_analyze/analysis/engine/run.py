@@ -10,21 +10,20 @@ pairing and one machine, so no frame, channel or batch ever changes path.
 
 from __future__ import annotations
 
-import gc
 import heapq
 from collections import Counter
-from collections.abc import Callable, Iterable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable, Iterable
 
 import numpy as np
 
 from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings, error_text
 from pd_analyze.analysis.engine.calls import Pairing
 from pd_analyze.analysis.engine.checks import FrameChecks
+from pd_analyze.analysis.engine.collector import spaced_collections
 from pd_analyze.analysis.engine.decode import Decoded, Decoder, merge_accounting, skipped_decide
 from pd_analyze.analysis.engine.facts import Channel, Pdu
 from pd_analyze.analysis.engine.finals import Finals
-from pd_analyze.analysis.engine.findings import Findings, response_channel, write_names
+from pd_analyze.analysis.engine.findings import Findings, response_channel, response_channels, write_names
 from pd_analyze.analysis.engine.late import LateCopies
 from pd_analyze.analysis.engine.machine import FsmCall, Machine
 from pd_analyze.analysis.engine.numbering import Numbering
@@ -48,7 +47,6 @@ from pd_analyze.protocol.dissector import Dissector, truncated_elsewhere
 from pd_analyze.protocol.frames import Accounting
 
 _NEVER = -(1 << 62)
-_GC_THRESHOLD = 50_000  # allocations between collections of the youngest generation (spaced_collections)
 _ANSWERS = (PTYPE_RESPONSE, PTYPE_FAULT, PTYPE_REJECT)  # what answers a call (the dump links it to its request)
 
 
@@ -204,7 +202,7 @@ class EngineRun:
         pairing, machine, records = self.pairing, self.machine, self.machine.records
         last_request = self.last_request
         first = self.take.first  # activities the vector path's rows make known, at their first frames
-        channels = self._named(view, stream)  # (the stream's rows stay alive: their ids are theirs)
+        channels = response_channels(view, stream)  # (the stream's rows stay alive: their ids are theirs)
         marks = self._marks(view, calls, ep, stream, channels)
         marked = np.zeros(len(ep.w), bool)
         marked[marks] = True
@@ -287,26 +285,6 @@ class EngineRun:
             if not isinstance(request, bytes):
                 packed = records.packed(request)
                 last.put(channel, packed, 64 + 72 * (len(packed) // 32))  # (the cap's charge as for tuples)
-
-    @staticmethod
-    def _named(view: BatchView, stream: list[Pdu]) -> dict[int, Channel | None]:
-        """The channel each response with an answer in the stream names (findings.response_channel), by the
-        row's id: the column rows' as columns."""
-        out: dict[int, Channel | None] = {}
-        column = []
-        for row in stream:
-            if row.ptype == PTYPE_RESPONSE and row.answer is not None:
-                if row.odd:
-                    out[id(row)] = response_channel(view, row)
-                else:
-                    column.append(row)
-        if column:
-            p = view.p
-            i = np.fromiter((row.col for row in column), np.int64, len(column))
-            for row, *named in zip(column, p.ar_hi[i].tolist(), p.ar_lo[i].tolist(), p.api[i].tolist(),
-                                   p.slot[i].tolist(), p.subslot[i].tolist(), p.index[i].tolist(), strict=True):
-                out[id(row)] = (row.src, row.dst, *named)
-        return out
 
     def _marks(self, view: object, calls: Calls, ep: Episodes, stream: list[Pdu],
                channels: dict[int, Channel | None]) -> list[int]:
@@ -415,14 +393,11 @@ class EngineRun:
 
     def _count(self, frames: np.ndarray) -> None:
         """Transactions more, by their write request frames, of the captures they are in."""
-        if not len(frames):
-            return
-        first, last = self.capture_of(int(frames.min())), self.capture_of(int(frames.max()))
-        # (a chain's files hold consecutive frames: one capture holds all of them when it holds both ends)
-        names: dict[str, int] = {first: len(frames)} if first == last else \
-            Counter(map(self.capture_of, frames.tolist()))
-        for name, n in names.items():  # (schema.capture_text of a path)
-            next(r for r in self.results if capture_text(r.path) == name).transactions += n
+        if len(frames):  # (a chain's files hold consecutive frames: one capture holds all when it holds both ends)
+            first, last = self.capture_of(int(frames.min())), self.capture_of(int(frames.max()))
+            names = {first: len(frames)} if first == last else Counter(map(self.capture_of, frames.tolist()))
+            for name, n in names.items():  # (schema.capture_text of a path)
+                next(r for r in self.results if capture_text(r.path) == name).transactions += n
 
 
 def _handed_on(txn: Txn) -> None:
@@ -462,23 +437,6 @@ def run_batches(source: Iterable[FrameBatch] | Iterable[tuple[FrameBatch, list[t
             results[-1].error = error_text(exc)
         run.finish()
         return run.totals()
-
-
-@contextmanager
-def spaced_collections() -> Iterator[None]:
-    """The cyclic garbage collector run less often while the engine runs (the thresholds restored after).
-
-    A batch makes tens of thousands of small objects that live until its part is done (rows, calls,
-    transactions, lists of columns' values); at the default threshold (700 allocations) each part sets off
-    dozens of collections that walk them, and several full ones that walk every object the imports made too:
-    some 10 % of the engine's time. The engine's own cycles (a call and its transactions) are few and are
-    collected all the same, a generation's worth of allocations later."""
-    before = gc.get_threshold()
-    gc.set_threshold(_GC_THRESHOLD, *before[1:])
-    try:
-        yield
-    finally:
-        gc.set_threshold(*before)
 
 
 def analyze_frames(frames: Iterable[RawFrame], settings: Settings, rows: Rows, capture: str = "frames",
