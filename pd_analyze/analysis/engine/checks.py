@@ -113,6 +113,22 @@ def q7_differs(view: BatchView, res_record: int, request_addresses: list[tuple[i
     return False
 
 
+def q7_differ(view: BatchView, res_record: np.ndarray, req_record: np.ndarray) -> np.ndarray:
+    """`q7_differs` of column read responses against column requests, pair by pair, as one expression."""
+    rc, a, b = view.records.records, view.records.addresses, view.records.blocks
+    if not len(res_record):
+        return np.zeros(0, bool)
+    n = np.where(rc.ident[res_record] == pt.RES_READ,
+                 np.minimum(rc.n_addr[req_record], rc.n_blocks[res_record]), 0).astype(np.int64)
+    owner = np.repeat(np.arange(len(n)), n)
+    j = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
+    ai = rc.first_addr[req_record][owner].astype(np.int64) + j
+    bi = rc.first_block[res_record][owner].astype(np.int64) + j
+    wrong = (a.attr[ai] == pt.ATTR_VALUE) & (b.error[bi] < 0) & \
+        (b.n_values[bi].astype(np.int64) != np.maximum(a.n_elems[ai].astype(np.int64), 1))
+    return np.bincount(owner[wrong], minlength=len(n)) > 0
+
+
 def stub_of(row: Pdu) -> rec.Stub | None:
     """The stub of a row the dissector decoded."""
     res = row.raw

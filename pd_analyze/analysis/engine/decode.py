@@ -247,13 +247,14 @@ class Decoder:
         return out
 
 
-def _channel(view: BatchView, i: int) -> tuple[int, ...]:
+def _channels(view: BatchView, i: np.ndarray) -> list[tuple[int, ...]]:
+    """The channel each of the column rows `i` (requests) names: (device, controller, AR (an implicit read's
+    target AR), API, slot, subslot, index)."""
     p = view.p
-    ar_hi, ar_lo = int(p.ar_hi[i]), int(p.ar_lo[i])
-    if not ar_hi and not ar_lo:
-        ar_hi, ar_lo = int(p.target_hi[i]), int(p.target_lo[i])
-    return (int(p.dst[i]), int(p.src[i]), ar_hi, ar_lo, int(p.api[i]), int(p.slot[i]), int(p.subslot[i]),
-            int(p.index[i]))
+    nil = (p.ar_hi[i] == 0) & (p.ar_lo[i] == 0)
+    ar_hi, ar_lo = np.where(nil, p.target_hi[i], p.ar_hi[i]), np.where(nil, p.target_lo[i], p.ar_lo[i])
+    return list(zip(p.dst[i].tolist(), p.src[i].tolist(), ar_hi.tolist(), ar_lo.tolist(), p.api[i].tolist(),
+                    p.slot[i].tolist(), p.subslot[i].tolist(), p.index[i].tolist(), strict=True))
 
 
 def _column_requests(view: BatchView, rows: np.ndarray, out: list[Pdu], body: tuple[np.ndarray, np.ndarray],
@@ -269,13 +270,17 @@ def _column_requests(view: BatchView, rows: np.ndarray, out: list[Pdu], body: tu
         out[k].digest = (zlib.crc32(mv[start:start + length]), length)
     kind = view.kind[rows]
     rc = view.records.records
-    for k in np.flatnonzero(kind == KIND_WRITE).tolist():
-        i = int(rows[k])
-        record = int(view.rec_of[i])
-        head = (int(rc.ref[record]), int(rc.ident[record]), int(rc.do[record]), int(rc.n[record]))
-        out[k].writes = [Write(_channel(view, i), record, head, False)]
-    for k in np.flatnonzero(kind == KIND_READ).tolist():
-        out[k].read = _channel(view, int(rows[k]))
+    writes = np.flatnonzero(kind == KIND_WRITE)
+    if len(writes):
+        record = view.rec_of[rows[writes]]
+        heads = zip(rc.ref[record].tolist(), rc.ident[record].tolist(), rc.do[record].tolist(), rc.n[record].tolist(),
+                    strict=True)
+        for k, channel, rec_, head in zip(writes.tolist(), _channels(view, rows[writes]), record.tolist(), heads,
+                                          strict=True):
+            out[k].writes = [Write(channel, rec_, head, False)]
+    reads = np.flatnonzero(kind == KIND_READ)
+    for k, channel in zip(reads.tolist(), _channels(view, rows[reads]), strict=True):
+        out[k].read = channel
     # a write request on another record: no transaction (a call all the same)
     other = (p.ptype[rows] == PTYPE_REQUEST) & (p.opnum[rows] == OP_WRITE) & (kind != KIND_WRITE)
     for k in np.flatnonzero(other).tolist():

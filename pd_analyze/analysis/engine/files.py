@@ -8,6 +8,7 @@ from bisect import bisect_right
 from collections.abc import Iterator
 
 from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings, difference, error_text, snapshot
+from pd_analyze.analysis.engine.collector import spaced_collections
 from pd_analyze.analysis.engine.run import EngineRun, run_batches
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.capture import CaptureError
@@ -37,20 +38,21 @@ def analyze_chain(files: list[str], settings: Settings, progress: Progress | Non
     def capture_of(frame: int) -> str:
         return files[max(0, bisect_right(starts, frame) - 1)] if files else ""
 
-    run = EngineRun(settings, rows, capture_of, results, progress)
-    offset = 0
-    for path in files:
-        before = snapshot(run.totals())
-        starts.append(offset + 1)
-        result = CaptureResult(path, Accounting())
-        results.append(result)
-        try:
-            for batch in _batches(path, settings):
-                if len(batch):
-                    run.feed(dataclasses.replace(batch, number=batch.number + offset))
-                    offset = int(batch.number[-1]) + offset
-        except CaptureError as exc:
-            result.error = error_text(exc)
-        result.accounting = difference(run.totals(), before)
-    run.finish()
+    with spaced_collections():
+        run = EngineRun(settings, rows, capture_of, results, progress)
+        offset = 0
+        for path in files:
+            before = snapshot(run.totals())
+            starts.append(offset + 1)
+            result = CaptureResult(path, Accounting())
+            results.append(result)
+            try:
+                for batch in _batches(path, settings):
+                    if len(batch):
+                        run.feed(dataclasses.replace(batch, number=batch.number + offset))
+                        offset = int(batch.number[-1]) + offset
+            except CaptureError as exc:
+                result.error = error_text(exc)
+            result.accounting = difference(run.totals(), before)
+        run.finish()
     return results

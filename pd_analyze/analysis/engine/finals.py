@@ -53,24 +53,97 @@ class Finals:
         """Each transaction against the channel's last (the one before it in opening order, closed by then:
         a channel has one pending transaction at most)."""
         mixed = {t.channel for t in opened}  # channels with transactions of the machine: one by one
-        items: list[tuple[int, int, Channel, object]] = [(t.opened_at, t.position, t.channel, t) for t in opened]
         n = len(cols) if cols is not None else 0
-        alone = np.ones(n, bool)
+        shared = np.empty(0, np.int64)
         if cols is not None and n:
             ids = {c: i for i, c in enumerate(cols.channel)}
-            shared = np.fromiter((ids[c] for c in mixed if c in ids), np.int64)
-            alone = ~np.isin(cols.ch, shared)
-            for k in np.flatnonzero(~alone).tolist():
-                items.append((int(cols.write_frame[k]), 0, cols.channel[int(cols.ch[k])], k))
+            shared_ids = np.fromiter((ids[c] for c in mixed if c in ids), np.int64)
+            alone = ~np.isin(cols.ch, shared_ids)
+            shared = np.flatnonzero(~alone)
             self._reuse_columns(cols, alone)
-        items.sort(key=lambda item: item[:2])
+        self._reuse_mixed(opened, cols, shared)
+
+    def _reuse_mixed(self, opened: list[Txn], cols: TxnCols | None, shared: np.ndarray) -> None:
+        """T1/T4 of the machine's transactions and the vector path's `shared` entries on their channels, in
+        opening order, each against the one before it on its channel (the first against the channel's last of
+        earlier batches): as one pass over them in that order would, the passes' lookups made as columns."""
+        m = len(opened)
+        if not m and not len(shared):
+            return
+        ks = shared.tolist()
+        channels: dict[Channel, int] = {}
+        ch = [channels.setdefault(t.channel, len(channels)) for t in opened]
+        if len(shared):
+            col_ch = np.fromiter((channels.setdefault(c, len(channels)) for c in cols.channel), np.int64,  # type: ignore[union-attr]
+                                 len(cols.channel))  # type: ignore[union-attr]
+            ch += col_ch[cols.ch[shared]].tolist()  # type: ignore[union-attr]
+        col_ref: list[int] = []
+        at = [t.opened_at for t in opened]
+        if len(shared):
+            at += cols.write_frame[shared].tolist()  # type: ignore[union-attr]
+            col_ref = cols.ref[shared].tolist()  # type: ignore[union-attr]
+        position = [t.position for t in opened] + [0] * len(ks)
+        order = np.lexsort((np.array(position, np.int64), np.array(at, np.int64)))  # (stable, as list.sort)
         last = self.last
-        for _at, _pos, channel, item in items:
+        names = list(channels)
+        if len(last) + len(names) > last.cap.count:  # (the table may forget one of them within the pass)
+            self._reuse_one_by_one(opened, cols, ks, order.tolist(), names, ch)
+            return
+        # each item's own (ref, frame T1/T4 name) and what it leaves as the channel's last (LastDone)
+        ref = [t.ref for t in opened] + col_ref
+        frame = [t.admitted for t in opened] + at[m:]
+
+        def done(i: int) -> LastDone:  # what item i leaves as the channel's last
+            return _done(opened[i]) if i < m else LastDone(at[i], ref[i], cols.verdict[ks[i - m]])  # type: ignore[union-attr]
+
+        chs = np.array(ch, np.int64)[order]
+        refs = np.array(ref, np.int64)[order]
+        by_channel = np.lexsort((np.arange(len(order)), chs))  # each channel's items in opening order
+        c_sorted = chs[by_channel]
+        first = np.r_[True, c_sorted[1:] != c_sorted[:-1]]
+        prev_same = np.zeros(len(order), bool)  # (item in `order` whose channel's previous item has its ref)
+        prev_same[by_channel[1:]] = ~first[1:] & (refs[by_channel[1:]] == refs[by_channel[:-1]])
+        prev_of = np.full(len(order), -1, np.int64)
+        prev_of[by_channel[1:]] = np.where(first[1:], -1, by_channel[:-1])
+        order_l = order.tolist()
+        # the first item of each channel against what the table held of it
+        candidates = set(np.flatnonzero(prev_same).tolist())
+        before: dict[int, LastDone] = {}
+        for j in by_channel[first].tolist():
+            prev = last.get(names[int(chs[j])])
+            if prev is not None:
+                before[j] = _done(prev)
+                if before[j].ref == int(refs[j]):
+                    candidates.add(j)
+        for j in sorted(candidates):
+            i = order_l[j]
+            prev_done = before[j] if j in before else done(order_l[int(prev_of[j])])
+            found = reuse_finding(prev_done, ref[i], frame[i])
+            if found is not None:
+                if i < m:
+                    opened[i].findings.append(found)
+                else:
+                    cols.findings.setdefault(ks[i - m], []).append(found)  # type: ignore[union-attr]
+        # the table as the pass leaves it: each channel's last item, the channels in the order of those
+        ends = np.r_[c_sorted[1:] != c_sorted[:-1], True]
+        final = np.sort(by_channel[ends])
+        for j in final.tolist():
+            i = order_l[j]
+            last.remember(names[int(chs[j])], opened[i] if i < m else done(i))
+        self._txns += [opened[i].channel for i in order_l if i < m]
+
+    def _reuse_one_by_one(self, opened: list[Txn], cols: TxnCols | None, ks: list[int], order: list[int],
+                          names: list[Channel], ch: list[int]) -> None:
+        """`_reuse_mixed` item after item (the table may forget a channel within the pass)."""
+        m, last = len(opened), self.last
+        for i in order:
+            channel = names[ch[i]]
             prev = last.get(channel)
-            if isinstance(item, Txn):
+            if i < m:
+                item = opened[i]
                 ref, frame, findings, now = item.ref, item.admitted, item.findings, item
             else:
-                k = int(item)  # type: ignore[call-overload]
+                k = ks[i - m]
                 ref, frame = int(cols.ref[k]), int(cols.write_frame[k])  # type: ignore[union-attr]
                 findings = cols.findings.setdefault(k, [])  # type: ignore[union-attr]
                 now = LastDone(frame, ref, cols.verdict[k])  # type: ignore[union-attr]
@@ -79,7 +152,7 @@ class Finals:
                 if found is not None:
                     findings.append(found)
             last.remember(channel, now)
-            if now is item:
+            if i < m:
                 self._txns.append(channel)
 
     def _reuse_columns(self, cols: TxnCols, alone: np.ndarray) -> None:

@@ -8,7 +8,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from pd_analyze.analysis.engine.checks import FrameChecks, paired_flags, q7_differs, stub_of
+from pd_analyze.analysis.engine.checks import FrameChecks, paired_flags, q7_differ, q7_differs, stub_of
 from pd_analyze.analysis.engine.decode import Decoded, Decoder, uuid_int
 from pd_analyze.analysis.engine.facts import Channel, Pdu, Write
 from pd_analyze.analysis.engine.records import Records
@@ -165,18 +165,15 @@ class Findings:
             req_stub = req.pdu.stub if req is not None and req.pdu is not None else None
             put(k, self.checks.paired(res_stub, req_stub, int(p.opnum[q]), int(view.frame_no[s])))
         # Q7: an episode's final read against its own write (the channel's last parameter request)
-        for e in range(len(ep.w)):
-            if not ep.n_reads[e]:
-                continue
-            last = int(ep.reads[ep.first_read[e] + ep.n_reads[e] - 1])
-            res_rec = int(rec_of[calls.s[last]])
-            w_rec = int(rec_of[calls.q[ep.w[e]]])
-            if res_rec < 0 or w_rec < 0:
-                continue
-            addresses = records.addresses(w_rec)
-            if q7_differs(view, res_rec, addresses):
-                put(last, self.checks.q7(records.parsed(res_rec), _request(tuple(addresses)),
-                                         int(view.frame_no[calls.s[last]])))
+        read = np.flatnonzero(ep.n_reads > 0)
+        last = ep.reads[ep.first_read[read] + ep.n_reads[read] - 1]
+        res_rec, w_rec = rec_of[calls.s[last]], rec_of[calls.q[ep.w[read]]]
+        both = (res_rec >= 0) & (w_rec >= 0)
+        last, res_rec, w_rec = last[both], res_rec[both], w_rec[both]
+        for j in np.flatnonzero(q7_differ(view, res_rec, w_rec)).tolist():
+            addresses = records.addresses(int(w_rec[j]))
+            put(int(last[j]), self.checks.q7(records.parsed(int(res_rec[j])), _request(tuple(addresses)),
+                                             int(view.frame_no[calls.s[last[j]]])))
         return loose
 
 
@@ -203,6 +200,26 @@ def response_channel(view: BatchView, row: Pdu) -> Channel | None:
     i = row.col
     return (row.src, row.dst, int(p.ar_hi[i]), int(p.ar_lo[i]), int(p.api[i]), int(p.slot[i]), int(p.subslot[i]),
             int(p.index[i]))
+
+
+def response_channels(view: BatchView, stream: list[Pdu]) -> dict[int, Channel | None]:
+    """`response_channel` of each response with an answer among `stream`, by the row's id (the rows stay
+    alive while it is used): the column rows' read as columns."""
+    out: dict[int, Channel | None] = {}
+    column = []
+    for row in stream:
+        if row.ptype == PTYPE_RESPONSE and row.answer is not None:
+            if row.odd:
+                out[id(row)] = response_channel(view, row)
+            else:
+                column.append(row)
+    if column:
+        p = view.p
+        i = np.fromiter((row.col for row in column), np.int64, len(column))
+        for row, *named in zip(column, p.ar_hi[i].tolist(), p.ar_lo[i].tolist(), p.api[i].tolist(),
+                               p.slot[i].tolist(), p.subslot[i].tolist(), p.index[i].tolist(), strict=True):
+            out[id(row)] = (row.src, row.dst, *named)
+    return out
 
 
 def write_names(view: BatchView, row: Pdu) -> Write | None:

@@ -24,8 +24,16 @@ from pd_analyze.model.capped import LATE_COPIES
 class _Held:
     until: int  # capture time (ns) after which no copy of its calls is recognised
     tables: dict[str, list[pa.Table]]
-    calls: list[tuple[int, int]]  # (request frame, transaction number) of its transactions' calls
+    calls: dict[int, list[int]]  # the loop's transactions' calls: request frame -> transaction numbers
+    frames: np.ndarray  # the vector path's calls: request frames, sorted (int64)
+    numbers: np.ndarray  # their transaction numbers, in that order
     count: int  # its transactions
+
+    def numbers_of(self, frame: int) -> list[int]:
+        """The held transactions with a call whose request is at `frame` (the loop's first, as they were held)."""
+        out = self.calls.get(frame, [])
+        a, b = np.searchsorted(self.frames, [frame, frame + 1]).tolist()
+        return out + self.numbers[a:b].tolist() if b > a else out
 
 
 @dataclass(slots=True)
@@ -40,30 +48,39 @@ class LateCopies:
     def __init__(self, rpc_timeout_ns: int) -> None:
         self.timeout = rpc_timeout_ns
         self._held: deque[_Held] = deque()
-        self._txn_of: dict[int, list[int]] = {}  # a held call's request frame -> its transactions (numbers)
         self._extra: dict[int, _Extra] = {}  # transaction number -> what copies added to it
         self._count = 0
 
     def hold(self, tables: dict[str, list[pa.Table]], txns: list[Txn], cols: TxnCols | None, offset: int,
              now: int) -> None:
         """A batch's rows of `txns` (the loop's) and `cols` (the vector path's, numbered `offset` on)."""
-        calls = [(c.frame, t.number + offset) for t in txns for c in t.calls if c is not None]
-        if cols is not None:
-            numbers = (cols.number + offset).tolist()
-            for k, frame in enumerate(cols.write_frame.tolist()):
-                reads = cols.read_frames[cols.read_offsets[k]:cols.read_offsets[k + 1]].tolist()
-                calls += [(f, numbers[k]) for f in (frame, *reads)]  # (a column call is never fragmented)
-        for f, number in calls:
-            self._txn_of.setdefault(f, []).append(number)
+        calls: dict[int, list[int]] = {}
+        for t in txns:
+            for c in t.calls:
+                if c is not None:
+                    calls.setdefault(c.frame, []).append(t.number + offset)
+        frames = numbers = np.empty(0, np.int64)
+        if cols is not None and len(cols):  # each transaction's write, then its reads (never fragmented)
+            n = len(cols)
+            owner = np.repeat(np.arange(n), np.diff(cols.read_offsets))
+            at = np.arange(n) + cols.read_offsets[:-1]  # the write's place; its reads after it
+            frames = np.empty(n + len(owner), np.int64)
+            frames[at] = cols.write_frame
+            frames[np.arange(len(owner)) + owner + 1] = cols.read_frames[:len(owner)]
+            numbers = np.empty(len(frames), np.int64)
+            numbers[at] = cols.number + offset
+            numbers[np.arange(len(owner)) + owner + 1] = cols.number[owner] + offset
+            order = np.argsort(frames, kind="stable")
+            frames, numbers = frames[order], numbers[order]
         count = len(txns) + (len(cols) if cols is not None else 0)
-        self._held.append(_Held(now + self.timeout, tables, calls, count))
+        self._held.append(_Held(now + self.timeout, tables, calls, frames, numbers, count))
         self._count += count
 
     def copy(self, call_frame: int, frames: tuple[int, ...], resent: bool) -> int | None:
         """A copy (its `frames`) of the call whose request is at `call_frame`: the number of the held transaction
         it belongs to (the first, for a Write-Multiple's), None when none is held; `resent`: a retransmission of its
         request (a request with another body under the same key is a frame of it, not a retransmission)."""
-        numbers = self._txn_of.get(call_frame)
+        numbers = [n for held in self._held for n in held.numbers_of(call_frame)]
         if not numbers:
             return None
         for n in numbers:
@@ -78,12 +95,6 @@ class LateCopies:
         while self._held and (everything or self._held[0].until < now or self._count > LATE_COPIES.count):
             held = self._held.popleft()
             self._count -= held.count
-            for f, number in held.calls:
-                numbers = self._txn_of.get(f)
-                if numbers is not None:
-                    numbers.remove(number)
-                    if not numbers:
-                        del self._txn_of[f]
             if self._extra:
                 held.tables["transactions"] = [self._patched(t) for t in held.tables.get("transactions", [])]
             out.append(held.tables)

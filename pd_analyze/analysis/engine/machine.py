@@ -126,6 +126,10 @@ class Machine:
         self._calls.clear()
 
     def _expire(self) -> None:
+        for txn in self.pending.values():  # the common case, on every row: the oldest is not due
+            if txn.t_start + self.timeout >= self.now:
+                return
+            break
         due = []
         for txn in self.pending.values():  # in opening order: stop at the first not yet due
             if txn.t_start + self.timeout >= self.now:

@@ -11,6 +11,7 @@ pairing and one machine, so no frame, channel or batch ever changes path.
 from __future__ import annotations
 
 import heapq
+from collections import Counter
 from collections.abc import Callable, Iterable
 
 import numpy as np
@@ -18,10 +19,11 @@ import numpy as np
 from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings, error_text
 from pd_analyze.analysis.engine.calls import Pairing
 from pd_analyze.analysis.engine.checks import FrameChecks
+from pd_analyze.analysis.engine.collector import spaced_collections
 from pd_analyze.analysis.engine.decode import Decoded, Decoder, merge_accounting, skipped_decide
-from pd_analyze.analysis.engine.facts import Pdu
+from pd_analyze.analysis.engine.facts import Channel, Pdu
 from pd_analyze.analysis.engine.finals import Finals
-from pd_analyze.analysis.engine.findings import Findings, response_channel, write_names
+from pd_analyze.analysis.engine.findings import Findings, response_channel, response_channels, write_names
 from pd_analyze.analysis.engine.late import LateCopies
 from pd_analyze.analysis.engine.machine import FsmCall, Machine
 from pd_analyze.analysis.engine.numbering import Numbering
@@ -200,10 +202,16 @@ class EngineRun:
         pairing, machine, records = self.pairing, self.machine, self.machine.records
         last_request = self.last_request
         first = self.take.first  # activities the vector path's rows make known, at their first frames
-        marks = self._marks(view, calls, ep, stream)
+        channels = response_channels(view, stream)  # (the stream's rows stay alive: their ids are theirs)
+        marks = self._marks(view, calls, ep, stream, channels)
         marked = np.zeros(len(ep.w), bool)
         marked[marks] = True
         mark_frames = view.frame_no[calls.q[ep.w[marks]]] if len(marks) else EMPTY
+        # each marked episode's channel and write request record
+        marked_at = dict(zip(marks, zip([ep.channels[c] for c in ep.channel[marks].tolist()],
+                                        view.rec_of[calls.q[ep.w[marks]]].tolist(), strict=True), strict=True)) \
+            if len(marks) else {}
+        request_cost = self.costs.request
         items: list = [*stream, *marks]
         frames = np.concatenate([np.fromiter((r.frame for r in stream), np.int64, len(stream)), mark_frames])
         # (at one frame an episode's marker before... a frame is one PDU: a marker's frame is its write's)
@@ -227,7 +235,7 @@ class EngineRun:
             if isinstance(item, int):  # an episode begins on a channel the loop has rows of
                 k = item
                 machine.advance(now_pnio)
-                channel = ep.channels[int(ep.channel[k])]
+                channel, record = marked_at[k]
                 if machine.pending.get(channel) is not None:
                     rejected.append(k)
                     for row in self._episode_rows(dec, calls, ep, k):
@@ -235,7 +243,7 @@ class EngineRun:
                         at_row = int(np.searchsorted(batch.number, row.frame))
                         heapq.heappush(heap, (row.frame, seq, int(runmax_all[at_row]), int(runmax_pnio[at_row]), row))
                 else:
-                    last_request.remember(channel, int(view.rec_of[calls.q[ep.w[k]]]), self.costs.request)
+                    last_request.remember(channel, record, request_cost)
                 continue
             row = item
             pairing.tick(row_now_all)
@@ -255,7 +263,7 @@ class EngineRun:
                     if w is not None and w.record is not None:
                         last_request.remember(w.channel, w.record, self.costs.request)
             elif row.whole and row.ptype == PTYPE_RESPONSE and row.answer is not None and row.answer.head is not None:
-                request = last_request.get(response_channel(view, row))
+                request = last_request.get(channels[id(row)] if id(row) in channels else response_channel(view, row))
                 row.q7 = self.findings.q7(row, view, records, None if request is None else
                                           unpacked(request) if isinstance(request, bytes)
                                           else tuple(records.addresses(request)))
@@ -278,7 +286,8 @@ class EngineRun:
                 packed = records.packed(request)
                 last.put(channel, packed, 64 + 72 * (len(packed) // 32))  # (the cap's charge as for tuples)
 
-    def _marks(self, view: object, calls: Calls, ep: Episodes, stream: list[Pdu]) -> list[int]:
+    def _marks(self, view: object, calls: Calls, ep: Episodes, stream: list[Pdu],
+               channels: dict[int, Channel | None]) -> list[int]:
         """The episodes on a channel the loop has rows of in the part, or a transaction pending on: the loop
         meets their first frames (a transaction of its own may still be pending there; and the channel's last
         parameter request must be known in frame order for its reads' Q7)."""
@@ -292,9 +301,9 @@ class EngineRun:
                     mine.add(w.channel)
             if row.read is not None:
                 mine.add(row.read)
-            if row.ptype == PTYPE_RESPONSE:
-                named = response_channel(view, row) if row.answer is not None and (
-                    row.odd or p.has_block[row.col]) else None  # type: ignore[arg-type]
+        for row in stream:
+            if row.ptype == PTYPE_RESPONSE and row.answer is not None and (row.odd or p.has_block[row.col]):
+                named = channels[id(row)]
                 if named is not None:
                     mine.add(named)
         if not mine:
@@ -350,11 +359,8 @@ class EngineRun:
         made = self.tables.tables(view, done, self.capture_of, self.offset, cols)  # type: ignore[arg-type]
         self.late.hold(made, done, cols, self.offset, self.now_all)
         self._hand_on(self.late.release(self.now_all))
-        for t in done:
-            self._count(self.capture_of(t.write_frame))
-        if cols is not None:
-            for frame in cols.write_frame.tolist():
-                self._count(self.capture_of(int(frame)))
+        frames = np.fromiter((t.write_frame for t in done), np.int64, len(done))
+        self._count(np.concatenate([frames, cols.write_frame]) if cols is not None else frames)
 
     def _hand_on(self, released: list[dict]) -> None:
         for made in released:
@@ -385,9 +391,13 @@ class EngineRun:
         merge_accounting(out, self.decoder.accounting)
         return out
 
-    def _count(self, name: str) -> None:
-        """One more transaction of the capture the tables name `name` (schema.capture_text of its path)."""
-        next(r for r in self.results if capture_text(r.path) == name).transactions += 1
+    def _count(self, frames: np.ndarray) -> None:
+        """Transactions more, by their write request frames, of the captures they are in."""
+        if len(frames):  # (a chain's files hold consecutive frames: one capture holds all when it holds both ends)
+            first, last = self.capture_of(int(frames.min())), self.capture_of(int(frames.max()))
+            names = {first: len(frames)} if first == last else Counter(map(self.capture_of, frames.tolist()))
+            for name, n in names.items():  # (schema.capture_text of a path)
+                next(r for r in self.results if capture_text(r.path) == name).transactions += n
 
 
 def _handed_on(txn: Txn) -> None:
@@ -415,17 +425,18 @@ def run_batches(source: Iterable[FrameBatch] | Iterable[tuple[FrameBatch, list[t
                 progress: Progress | None, offset: int = 0) -> Accounting:
     """The loop over batches (or batches with their column decode made elsewhere: analysis.split); the
     frames' accounting when done (also after a CaptureError, which is recorded in the last result)."""
-    run = EngineRun(settings, rows, capture_of, results, progress, offset)
-    try:
-        for item in source:
-            if isinstance(item, tuple):
-                run.feed(*item)
-            else:
-                run.feed(item)
-    except CaptureError as exc:
-        results[-1].error = error_text(exc)
-    run.finish()
-    return run.totals()
+    with spaced_collections():
+        run = EngineRun(settings, rows, capture_of, results, progress, offset)
+        try:
+            for item in source:
+                if isinstance(item, tuple):
+                    run.feed(*item)
+                else:
+                    run.feed(item)
+        except CaptureError as exc:
+            results[-1].error = error_text(exc)
+        run.finish()
+        return run.totals()
 
 
 def analyze_frames(frames: Iterable[RawFrame], settings: Settings, rows: Rows, capture: str = "frames",

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -142,7 +143,8 @@ class TableBuilder:
         numbers = t.number + offset
         captures = _captures(capture_of, t.write_frame)
         chan_texts = [self._channel_texts(c) for c in t.channel]
-        texts = [chan_texts[c] for c in t.ch.tolist()]
+        ch_idx = pa.array(t.ch)
+        texts = [pa.array([x[i] for x in chan_texts], pa.large_string()).take(ch_idx) for i in range(4)]
         # --- parameters: one row per address of each request -----------------------------------------
         na = rc.n_addr[req].astype(np.int64)
         owner = np.repeat(np.arange(n), na)
@@ -179,7 +181,7 @@ class TableBuilder:
         err_hex, err_text = np.full(len(err), "", object), np.full(len(err), "", object)
         err_hex[failed] = [_hex(e) for e in fails]
         err_text[failed] = [self._error_text(e) for e in fails]
-        device_of = pa.array([x[0] for x in texts], pa.large_string())
+        device_of = texts[0]
         owner_idx = pa.array(owner)
         out["parameters"].append(pa.Table.from_arrays([
             pa.array(numbers[owner], pa.int64()), captures.take(owner_idx), device_of.take(owner_idx),
@@ -195,11 +197,14 @@ class TableBuilder:
         # --- per transaction: its label, its errors -------------------------------------------------------
         params = _joined_texts(label_cells, np.r_[starts, len(owner)])
         labels = label_cells.take(pa.array(failed)).to_pylist()
-        errors: list[list[str]] = [[] for _ in range(n)]
+        errors: dict[int, list[str]] = {}  # (only the transactions with some: few, but for refusals)
         for o, label, e in zip(owner[failed].tolist(), labels, fails, strict=True):
-            errors[o].append(f"{label}:{_hex(e)}")
+            errors.setdefault(o, []).append(f"{label}:{_hex(e)}")
         for o in np.flatnonzero(whole).tolist():
             errors[o] = [f"*:{_hex(int(bc.error[first_res[o]]))}"]
+        error_cells = [""] * n
+        for o, words in errors.items():
+            error_cells[o] = " ".join(words)
         self._refused(t, fails, owner[failed].tolist(), labels, whole,
                       _at(bc.error, np.where(whole, first_res, -1), -1))
         # --- changes: one row per value block written ---------------------------------------------------
@@ -211,7 +216,7 @@ class TableBuilder:
         # --- transactions ---------------------------------------------------------------------------------
         resp_id = [_HEX[int(i)] if h else "" for i, h in zip(rc.ident[s].tolist(), has_res.tolist(), strict=True)]
         out["transactions"].append(self._transactions(t, numbers, captures, texts, params,
-                                                      [" ".join(e) for e in errors], resp_id, start_times))
+                                                      error_cells, resp_id, start_times))
         cap = captures.to_pylist() if t.findings else []
         found = [finding_row(cap[k], f, int(numbers[k])) for k, fs in t.findings.items() for f in fs]
         if found:
@@ -262,7 +267,7 @@ class TableBuilder:
         ], schema=batch_schema("changes"))
 
     @staticmethod
-    def _transactions(t: TxnCols, numbers: np.ndarray, captures: pa.Array, texts: list[tuple],
+    def _transactions(t: TxnCols, numbers: np.ndarray, captures: pa.Array, texts: list[pa.Array],
                       params: pa.Array, errors: list[str], resp_id: list[str], start_times: pa.Array) -> pa.Table:
         """The transactions' rows, a column at a time (the cells Rows.add makes)."""
         text, integer = pa.large_string(), pa.int64()
@@ -271,13 +276,13 @@ class TableBuilder:
         start = t.t_start
         columns = [
             pa.array(numbers, integer), captures,
-            *(pa.array([x[i] for x in texts], text) for i in range(4)),
+            *texts,
             *(pa.array(np.array([c[i] for c in channel], np.int64)[ch] if channel else np.zeros(0, np.int64), integer)
               for i in (4, 5, 6)),
-            _opt_int(t.ref), pa.array([_hex(v) for v in t.req_id.tolist()], text), _opt_int(t.do),
+            _opt_int(t.ref), _each(t.req_id.tolist(), _hex), _opt_int(t.do),
             _opt_int(t.n_params),
             params, pa.array(resp_id, text), pa.array(t.verdict, text), pa.array(errors, text),
-            pa.array(t.pnio_status, text), pa.array([status_text(s) for s in t.pnio_status], text),
+            pa.array(t.pnio_status, text), _each(t.pnio_status, status_text),
             pa.array(t.b5, integer), pa.array(t.reads, integer), pa.array(t.retrans, integer),
             pa.array(t.write_frame, integer), pa.array(t.write_res_frame, integer, mask=t.write_res_frame == 0),
             _joined(t.read_frames, t.read_offsets), pa.array(t.read_res_frame, integer, mask=t.read_res_frame == 0),
@@ -288,6 +293,12 @@ class TableBuilder:
             pa.array(t.capture_ended, pa.bool_()), pa.array(t.closed_by, text),
         ]
         return pa.Table.from_arrays(columns, schema=batch_schema("transactions"))
+
+
+def _each(values: list, text: Callable[[Any], str]) -> pa.Array:
+    """The texts of `values` (few distinct ones), each made once."""
+    made = {v: text(v) for v in set(values)}
+    return pa.array([made[v] for v in values], pa.large_string())
 
 
 def _captures(capture_of: Callable[[int], str], frames: np.ndarray) -> pa.Array:

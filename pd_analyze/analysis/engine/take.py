@@ -18,7 +18,7 @@ from pd_analyze.analysis.engine.decode import Decoded
 from pd_analyze.analysis.engine.facts import Pdu
 from pd_analyze.analysis.engine.machine import Machine
 from pd_analyze.analysis.engine.numbering import Numbering
-from pd_analyze.analysis.engine.vector import Calls, Episodes, episodes, key_hash, pair, pair_key
+from pd_analyze.analysis.engine.vector import Calls, Episodes, episodes, key_hash, pair, pair_ids, pair_key
 from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.model.capped import KNOWN_ACTIVITIES, OPEN_CALLS, PENDING_TRANSACTIONS, TXN_CALLS
 from pd_analyze.model.values import PTYPE_FAULT, PTYPE_REJECT, PTYPE_REQUEST, PTYPE_RESPONSE
@@ -128,14 +128,14 @@ class VectorTake:
         """The activities of the column `rows` (frame order) not known when the part begins: activity -> the
         frame of its first row."""
         p = view.p
-        acts = np.stack([p.act_hi[rows], p.act_lo[rows]], axis=1)
-        if not len(acts):
+        if not len(rows):
             return {}
-        distinct, first = np.unique(acts, axis=0, return_index=True)
+        hi, lo = p.act_hi[rows], p.act_lo[rows]
+        _ids, first = pair_ids(hi, lo)
         known = self.pairing.activities
         frames = view.frame_no[rows[first]].tolist()
-        return {act: frame for act, frame in zip(map(tuple, distinct.tolist()), frames, strict=True)
-                if act not in known}
+        return {act: frame for act, frame in zip(zip(hi[first].tolist(), lo[first].tolist(), strict=True), frames,
+                                                  strict=True) if act not in known}
 
     def near_caps(self, calls: int, transactions: int) -> bool:
         """Whether the loop's tables could reach a cap with the calls and transactions the vector path takes
@@ -184,6 +184,15 @@ class Known:
 
     def __contains__(self, key: object) -> bool:
         return self.pairing.known(key)  # type: ignore[arg-type]
+
+    def unknown(self, keys: list[tuple[int, int, int]]) -> np.ndarray:
+        """Per key, whether it is not `in` this (a pass over each table the pairing holds keys in)."""
+        pairing = self.pairing
+        out = np.ones(len(keys), bool)
+        for table in (pairing.open, pairing.closed, *(log.index for log in pairing.logs)):
+            if table:
+                out &= np.fromiter((k not in table for k in keys), bool, len(keys))
+        return out
 
     def __bool__(self) -> bool:
         pairing = self.pairing

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pd_analyze.analysis.engine.records import Element
+from pd_analyze.analysis.engine.vector import pair_ids
 from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.model import pd_values as pt
 from pd_analyze.model.capped import READ_VALUES, CappedTable
@@ -76,18 +77,20 @@ def column_reads(view: BatchView, req: np.ndarray, res: np.ndarray, device: np.n
     k2 = a.pnu[ai][pair].astype(np.uint64) << np.uint64(17) | sub
     buf = view.batch.buf
     texts: list[str] | None = None
-    kinds, starts, sizes, blocks, items = kind[pair], b.data_start[bi][pair], _SIZE[fmt][pair], bi[pair], i
+    # (lists: value() is asked of one element at a time)
+    kinds, starts, sizes = kind[pair].tolist(), b.data_start[bi][pair].tolist(), _SIZE[fmt][pair].tolist()
+    blocks, items = bi[pair].tolist(), i.tolist()
 
     def value(e: int) -> str:
         nonlocal texts
         if kinds[e] == 0:
-            size = int(sizes[e])
-            at = int(starts[e]) + int(items[e]) * size
+            size = sizes[e]
+            at = starts[e] + items[e] * size
             return str(int.from_bytes(buf[at:at + size], "big"))
         if texts is None:
             texts = view.block_texts
-        cell = texts[int(blocks[e])]
-        return cell if kinds[e] == 1 else cell.split(" ")[int(items[e])] if " " in cell else cell
+        cell = texts[blocks[e]]
+        return cell if kinds[e] == 1 else cell.split(" ")[items[e]] if " " in cell else cell
 
     return Elements(k1, k2, frame[owner[pair]], owner[pair], value)
 
@@ -143,22 +146,24 @@ class ReadValues:
             return out
         # elements numbered over reads and changes together
         all1, all2 = np.concatenate([k1, changes.k1]), np.concatenate([k2, changes.k2])
-        _u, ids = np.unique(np.stack([all1, all2], axis=1), axis=0, return_inverse=True)
-        ids = ids.ravel().astype(np.int64)
+        ids, _first = pair_ids(all1, all2)
         rid, cid = ids[:len(k1)], ids[len(k1):]
         order = np.lexsort((frame, rid))  # reads by element, then frame
         combined = (rid[order] << np.int64(40)) | frame[order]
         query = (cid << np.int64(40)) | changes.frame
         at = np.searchsorted(combined, query, "left") - 1  # the last read of the element before the frame
         hit = (at >= 0) & (rid[order][np.maximum(at, 0)] == cid)
-        for e, r in zip(np.flatnonzero(hit).tolist(), order[at[hit]].tolist(), strict=True):
-            out[e] = reads[int(source[r])].value(int(index[r]))
+        found = order[at[hit]]
+        for e, s, i in zip(np.flatnonzero(hit).tolist(), source[found].tolist(), index[found].tolist(), strict=True):
+            out[e] = reads[s].value(i)
         self._earlier(changes, np.flatnonzero(~hit), out)
         # the last read of each element in the batch
         last = np.r_[rid[order][1:] != rid[order][:-1], True]
         table = self.table
-        for r in order[last].tolist():
-            table.remember((int(k1[r]), int(k2[r])), reads[int(source[r])].value(int(index[r])))
+        lasts = order[last]
+        for key, s, i in zip(zip(k1[lasts].tolist(), k2[lasts].tolist(), strict=True), source[lasts].tolist(),
+                             index[lasts].tolist(), strict=True):
+            table.remember(key, reads[s].value(i))
         return out
 
     def _earlier(self, changes: Elements, rows: np.ndarray, out: np.ndarray) -> None:
