@@ -14,6 +14,7 @@ from typing import NoReturn
 import click
 
 from pd_analyze import __version__
+from pd_analyze.analysis.engine.collector import THRESHOLD
 from pd_analyze.capture.reader import unreadable_reason
 from pd_analyze.output import dump
 from pd_analyze.protocol import profiles
@@ -44,9 +45,10 @@ def _batch_gc() -> None:
     """The frame loop makes millions of short-lived objects and hardly any cycles: the collector, run
     every 700 allocations by default, would scan them again and again (some 6 % of a report). Objects
     alive at start-up are moved out of its sight and the youngest generation is collected less often;
-    cycles are still collected, so memory stays bounded. The CLI only: a notebook keeps its own settings."""
+    cycles are still collected, so memory stays bounded. The CLI only: a notebook keeps its own settings (but
+    for the engine's run: engine.collector)."""
     gc.freeze()
-    gc.set_threshold(50_000, 20, 20)
+    gc.set_threshold(THRESHOLD, 20, 20)
 
 
 # Each command's module, imported when the command is run or listed: `report` of a small capture should not
