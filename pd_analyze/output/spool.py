@@ -9,26 +9,22 @@ run, however long the capture; anything else makes more runs. At the end the run
 memory are merged, at most `FAN_IN` runs at a time. Rows held in memory stay below `memory_rows` plus one
 block per run being merged, whatever the input size.
 
-Spill files hold a block of entries a record (its length, then its marshal bytes): table rows hold only str,
-int, float, bool, None and tuples of them, which marshal gives back exactly (a row as a plain tuple, as JSON
-gave it; a lone surrogate of an undecodable file name stays itself) several times faster than JSON; marshal
-builds values and never runs code, and the files are the spool's own, in a directory only it writes.
+Spill files are JSON, a block of entries a line: table rows hold only str, int, float, bool and None,
+which JSON gives back exactly (and no file is ever read as code).
 """
 
 from __future__ import annotations
 
 import heapq
-import marshal
+import json
 import os
 import shutil
-import struct
 import tempfile
 from bisect import bisect_left
 from collections.abc import Callable, Iterable, Iterator
 from typing import IO
 
 FAN_IN = 16  # runs merged at once: the merge holds one block of each
-_SIZE = struct.Struct("<Q")  # the length of a block's record in a spill file, before it
 
 
 class Spool:
@@ -42,15 +38,14 @@ class Spool:
         self.rows = 0  # rows added
         self.peak_held = 0  # most rows held in memory at once (buffer, merge blocks)
         self._buffer: list[tuple] = []  # (key, seq, row)
-        self._run: IO[bytes] | None = None  # the run the lower halves go to
+        self._run: IO[str] | None = None  # the run the lower halves go to
         self._last: tuple | None = None  # (key, seq) last written to it
         self._runs: list[str] = []  # spill files, one sorted run each
         self._dir: str | None = None
         self._files = 0  # spill files made so far (their names)
 
     def append(self, row: tuple, payload: object = None) -> None:
-        """Add a row; `payload` (made of what a row holds), when given, is what comes out in its place, in the
-        row's order."""
+        """Add a row; `payload` (JSON-able), when given, is what comes out in its place, in the row's order."""
         self._buffer.append((self.key(row), self.rows, row if payload is None else payload))
         self.rows += 1
         if len(self._buffer) >= self.memory_rows:
@@ -89,11 +84,11 @@ class Spool:
         out, self._buffer = buffer[:half], buffer[half:]
         below = 0 if self._last is None else bisect_left(out, self._last)
         if below:  # lower than the current run's end: a run of their own
-            with open(self._new_path(), "wb") as f:
+            with open(self._new_path(), "w", encoding="ascii") as f:
                 _dump(out[:below], f, self.block)
         if below < len(out):
             if self._run is None:
-                self._run = open(self._new_path(), "wb")  # noqa: SIM115 - closed in _sorted
+                self._run = open(self._new_path(), "w", encoding="ascii")  # noqa: SIM115 - closed in _sorted
             _dump(out[below:], self._run, self.block)
             self._last = out[-1][:2]
 
@@ -118,7 +113,7 @@ class Spool:
                 first, runs = runs[:FAN_IN], runs[FAN_IN:]
                 merged = self._new_path()
                 self._runs.pop()
-                with open(merged, "wb") as out:
+                with open(merged, "w", encoding="ascii") as out:
                     block = []
                     for entry in self._merge(first, len(rest)):
                         block.append(entry)
@@ -132,7 +127,7 @@ class Spool:
                     yield entry[2]
                 return
             for entry in heapq.merge(self._merge(runs, len(rest)), rest):
-                yield entry[2]
+                yield tuple(entry[2]) if type(entry[2]) is list else entry[2]  # a row comes back from JSON as a list
         finally:
             self.close()
 
@@ -141,35 +136,25 @@ class Spool:
         held = [0] * len(paths)
 
         def read(i: int, path: str) -> Iterator[tuple]:
-            with open(path, "rb") as f:
-                while head := f.read(_SIZE.size):
-                    block = marshal.loads(f.read(_SIZE.unpack(head)[0]))  # (marshal.load reads a file in bits)
+            with open(path, encoding="ascii") as f:
+                for line in f:
+                    block = json.loads(line)
                     held[i] = len(block)
                     self.peak_held = max(self.peak_held, resident + sum(held))
-                    yield from block
+                    for key, seq, row in block:
+                        yield _key(key), seq, row
             held[i] = 0
             os.unlink(path)
 
         return heapq.merge(*(read(i, p) for i, p in enumerate(paths)))
 
 
-def _dump(entries: list, file: IO[bytes], block: int) -> None:
+def _key(key: object) -> object:
+    # JSON gives a tuple key back as a list: a tuple again, to compare with the keys held in memory
+    return tuple(key) if isinstance(key, list) else key
+
+
+def _dump(entries: list, file: IO[str], block: int) -> None:
+    # ASCII escapes keep any string (even a lone surrogate from an undecodable file name) intact
     for i in range(0, len(entries), block):
-        part = [(k, n, row if type(row) is tuple else tuple(row)) for k, n, row in entries[i:i + block]]
-        try:
-            data = marshal.dumps(part)
-        except ValueError:  # a value of a subclass (an enum, a named tuple inside a row): as its base type
-            data = marshal.dumps(_plain(part))
-        file.write(_SIZE.pack(len(data)) + data)
-
-
-def _plain(value: object) -> object:
-    """A value made of the base types marshal writes (a row comes back as a plain tuple, as JSON gave it)."""
-    if isinstance(value, bool) or value is None:
-        return value
-    if isinstance(value, tuple | list):
-        return type(value)(map(_plain, value)) if type(value) in (tuple, list) else tuple(map(_plain, value))
-    for base in (int, float, str, bytes):
-        if isinstance(value, base):
-            return base(value)  # type: ignore[call-overload]
-    return value
+        file.write(json.dumps(entries[i:i + block], ensure_ascii=True, separators=(",", ":")) + "\n")
