@@ -40,12 +40,14 @@ def shared_captures(patterns: tuple[str, ...] = ("*.pcap", "*.pcapng", "*.gz")) 
 
 
 def every_shared_capture() -> list[Path]:
-    """Every shared capture, for a test that runs on all of them: skipped with the reason on a plain clone, a
-    failure in CI (unavailable)."""
+    """Every shared capture, for a test that runs on all of them: skipped with the reason on a plain clone (no
+    ../shared, CI or not, as shared_capture does); a directory that holds none is a failure in CI (unavailable)."""
+    if not SHARED_CAPTURES.is_dir():
+        pytest.skip(f"{SHARED_CAPTURES} absent: the shared real-world captures are beside the repository in CI, not "
+                    "in a clone of the project alone")
     real = shared_captures()
     if not real:
-        unavailable("the shared real-world captures are beside the repository in CI, not in a clone of the "
-                    "project alone")
+        unavailable(f"no captures in {SHARED_CAPTURES}")
     return real
 
 
