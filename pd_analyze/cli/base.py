@@ -14,6 +14,7 @@ from typing import NoReturn
 import click
 
 from pd_analyze import __version__
+from pd_analyze.analysis.engine.allocator import prefer_system_pool
 from pd_analyze.analysis.engine.collector import THRESHOLD
 from pd_analyze.capture.reader import unreadable_reason
 from pd_analyze.output import dump
@@ -76,6 +77,7 @@ class _Group(click.Group):
     def main(self, *args: object, **kwargs: object) -> object:
         """Any unexpected exception becomes a one-line error with exit code 2, never a traceback."""
         _batch_gc()
+        prefer_system_pool()
         try:
             try:
                 super().main(*args, standalone_mode=False, **kwargs)

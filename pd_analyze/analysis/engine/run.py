@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings, error_text
+from pd_analyze.analysis.engine.allocator import give_back
 from pd_analyze.analysis.engine.calls import Pairing
 from pd_analyze.analysis.engine.checks import FrameChecks
 from pd_analyze.analysis.engine.collector import spaced_collections
@@ -433,6 +434,7 @@ def run_batches(source: Iterable[FrameBatch] | Iterable[tuple[FrameBatch, list[t
                     run.feed(*item)
                 else:
                     run.feed(item)
+                give_back()  # (the batch's memory, freed now, back to the system: a flat peak)
         except CaptureError as exc:
             results[-1].error = error_text(exc)
         run.finish()
