@@ -114,10 +114,6 @@ class Pairing:
             return None
         return call
 
-    def known(self, key: Key) -> bool:
-        """Whether a key is open or answered lately (as far as the vector path must keep off it)."""
-        return key in self.open or key in self.closed or any(key in log.index for log in self.logs)
-
     def remember_log(self, keys: list[Key], columns: dict[str, list]) -> None:
         """The calls the vector path took whole in a batch, answered."""
         if not keys:

@@ -182,9 +182,6 @@ class Known:
     def __init__(self, pairing: Pairing) -> None:
         self.pairing = pairing
 
-    def __contains__(self, key: object) -> bool:
-        return self.pairing.known(key)  # type: ignore[arg-type]
-
     def unknown(self, keys: list[tuple[int, int, int]]) -> np.ndarray:
         """Per key, whether it is not `in` this (a pass over each table the pairing holds keys in)."""
         pairing = self.pairing
