@@ -219,3 +219,26 @@ def test_a_key_the_loop_meets_is_never_the_vector_paths(tmp_path: Path) -> None:
 def test_analyze_is_the_engine(generated: dict[str, Path]) -> None:
     """pd_analyze.analyze() reads captures through the same engine, whatever their size."""
     assert_same(pd_analyze.analyze(str(generated["mix"])), analysed(str(generated["mix"])))
+
+
+# --- the parameters table's address labels, a column at a time ------------------------------------------------
+@pytest.mark.parametrize("repeat", [1, 200])  # under and over _labels' threshold for making each text once
+def test_address_labels_as_columns_equal_the_reference_label(repeat: int) -> None:
+    """tables._labels gives profidrive.Address.label of every address (protocol.md 3.3), the last element of a
+    range counted past 65535 as the reference counts it (a 16-bit sum wrapped to 'P1[65535..1]')."""
+    from pd_analyze.analysis.engine.tables import _labels
+    from pd_analyze.model import pd_values as pt
+    from pd_analyze.protocol.profidrive import Address
+
+    cases = [(pt.ATTR_VALUE, 1, 1, 0), (pt.ATTR_VALUE, 3, 1, 65535), (pt.ATTR_VALUE, 0, 964, 2),
+             (pt.ATTR_DESCRIPTION, 5, 2000, 7), (pt.ATTR_VALUE, 255, 65535, 65535), (pt.ATTR_TEXT, 2, 61000, 0)]
+    cases = cases * repeat
+    attr = np.array([c[0] for c in cases], np.uint8)
+    n_elems = np.array([c[1] for c in cases], np.uint8)
+    pnu = np.array([c[2] for c in cases], np.uint16)
+    sub = np.array([c[3] for c in cases], np.uint16)
+    count = np.maximum(n_elems, 1)
+    got = _labels(pnu, sub, count, (attr == pt.ATTR_VALUE) & (count > 1)).to_pylist()
+    want = [Address(0, *c).label() for c in cases]
+    assert got == want
+    assert want[:6] == ["P1[0]", "P1[65535..65537]", "P964[2]", "P2000[7]", "P65535[65535..65789]", "P61000[0]"]

@@ -371,13 +371,27 @@ def _pnu_names(pnu: np.ndarray, names: pt.Names) -> pa.Array:
 
 def _labels(pnu: np.ndarray, sub: np.ndarray, count: np.ndarray, ranged: np.ndarray) -> pa.Array:
     """Each address's label, P<pnu>[<subindex>] or P<pnu>[<first>..<last>] for several Value elements
-    (profidrive.Address.label, a column at a time)."""
+    (profidrive.Address.label, a column at a time); each distinct address's text made once when they repeat
+    (a drive's parameters come again and again: the joins cost per row)."""
+    if len(pnu) > 64:
+        # one int64 per address (PNU and subindex are 16 bits, the last element at most 16 bits and 255 more)
+        last = np.where(ranged, sub.astype(np.int64) + count - 1, -1)
+        unique, inverse = np.unique(pnu.astype(np.int64) << 40 | sub.astype(np.int64) << 20 | (last + 1),
+                                    return_inverse=True)
+        if 2 * len(unique) <= len(pnu):
+            u_pnu, u_sub, u_last = unique >> 40, unique >> 20 & 0xFFFFF, (unique & 0xFFFFF) - 1
+            return _label_texts(u_pnu, u_sub, u_last - u_sub + 1, u_last >= 0).take(pa.array(inverse.ravel()))
+    return _label_texts(pnu, sub, count, ranged)
+
+
+def _label_texts(pnu: np.ndarray, sub: np.ndarray, count: np.ndarray, ranged: np.ndarray) -> pa.Array:
     import pyarrow.compute as pc
 
     def text(values: np.ndarray) -> pa.Array:
         return pa.array(values.astype(np.int64)).cast(pa.string())
 
-    last = pc.if_else(pa.array(ranged), pc.binary_join_element_wise("..", text(sub + count - 1), ""), "")
+    last_element = sub.astype(np.int64) + count - 1  # (in int64: subindex 65535 and 3 elements end at 65537)
+    last = pc.if_else(pa.array(ranged), pc.binary_join_element_wise("..", text(last_element), ""), "")
     return pc.binary_join_element_wise("P", text(pnu), "[", text(sub), last, "]", "").cast(pa.large_string())
 
 
