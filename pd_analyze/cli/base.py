@@ -140,6 +140,37 @@ def main() -> None:
     """
 
 
+class _NoPandas:
+    """An import finder that says pandas is not installed (see `without_pandas`)."""
+
+    def find_spec(self, name: str, path: object = None, target: object = None) -> None:
+        if name == "pandas":
+            raise ModuleNotFoundError("pandas is not loaded by a streamed report", name="pandas")
+
+
+def without_pandas() -> None:
+    """Keep pyarrow from loading pandas, about 0.2 s of a start-up meant to take 0.3 s (issue #23).
+
+    The first time pyarrow converts Python values (`pa.array` of a list, a Python scalar handed to a compute
+    function, an empty table's columns) it imports pandas, only to tell pandas inputs apart from others.
+    A streamed CSV or JSON Lines report hands it none and converts no time to a Python object
+    (times are written from their integer nanoseconds), so that first probe is answered here, once, with
+    "not installed" (pyarrow remembers the answer). Nothing else is changed: an `import pandas` of ours
+    still works, and so does pyarrow's `to_pandas` (it tries the import again). Not for Parquet (its schema's
+    pandas metadata is made by pandas), `--format html` and the notebook API, which build DataFrames.
+    tests/test_cli_startup.py holds the report to it."""
+    if "pandas" in sys.modules:
+        return
+    import pyarrow as pa
+
+    finder = _NoPandas()
+    sys.meta_path.insert(0, finder)
+    try:
+        pa.array([])  # pyarrow's probe: it asks for pandas here and keeps the answer
+    finally:
+        sys.meta_path.remove(finder)
+
+
 def some_readable(paths: list[str]) -> None:
     """Exit 2 with each reason when no input can be read: nothing to report on, no files, no output."""
     unreadable = [error for error in map(unreadable_reason, paths) if error]

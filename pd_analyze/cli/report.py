@@ -21,6 +21,7 @@ from pd_analyze.cli.base import (
     progress_bar,
     run_options,
     some_readable,
+    without_pandas,
     writable_dir,
 )
 from pd_analyze.output.terminal import safe
@@ -93,6 +94,8 @@ def _report(paths: list[str], out_dir: str, fmt: str, profile: str, timeout: flo
     """The files written, the summary text, the capture errors and the captures' results."""
     from pd_analyze.output import report
 
+    if fmt in ("csv", "json"):  # these files need no DataFrame: pandas would only cost start-up time (Parquet's
+        without_pandas()  # schema carries the pandas metadata of an empty DataFrame, made by pandas)
     if fmt == "html":  # plots and drill-down need the whole tables
         from pd_analyze.analysis.api import analyze
         from pd_analyze.output import html_report
