@@ -7,6 +7,7 @@ is."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -66,3 +67,15 @@ def test_pyarrow_still_builds_dataframes_after_the_probe_was_answered() -> None:
     done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120,
                           check=True)
     assert done.stdout.splitlines() == ["False", "datetime64[ns, UTC] 2", "[1, None]"]
+
+
+def test_the_command_line_keeps_openblas_to_one_thread_unless_the_user_says_otherwise() -> None:
+    """Set before numpy is imported (its OpenBLAS starts a thread per core then: the command line's own import
+    loads no numpy, the command's modules do); a user's setting is kept."""
+    code = "import os, sys; import pd_analyze.cli; print(os.environ['OPENBLAS_NUM_THREADS'], 'numpy' in sys.modules)"
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    for given, expected in ((None, "1 False"), ("4", "4 False")):
+        run_env = env if given is None else {**env, "OPENBLAS_NUM_THREADS": given}
+        done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120,
+                              check=True, env=run_env)
+        assert done.stdout.strip() == expected
