@@ -205,3 +205,19 @@ def test_station_names_are_kept_per_capture(tmp_path):
                        text=True, timeout=120, cwd=ROOT)
     assert r.stdout.splitlines()[1].startswith("192.168.1.21 (pump-1 / fan-3)  1   P1120[0]")
     assert pd_analyze.analyze([str(fan), str(pump)]).parameter_state.station.tolist() == ["fan-3 / pump-1"]
+
+
+def test_group_counts_come_in_order_of_first_appearance_nulls_and_chunks_included() -> None:
+    """summary_batches._group_counts (numpy over dictionary codes, not pyarrow's group_by, whose order
+    differed): each group once, with its count, in the order its first row comes."""
+    import pyarrow as pa
+
+    from pd_analyze.output.summary_batches import _group_counts
+
+    device = pa.chunked_array([pa.array(["b", None, "a"], pa.large_string()),
+                               pa.array(["a", None, "b", "b"], pa.large_string())])
+    do = pa.chunked_array([pa.array([1, 2, None], pa.int64()), pa.array([None, 2, 1, 1], pa.int64())])
+    table = pa.table({"device": device, "do": do})
+    assert _group_counts(table, ["device", "do"]) == [(("b", 1), 3), ((None, 2), 2), (("a", None), 2)]
+    assert _group_counts(table, ["do"]) == [((1,), 3), ((2,), 2), ((None,), 2)]
+    assert _group_counts(table.slice(0, 0), ["device", "do"]) == []

@@ -9,8 +9,6 @@
 
 from __future__ import annotations
 
-import glob
-import os
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -21,13 +19,12 @@ from pd_analyze.analysis.drilldown import annotated_frames
 from pd_analyze.analysis.jobs import run
 from pd_analyze.analysis.rows import Rows
 from pd_analyze.analysis.schema import capture_text, frame_of
+from pd_analyze.capture.files import expand
 from pd_analyze.protocol import profiles
 from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT
 
 if TYPE_CHECKING:
     import pandas as pd
-
-CAPTURE_SUFFIXES = (".pcap", ".pcapng", ".cap", ".pcap.gz", ".pcapng.gz", ".gz")
 
 
 @dataclass
@@ -138,21 +135,6 @@ def accounting_frame(captures: Iterable[CaptureResult]) -> pd.DataFrame:
         sum(c.accounting.malformed.values()), c.accounting.balanced(), c.transactions, c.error,
         dict(c.accounting.skipped), dict(c.accounting.malformed)) for c in captures],
         columns=list(ACCOUNTING_COLUMNS)).astype(ACCOUNTING_COLUMNS)
-
-
-def expand(paths: str | Iterable[str]) -> list[str]:
-    """Files, directories (their captures, sorted) and glob patterns to a list of capture paths."""
-    items = [paths] if isinstance(paths, str) else list(paths)
-    out: list[str] = []
-    for item in items:
-        if item != "-" and os.path.isdir(item):
-            out += sorted(os.path.join(item, n) for n in os.listdir(item)
-                          if n.endswith(CAPTURE_SUFFIXES) and os.path.isfile(os.path.join(item, n)))
-        elif any(ch in item for ch in "*?[") and not os.path.exists(item):
-            out += sorted(glob.glob(item, recursive=True))
-        else:
-            out.append(item)
-    return out
 
 
 def analyze(paths: str | Iterable[str], profile: str = profiles.DEFAULT, timeout: float = DEFAULT_TXN_TIMEOUT,

@@ -25,7 +25,6 @@ import numpy as np
 from pd_analyze.capture import pcap
 from pd_analyze.capture.chunks import ChunkReads
 from pd_analyze.capture.pcap import divisor_digits, pcap_header
-from pd_analyze.capture.pcapng_chunks import pcapng_columns
 from pd_analyze.capture.raw import MAX_CAPLEN, CaptureError, CaptureInfo, RawFrame
 from pd_analyze.capture.reader import opened
 from pd_analyze.model.times import DEFAULT_DIGITS, NS
@@ -133,6 +132,8 @@ def batches(path: str, size: int = BATCH_FRAMES, info: CaptureInfo | None = None
             for _base, batch in _pcap_batches(path, stream, info, size, stream.read(24), 24, 1):
                 yield batch
         else:
+            from pd_analyze.capture.pcapng_chunks import pcapng_columns  # here: it loads dpkt, a pcap does not
+
             for columns, stamps in pcapng_columns(path, stream, info):
                 chunk = FrameBatch(*columns, info.digits, stamps or None)
                 for i in range(0, len(chunk), size):

@@ -13,10 +13,9 @@ import dpkt
 import dpkt.pcapng
 
 from pd_analyze.capture.gzip_stream import read_failure
-from pd_analyze.capture.raw import MAX_CAPLEN, CaptureError, CaptureInfo, RawFrame, peek
+from pd_analyze.capture.raw import MAX_CAPLEN, PCAPNG_SHB, CaptureError, CaptureInfo, RawFrame, peek
 from pd_analyze.model.times import resol_digits
 
-PCAPNG_SHB = 0x0A0D0D0A
 _PCAPNG_BOM = 0x1A2B3C4D
 _PCAPNG_MAX_BLOCK = MAX_CAPLEN + 65_536  # a packet block plus generous room for options
 

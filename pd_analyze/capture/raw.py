@@ -5,6 +5,8 @@ from __future__ import annotations
 from typing import BinaryIO, NamedTuple
 
 MAX_CAPLEN = 262_144  # the largest snaplen tools write (tcpdump, Wireshark)
+PCAPNG_SHB = 0x0A0D0D0A  # a pcapng's first word, its Section Header Block's type (here: reader tells formats
+# apart by it without loading the pcapng modules, and with them dpkt)
 
 
 class CaptureError(Exception):

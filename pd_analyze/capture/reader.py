@@ -20,8 +20,7 @@ from typing import BinaryIO
 
 from pd_analyze.capture.gzip_stream import GZIP_MAGIC, _Gunzip
 from pd_analyze.capture.pcap import PCAP_MAGICS, pcap_frames
-from pd_analyze.capture.pcapng import PCAPNG_SHB, pcapng_frames
-from pd_analyze.capture.raw import CaptureError, CaptureInfo, RawFrame, peek
+from pd_analyze.capture.raw import PCAPNG_SHB, CaptureError, CaptureInfo, RawFrame, peek
 
 
 def frames(path: str, info: CaptureInfo | None = None, ip_only: bool = False) -> Iterator[RawFrame]:
@@ -32,8 +31,12 @@ def frames(path: str, info: CaptureInfo | None = None, ip_only: bool = False) ->
     the analysis skips them without an object per frame (classic pcap; other formats ignore it)."""
     info = info or CaptureInfo(path)
     with opened(path, info) as (stream, fmt):
-        yield from pcap_frames(path, stream, info, ip_only=ip_only) if fmt == "pcap" else \
-            pcapng_frames(path, stream, info)
+        if fmt == "pcap":
+            yield from pcap_frames(path, stream, info, ip_only=ip_only)
+            return
+        from pd_analyze.capture.pcapng import pcapng_frames  # here: it loads dpkt, which a pcap does not need
+
+        yield from pcapng_frames(path, stream, info)
 
 
 @contextmanager

@@ -9,7 +9,7 @@ import importlib
 import os
 import sys
 from collections.abc import Callable
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 import click
 
@@ -17,11 +17,14 @@ from pd_analyze import __version__
 from pd_analyze.analysis.engine.allocator import prefer_system_pool
 from pd_analyze.analysis.engine.collector import THRESHOLD
 from pd_analyze.capture.reader import unreadable_reason
-from pd_analyze.output import dump
+from pd_analyze.output.terminal import safe
 from pd_analyze.protocol import profiles
 from pd_analyze.protocol.dissector import DEFAULT_RPC_TIMEOUT
 from pd_analyze.protocol.frames import Accounting
 from pd_analyze.protocol.profidrive_checks import Checker
+
+if TYPE_CHECKING:
+    from pd_analyze.output.dump import Style
 
 EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
 EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
@@ -100,8 +103,8 @@ class _Group(click.Group):
             click.echo("pd-analyze: interrupted", err=True)
             sys.exit(130)
         except Exception as exc:
-            click.echo(dump.safe(f"pd-analyze: internal error: {exc.__class__.__name__}: {exc} "
-                                 "(please report it with the capture)"), err=True)
+            click.echo(safe(f"pd-analyze: internal error: {exc.__class__.__name__}: {exc} "
+                            "(please report it with the capture)"), err=True)
             sys.exit(EXIT_USAGE)
 
 
@@ -116,7 +119,7 @@ def error_line(exc: click.ClickException) -> None:
             commands.insert(0, ctx.info_name or "")
             ctx = ctx.parent
         message = message.rstrip(".") + f" (see '{' '.join(['pd-analyze', *commands])} --help')"
-    click.echo(dump.safe(f"pd-analyze: {message}"), err=True)
+    click.echo(safe(f"pd-analyze: {message}"), err=True)
 
 
 def _closed_pipe() -> NoReturn:
@@ -139,12 +142,43 @@ def main() -> None:
     """
 
 
+class _NoPandas:
+    """An import finder that says pandas is not installed (see `without_pandas`)."""
+
+    def find_spec(self, name: str, path: object = None, target: object = None) -> None:
+        if name == "pandas":
+            raise ModuleNotFoundError("pandas is not loaded by a streamed report", name="pandas")
+
+
+def without_pandas() -> None:
+    """Keep pyarrow from loading pandas, about 0.2 s of a start-up meant to take 0.3 s (issue #23).
+
+    The first time pyarrow converts Python values (`pa.array` of a list, a Python scalar handed to a compute
+    function, an empty table's columns) it imports pandas, only to tell pandas inputs apart from others.
+    A streamed CSV or JSON Lines report hands it none and converts no time to a Python object
+    (times are written from their integer nanoseconds), so that first probe is answered here, once, with
+    "not installed" (pyarrow remembers the answer). Nothing else is changed: an `import pandas` of ours
+    still works, and so does pyarrow's `to_pandas` (it tries the import again). Not for Parquet (its schema's
+    pandas metadata is made by pandas), `--format html` and the notebook API, which build DataFrames.
+    tests/test_cli_startup.py holds the report to it."""
+    if "pandas" in sys.modules:
+        return
+    import pyarrow as pa
+
+    finder = _NoPandas()
+    sys.meta_path.insert(0, finder)
+    try:
+        pa.array([])  # pyarrow's probe: it asks for pandas here and keeps the answer
+    finally:
+        sys.meta_path.remove(finder)
+
+
 def some_readable(paths: list[str]) -> None:
     """Exit 2 with each reason when no input can be read: nothing to report on, no files, no output."""
     unreadable = [error for error in map(unreadable_reason, paths) if error]
     if len(unreadable) == len(paths):
         for error in unreadable:
-            click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
+            click.echo(safe(f"pd-analyze: {error}"), err=True)
         sys.exit(EXIT_USAGE)
 
 
@@ -152,7 +186,7 @@ def frames_read(path: str, accounting: Accounting, failed: bool) -> None:
     """A dumped capture's accounting line on stderr; none after an input that could not be read at all (its
     error said so: "0 frames read" after it told nothing)."""
     if not failed or accounting.read:
-        click.echo(dump.safe(f"{path}: {accounting.line()}"), err=True)
+        click.echo(safe(f"{path}: {accounting.line()}"), err=True)
 
 
 def frames_beyond(path: str, ranges: list[tuple[int, int]], read: int, failed: bool) -> None:
@@ -160,15 +194,17 @@ def frames_beyond(path: str, ranges: list[tuple[int, int]], read: int, failed: b
     of one that runs past it (`5-9` of 6 frames: 7-9). Not after a read error, which says why it stopped."""
     if failed:
         return
+    from pd_analyze.output.dump import OPEN_END  # here: only the dump's commands take --frames
+
     parts = []
     for lo, hi in ranges:
         if lo > read:
-            parts.append(f"{lo}-" if hi >= dump.OPEN_END else f"{lo}-{hi}" if hi != lo else str(lo))
-        elif read < hi < dump.OPEN_END:
+            parts.append(f"{lo}-" if hi >= OPEN_END else f"{lo}-{hi}" if hi != lo else str(lo))
+        elif read < hi < OPEN_END:
             parts.append(f"{read + 1}-{hi} (of {lo}-{hi})" if hi != read + 1 else f"{hi} (of {lo}-{hi})")
     if parts:
-        click.echo(dump.safe(f"pd-analyze: {path}: --frames {', '.join(parts)} lie{'s' if len(parts) == 1 else ''} "
-                             f"beyond the capture's {read} frames"), err=True)
+        click.echo(safe(f"pd-analyze: {path}: --frames {', '.join(parts)} lie{'s' if len(parts) == 1 else ''} "
+                        f"beyond the capture's {read} frames"), err=True)
 
 
 def inputs(captures: tuple[str, ...], read: str | None) -> list[str]:
@@ -178,9 +214,11 @@ def inputs(captures: tuple[str, ...], read: str | None) -> list[str]:
     return paths
 
 
-def text_style(enabled: bool) -> dump.Style:
+def text_style(enabled: bool) -> Style:
+    from pd_analyze.output.dump import plain_style  # here: only the dump's commands style their text
+
     if not enabled:
-        return dump.plain_style
+        return plain_style
     return lambda text, role: click.style(text, fg=_COLOURS.get(role))
 
 
@@ -204,13 +242,13 @@ def progress_bar() -> Callable[[str, int], None] | None:
 
 
 def capture_files(captures: tuple[str, ...], read: str | None, profile: str) -> list[str]:
-    from pd_analyze.analysis.api import expand
+    from pd_analyze.capture.files import expand
 
     given = inputs(captures, read)
     paths = expand(given)
     if not paths:
-        raise click.UsageError(dump.safe(f"no capture files matched {' '.join(given)} (a directory is searched for "
-                                         "*.pcap, *.pcapng, *.cap and *.gz files)"))
+        raise click.UsageError(safe(f"no capture files matched {' '.join(given)} (a directory is searched for "
+                                    "*.pcap, *.pcapng, *.cap and *.gz files)"))
     checker_for(profile)  # a bad profile is a usage error before any file is read
     return paths
 
@@ -242,7 +280,7 @@ def writable_dir(out_dir: str) -> None:
         os.makedirs(out_dir, exist_ok=True)
         tempfile.TemporaryFile(dir=out_dir).close()
     except OSError as exc:
-        raise click.UsageError(dump.safe(f"--out {out_dir}: cannot write there ({exc.strerror or exc})")) from None
+        raise click.UsageError(safe(f"--out {out_dir}: cannot write there ({exc.strerror or exc})")) from None
 
 
 def expected_set(path: str) -> object:
@@ -252,4 +290,4 @@ def expected_set(path: str) -> object:
     try:
         return intended.load(path)
     except intended.ExpectError as exc:
-        raise click.ClickException(dump.safe(str(exc))) from None
+        raise click.ClickException(safe(str(exc))) from None

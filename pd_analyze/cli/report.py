@@ -21,9 +21,10 @@ from pd_analyze.cli.base import (
     progress_bar,
     run_options,
     some_readable,
+    without_pandas,
     writable_dir,
 )
-from pd_analyze.output import dump
+from pd_analyze.output.terminal import safe
 
 REPORT_EXAMPLES = """\b
 Examples:
@@ -76,13 +77,13 @@ def report_command(captures: tuple[str, ...], read: str | None, out_dir: str, fm
     except OSError as exc:  # the disk filled up, the directory went away...
         if exc.filename is not None and not os.path.abspath(exc.filename).startswith(os.path.abspath(out_dir)):
             raise  # not the report's files: a fault to report
-        raise click.ClickException(dump.safe(f"cannot write the report to {out_dir}: {exc}")) from None
-    click.echo("\n".join(dump.safe(line) for line in text.split("\n")))
+        raise click.ClickException(safe(f"cannot write the report to {out_dir}: {exc}")) from None
+    click.echo("\n".join(safe(line) for line in text.split("\n")))
     if verbose:
         for result in results:
-            click.echo(dump.safe(result.work_text()), err=True)
+            click.echo(safe(result.work_text()), err=True)
     for error in errors:  # before "Wrote": what could not be read is said first
-        click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
+        click.echo(safe(f"pd-analyze: {error}"), err=True)
     click.echo("\nWrote " + ", ".join(written), err=True)
     sys.exit(EXIT_USAGE if errors else EXIT_OK)
 
@@ -93,6 +94,8 @@ def _report(paths: list[str], out_dir: str, fmt: str, profile: str, timeout: flo
     """The files written, the summary text, the capture errors and the captures' results."""
     from pd_analyze.output import report
 
+    if fmt in ("csv", "json"):  # these files need no DataFrame: pandas would only cost start-up time (Parquet's
+        without_pandas()  # schema carries the pandas metadata of an empty DataFrame, made by pandas)
     if fmt == "html":  # plots and drill-down need the whole tables
         from pd_analyze.analysis.api import analyze
         from pd_analyze.output import html_report
@@ -147,7 +150,7 @@ def audit_command(captures: tuple[str, ...], read: str | None, fail_on: str, exp
     for capture, frame, txn, severity, rule, name, *_, message in rows:
         severity = severity if severity in counts else "nan"  # as pandas shows a value outside the categories
         txn_note = f" [txn {txn}]" if txn is not None else ""
-        click.echo(dump.safe(f"{capture}:{_na(frame)}: {severity} {rule} {name}: {message}{txn_note}"))
+        click.echo(safe(f"{capture}:{_na(frame)}: {severity} {rule} {name}: {message}{txn_note}"))
         total += 1
         if severity in counts:
             counts[severity] += 1
@@ -157,7 +160,7 @@ def audit_command(captures: tuple[str, ...], read: str | None, fail_on: str, exp
                + ", ".join(f"{counts[s]} {s}" for s in ("error", "warning", "info")))
     errors = [f"{c.path}: {c.error}" for c in results if c.error]
     for error in errors:
-        click.echo(dump.safe(f"pd-analyze: {error}"), err=True)
+        click.echo(safe(f"pd-analyze: {error}"), err=True)
     if errors:
         sys.exit(EXIT_USAGE)
     threshold = SEVERITY_RANK.get(fail_on, 99)

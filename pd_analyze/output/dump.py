@@ -14,6 +14,7 @@ from typing import IO
 
 from pd_analyze.model.rules import ERROR, INFO, WARNING, Finding
 from pd_analyze.model.shown import Annotated, Field, SharedField, json_value
+from pd_analyze.output.terminal import safe
 from pd_analyze.protocol.frames import FrameResult
 
 Style = Callable[[str, str], str]  # (text, role) -> text, roles: severity names, "frame", "dim"
@@ -23,13 +24,6 @@ _SEV_LETTER = {ERROR: "E", WARNING: "W", INFO: "I"}
 def plain_style(text: str, role: str) -> str:
     del role
     return text
-
-
-def safe(text: str) -> str:
-    """Control characters and escape sequences shown escaped, never emitted raw to a terminal."""
-    if text.isprintable():
-        return text
-    return "".join(ch if ch.isprintable() else ch.encode("unicode_escape").decode("ascii") for ch in text)
 
 
 def frame_json(result: FrameResult) -> str:
