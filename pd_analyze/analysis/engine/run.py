@@ -430,10 +430,7 @@ def run_batches(source: Iterable[FrameBatch] | Iterable[tuple[FrameBatch, list[t
         run = EngineRun(settings, rows, capture_of, results, progress, offset)
         try:
             for item in source:
-                if isinstance(item, tuple):
-                    run.feed(*item)
-                else:
-                    run.feed(item)
+                run.feed(*(item if isinstance(item, tuple) else (item,)))
                 give_back()  # (the batch's memory, freed now, back to the system: a flat peak)
         except CaptureError as exc:
             results[-1].error = error_text(exc)
