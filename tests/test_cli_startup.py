@@ -52,6 +52,14 @@ def test_a_json_report_loads_no_pandas_either_parquet_does(tmp_path: Path) -> No
     assert stderr[-1] == "LOADED ['pandas'] EXIT 0"
 
 
+def test_audit_loads_no_pandas_either() -> None:
+    """audit runs in pipelines once per capture: its start-up is a report's (with --expect the parameter state
+    is a DataFrame)."""
+    stdout, stderr = _run("audit", str(SAMPLE), "--fail-on", "never")
+    assert stderr[-1] == "LOADED [] EXIT 0"
+    assert stdout.splitlines()[-1] == "10 findings in 1 capture: 0 error, 2 warning, 8 info"
+
+
 def test_a_pcapng_loads_dpkt_where_it_is_read_and_still_no_pandas(tmp_path: Path) -> None:
     _, stderr = _run("report", str(REPO / "sample_pcaps" / "two_interfaces.pcapng"), "--out", str(tmp_path))
     assert stderr[-1] == "LOADED ['dpkt', 'pd_analyze.capture.pcapng'] EXIT 0"

@@ -136,6 +136,8 @@ def audit_command(captures: tuple[str, ...], read: str | None, fail_on: str, exp
     if expect_strict and not expect_path:
         raise click.UsageError("--expect-strict needs --expect EXPECTED.csv")
     expected = expected_set(expect_path) if expect_path else None
+    if expected is None:  # findings only, no DataFrame: pandas would only cost start-up time (a pipeline's step)
+        without_pandas()
     paths = capture_files(captures, read, profile)
     state = _StateHolder()
     rows, results = report.stream_findings(paths, Settings(profile, timeout, rpc_timeout), jobs, chain,
