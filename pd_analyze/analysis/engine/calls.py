@@ -8,9 +8,12 @@ both tables capped (model.capped), every eviction stated.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from pd_analyze.analysis.engine.facts import Key, Pdu
+from pd_analyze.capture.raw import RawFrame
 from pd_analyze.model import rules
 from pd_analyze.model.capped import ANSWERED_CALLS, KNOWN_ACTIVITIES, MAX_LISTED, OPEN_CALLS, CappedTable
 from pd_analyze.model.rules import Finding
@@ -29,6 +32,17 @@ _ANSWERS = (PTYPE_RESPONSE, PTYPE_FAULT, PTYPE_REJECT, PTYPE_WORKING, PTYPE_NOCA
 END_OF_CAPTURE = "end of capture"
 
 
+class Sent(NamedTuple):
+    """What the checks of a later answer (engine.findings) read of a call's request once the part it came in
+    is done, in place of its row (`part_done`): a column row (its frame is the call's `raw`), its part and
+    its operation."""
+
+    part: int
+    opnum: int
+    odd: bool = False  # (read as a row's: a column row, never the current part's)
+    col: int = -1
+
+
 class Call:
     """An RPC call: its request as first seen, and what the transactions learn of it (`fsm`)."""
 
@@ -40,7 +54,8 @@ class Call:
             self.frame, self.ts = row.frame, row.ts
             self.src, self.dst, self.ifc, self.opnum = row.src, row.dst, row.ifc, row.opnum
             self.digest = row.digest
-        self.request = row  # the request's row (its records, its frames for the checks of the answer)
+        self.request: Pdu | Sent | None = row  # the request's row (its records, its frames for the checks of
+        # the answer); a Sent once its part is done (engine.run)
         self.copies = 0
         self.response_frame = 0
         self.answered = -1  # capture time of the answer (ns); -1: none yet
@@ -66,6 +81,24 @@ class AnsweredLog:
         call.ifc = (c["if_hi"][i], c["if_lo"][i])
         call.digest, call.response_frame = (c["digest"][i], c["size"][i]), c["response_frame"][i]
         return call
+
+
+def part_done(rows: list[Pdu], raw_of: Callable[[Pdu], RawFrame]) -> None:
+    """The part's rows go: a call still open keeps what the checks of its answer read of its request, its
+    frame (`raw_of` a column row) and a Sent, not the row; and no row points at its call any more, so a call
+    evicted or expired is freed at once (a row and its call made a cycle only the cyclic collector frees: a
+    flood of never-answered calls piled them up). A write cut before its IOD header keeps its row: its answer
+    opens the transaction (machine)."""
+    for row in rows:
+        call = row.call
+        if row.whole and row.ptype == PTYPE_REQUEST and not row.copy and call is not None and call.answered < 0 \
+                and not row.odd and call.raw is None:
+            call.raw = raw_of(row)
+        if row.cut:
+            continue
+        if call is not None and call.request is row and not row.odd:
+            call.request = Sent(row.part, row.opnum)
+        row.call = None
 
 
 def ip_text(value: int) -> str:
