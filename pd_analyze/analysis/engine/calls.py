@@ -30,6 +30,7 @@ from pd_analyze.protocol.rpc_calls import CALL_OVERHEAD, NO_RESPONSE, unanswered
 
 _ANSWERS = (PTYPE_RESPONSE, PTYPE_FAULT, PTYPE_REJECT, PTYPE_WORKING, PTYPE_NOCALL)  # PNIO if their call is
 END_OF_CAPTURE = "end of capture"
+_SAME = 4096  # distinct values (activities, addresses, interfaces) open calls share one object of
 
 
 class Sent(NamedTuple):
@@ -89,6 +90,7 @@ def part_done(rows: list[Pdu], raw_of: Callable[[Pdu], RawFrame]) -> None:
     evicted or expired is freed at once (a row and its call made a cycle only the cyclic collector frees: a
     flood of never-answered calls piled them up). A write cut before its IOD header keeps its row: its answer
     opens the transaction (machine)."""
+    sent: dict[tuple[int, int], Sent] = {}  # (one per operation: the part's calls share it)
     for row in rows:
         call = row.call
         if row.whole and row.ptype == PTYPE_REQUEST and not row.copy and call is not None and call.answered < 0 \
@@ -97,7 +99,7 @@ def part_done(rows: list[Pdu], raw_of: Callable[[Pdu], RawFrame]) -> None:
         if row.cut:
             continue
         if call is not None and call.request is row and not row.odd:
-            call.request = Sent(row.part, row.opnum)
+            call.request = sent.setdefault((row.part, row.opnum), Sent(row.part, row.opnum))
         row.call = None
 
 
@@ -120,6 +122,7 @@ class Pairing:
         self.logs: list[AnsweredLog] = []  # the vector path's answered calls, batch by batch
         self.loose: list[Finding] = []  # findings of no frame's own: calls that expired or were never answered
         self.now = -(1 << 62)
+        self._same: dict[object, object] = {}  # values open calls share (cleared past _SAME)
 
     def pnio(self, row: Pdu, first_seen: dict[tuple[int, int], int]) -> bool:
         """Whether a PDU whose interface is not PNIO's belongs to a PNIO call or activity (protocol.md 1.4);
@@ -222,7 +225,14 @@ class Pairing:
             row.call = known
             row.copy = True
             return
+        same = self._same
+        if len(same) > _SAME:
+            same.clear()
         call = Call(row)
+        # the activity, addresses and interface a flood's calls share, held once (not per open call)
+        key = row.key = (same.setdefault(key[0], key[0]), same.setdefault(key[1], key[1]), key[2])
+        call.src, call.dst = same.setdefault(row.src, row.src), same.setdefault(row.dst, row.dst)
+        call.ifc = same.setdefault(row.ifc, row.ifc)
         row.call = call
         for old_key, old, listed in self.open.add(key, call, row.frame, CALL_OVERHEAD + row.digest[1]):
             if listed:

@@ -384,6 +384,6 @@ class Machine:
                 self._calls.pop(frame)
 
     def _remember(self, row: Pdu, fsm: FsmCall) -> None:
-        if row.call is not None:
+        if row.call is not None and any(t is not None for t in fsm.txns):  # (`_owners` reads none of the others)
             row.call.fsm = fsm
         self._calls.remember(row.frame, fsm)  # the oldest are forgotten
