@@ -37,7 +37,8 @@ def _hex(value: int) -> str:
     return f"0x{value:02x}" if value >= 0 else ""
 
 
-_CHANNEL_CACHE = 65536  # channels whose text cells are remembered (a flood of new channels only clears it)
+_CHANNEL_CACHE = 4096  # channels whose text cells are remembered (a capture has tens; a flood of new
+# channels only clears it: 65,536 held some 20 MB)
 
 
 @dataclass(slots=True)

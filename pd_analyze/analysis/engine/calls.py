@@ -8,9 +8,12 @@ both tables capped (model.capped), every eviction stated.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from pd_analyze.analysis.engine.facts import Key, Pdu
+from pd_analyze.capture.raw import RawFrame
 from pd_analyze.model import rules
 from pd_analyze.model.capped import ANSWERED_CALLS, KNOWN_ACTIVITIES, MAX_LISTED, OPEN_CALLS, CappedTable
 from pd_analyze.model.rules import Finding
@@ -27,6 +30,18 @@ from pd_analyze.protocol.rpc_calls import CALL_OVERHEAD, NO_RESPONSE, unanswered
 
 _ANSWERS = (PTYPE_RESPONSE, PTYPE_FAULT, PTYPE_REJECT, PTYPE_WORKING, PTYPE_NOCALL)  # PNIO if their call is
 END_OF_CAPTURE = "end of capture"
+_SAME = 4096  # distinct values (activities, addresses, interfaces) open calls share one object of
+
+
+class Sent(NamedTuple):
+    """What the checks of a later answer (engine.findings) read of a call's request once the part it came in
+    is done, in place of its row (`part_done`): a column row (its frame is the call's `raw`), its part and
+    its operation."""
+
+    part: int
+    opnum: int
+    odd: bool = False  # (read as a row's: a column row, never the current part's)
+    col: int = -1
 
 
 class Call:
@@ -40,7 +55,8 @@ class Call:
             self.frame, self.ts = row.frame, row.ts
             self.src, self.dst, self.ifc, self.opnum = row.src, row.dst, row.ifc, row.opnum
             self.digest = row.digest
-        self.request = row  # the request's row (its records, its frames for the checks of the answer)
+        self.request: Pdu | Sent | None = row  # the request's row (its records, its frames for the checks of
+        # the answer); a Sent once its part is done (engine.run)
         self.copies = 0
         self.response_frame = 0
         self.answered = -1  # capture time of the answer (ns); -1: none yet
@@ -68,6 +84,25 @@ class AnsweredLog:
         return call
 
 
+def part_done(rows: list[Pdu], raw_of: Callable[[Pdu], RawFrame]) -> None:
+    """The part's rows go: a call still open keeps what the checks of its answer read of its request, its
+    frame (`raw_of` a column row) and a Sent, not the row; and no row points at its call any more, so a call
+    evicted or expired is freed at once (a row and its call made a cycle only the cyclic collector frees: a
+    flood of never-answered calls piled them up). A write cut before its IOD header keeps its row: its answer
+    opens the transaction (machine)."""
+    sent: dict[tuple[int, int], Sent] = {}  # (one per operation: the part's calls share it)
+    for row in rows:
+        call = row.call
+        if row.whole and row.ptype == PTYPE_REQUEST and not row.copy and call is not None and call.answered < 0 \
+                and not row.odd and call.raw is None:
+            call.raw = raw_of(row)
+        if row.cut:
+            continue
+        if call is not None and call.request is row and not row.odd:
+            call.request = sent.setdefault((row.part, row.opnum), Sent(row.part, row.opnum))
+        row.call = None
+
+
 def ip_text(value: int) -> str:
     return f"{value >> 24}.{value >> 16 & 255}.{value >> 8 & 255}.{value & 255}"
 
@@ -87,6 +122,7 @@ class Pairing:
         self.logs: list[AnsweredLog] = []  # the vector path's answered calls, batch by batch
         self.loose: list[Finding] = []  # findings of no frame's own: calls that expired or were never answered
         self.now = -(1 << 62)
+        self._same: dict[object, object] = {}  # values open calls share (cleared past _SAME)
 
     def pnio(self, row: Pdu, first_seen: dict[tuple[int, int], int]) -> bool:
         """Whether a PDU whose interface is not PNIO's belongs to a PNIO call or activity (protocol.md 1.4);
@@ -185,7 +221,14 @@ class Pairing:
             row.call = known
             row.copy = True
             return
+        same = self._same
+        if len(same) > _SAME:
+            same.clear()
         call = Call(row)
+        # the activity, addresses and interface a flood's calls share, held once (not per open call)
+        key = row.key = (same.setdefault(key[0], key[0]), same.setdefault(key[1], key[1]), key[2])
+        call.src, call.dst = same.setdefault(row.src, row.src), same.setdefault(row.dst, row.dst)
+        call.ifc = same.setdefault(row.ifc, row.ifc)
         row.call = call
         for old_key, old, listed in self.open.add(key, call, row.frame, CALL_OVERHEAD + row.digest[1]):
             if listed:

@@ -60,6 +60,10 @@ class FsmCall(NamedTuple):
     request: Pdu | None = None  # a cut write's request row
 
 
+def _names_none(_row: Pdu) -> Write | None:
+    return None  # (no part's columns: between parts)
+
+
 def fallback_key(channel: Channel) -> tuple:
     """Device, controller, AR and index: what a read must share with a write addressed differently
     (protocol.md 7.2; slot and subslot may differ, the index may not)."""
@@ -73,7 +77,7 @@ class Machine:
         self.timeout = round(txn_timeout * 1e9)
         self.b5_threshold = b5_threshold
         self.records = Records(None)  # the current batch's (set by the run)
-        self.names_of: Callable[[Pdu], Write | None] = lambda row: None  # the channel a column answer names
+        self.names_of: Callable[[Pdu], Write | None] = _names_none  # the channel a column answer names
         self.loose: list[Finding] = []  # findings of frames that belong to no transaction
         self.opened: list[Txn] = []  # opened since the run last took them (it numbers them)
         self.closed: list[Txn] = []  # closed since the run last took them
@@ -106,6 +110,12 @@ class Machine:
                 if len(frames) > TXN_FRAMES:
                     self._evict(txn, row.frame, f"more than {TXN_FRAMES} frames")
         return owner
+
+    def part_done(self) -> None:
+        """The part's view and records go now, not when the next part replaces them: two batches' columns
+        are never alive at once."""
+        self.records = Records(None)
+        self.names_of = _names_none
 
     def calls_table(self) -> CappedTable:
         """The calls the machine awaits answers to (their count bounds what the vector path may leave out)."""
@@ -374,6 +384,6 @@ class Machine:
                 self._calls.pop(frame)
 
     def _remember(self, row: Pdu, fsm: FsmCall) -> None:
-        if row.call is not None:
+        if row.call is not None and any(t is not None for t in fsm.txns):  # (`_owners` reads none of the others)
             row.call.fsm = fsm
         self._calls.remember(row.frame, fsm)  # the oldest are forgotten

@@ -20,6 +20,8 @@ Element = tuple  # device, DO, PNU, subindex: one array element of one drive's p
 Address = tuple[int, int, int, int]  # attribute, No. of elements, PNU, subindex
 
 _ADDRESSES = struct.Struct(">BBHH")  # a parameter address (protocol.md 3.1), as the columns read it
+PACKED = np.uint16  # an address's fields as `Records.packed` keeps them (attribute and count are 8 bits)
+PACKED_ADDRESS = 4 * np.dtype(PACKED).itemsize  # bytes of one address in `Records.packed`
 _WHOLE = frozenset({"string", "octets", "unicode"})  # one value per block, whatever No. of values says
 _NUMBERS = frozenset({"hex", "bits", "nibbles"})  # the cell shows 0x..., an element's value is the number
 
@@ -62,9 +64,9 @@ class Records:
         return np.array(self.addresses(record), np.int64).reshape(-1, 4)
 
     def packed(self, record: Record) -> bytes:
-        """`addresses` packed (int64 quadruples): what a channel keeps of its last request beyond its batch,
-        a fraction of the memory of tuples."""
-        return self.address_array(record).tobytes()
+        """`addresses` packed (PACKED quadruples: each field fits, as the wire has it in 8 or 16 bits): what a
+        channel keeps of its last request beyond its batch, a fraction of the memory of tuples."""
+        return self.address_array(record).astype(PACKED).tobytes()
 
 
     def writes_values(self, record: Record, req_id: int) -> bool:
@@ -154,4 +156,4 @@ class Records:
 
 def unpacked(packed: bytes) -> tuple[Address, ...]:
     """The addresses of `Records.packed`."""
-    return tuple(map(tuple, np.frombuffer(packed, np.int64).reshape(-1, 4).tolist()))
+    return tuple(map(tuple, np.frombuffer(packed, PACKED).reshape(-1, 4).tolist()))

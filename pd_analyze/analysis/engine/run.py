@@ -18,7 +18,7 @@ import numpy as np
 
 from pd_analyze.analysis.capture_run import CaptureResult, Progress, Settings, error_text
 from pd_analyze.analysis.engine.allocator import give_back
-from pd_analyze.analysis.engine.calls import Pairing
+from pd_analyze.analysis.engine.calls import Pairing, part_done
 from pd_analyze.analysis.engine.checks import FrameChecks
 from pd_analyze.analysis.engine.collector import spaced_collections
 from pd_analyze.analysis.engine.decode import Decoded, Decoder, merge_accounting, skipped_decide
@@ -28,7 +28,7 @@ from pd_analyze.analysis.engine.findings import Findings, response_channel, resp
 from pd_analyze.analysis.engine.late import LateCopies
 from pd_analyze.analysis.engine.machine import FsmCall, Machine
 from pd_analyze.analysis.engine.numbering import Numbering
-from pd_analyze.analysis.engine.records import Records, unpacked
+from pd_analyze.analysis.engine.records import PACKED_ADDRESS, Records, unpacked
 from pd_analyze.analysis.engine.tables import TableBuilder
 from pd_analyze.analysis.engine.take import EMPTY, Costs, VectorTake, given_back
 from pd_analyze.analysis.engine.txn import Txn
@@ -285,7 +285,7 @@ class EngineRun:
         for channel, request in list(last.items()):
             if not isinstance(request, bytes):
                 packed = records.packed(request)
-                last.put(channel, packed, 64 + 72 * (len(packed) // 32))  # (the cap's charge as for tuples)
+                last.put(channel, packed, 64 + 72 * (len(packed) // PACKED_ADDRESS))  # (charged as tuples)
 
     def _marks(self, view: object, calls: Calls, ep: Episodes, stream: list[Pdu],
                channels: dict[int, Channel | None]) -> list[int]:
@@ -343,11 +343,8 @@ class EngineRun:
         for txn in machine.pending.values():
             if isinstance(txn.request, int):
                 txn.request = records.carried(txn.request)
-        for row in accepted:
-            call = row.call
-            if row.whole and row.ptype == PTYPE_REQUEST and not row.copy and call is not None and call.answered < 0 \
-                    and not row.odd and call.raw is None:
-                call.raw = batch.raw_frame(int(view.p.pos[row.col]))  # type: ignore[attr-defined]
+        part_done(accepted, lambda row: batch.raw_frame(int(view.p.pos[row.col])))  # type: ignore[attr-defined]
+        self.machine.part_done()
         self.finals.settle()
         self.rows.batch_done()
 

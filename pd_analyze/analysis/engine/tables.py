@@ -83,7 +83,6 @@ class TableBuilder:
         self.checker = checker
         names = checker.names
         self.names = names  # the run's profile's parameter names and error texts (Checker.names)
-        self._texts: dict[tuple, tuple[str, str, str, str]] = {}
         self._error_texts: dict[int, str] = {}
         self._fallback = Rows(names=names)
 
@@ -120,12 +119,7 @@ class TableBuilder:
         return out
 
     def _channel_texts(self, channel: tuple) -> tuple[str, str, str, str]:
-        texts = self._texts.get(channel)
-        if texts is None:
-            if len(self._texts) > 65536:
-                self._texts.clear()
-            texts = self._texts[channel] = self._fallback.channel_texts(channel)
-        return texts
+        return self._fallback.channel_texts(channel)  # (its cache is the one: a flood of channels fills one)
 
     def _error_text(self, err: int) -> str:
         text = self._error_texts.get(err)
