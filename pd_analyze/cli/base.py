@@ -27,7 +27,6 @@ if TYPE_CHECKING:
     from pd_analyze.output.dump import Style
 
 EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
-EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
 EXIT_CLOSED_PIPE = 128 + 13  # SIGPIPE, as the shell reports a tool that wrote into a closed pipe
 _COLOURS = {"error": "red", "warning": "yellow", "info": "cyan", "frame": "green", "dim": "bright_black"}
 

@@ -118,9 +118,6 @@ class TableBuilder:
             out["findings"] = [pa.concat_tables(out["findings"]).sort_by("txn")]
         return out
 
-    def _channel_texts(self, channel: tuple) -> tuple[str, str, str, str]:
-        return self._fallback.channel_texts(channel)  # (its cache is the one: a flood of channels fills one)
-
     def _error_text(self, err: int) -> str:
         text = self._error_texts.get(err)
         if text is None:
@@ -136,7 +133,7 @@ class TableBuilder:
         s = np.where(has_res, res, 0)
         numbers = t.number + offset
         captures = _captures(capture_of, t.write_frame)
-        chan_texts = [self._channel_texts(c) for c in t.channel]
+        chan_texts = [self._fallback.channel_texts(c) for c in t.channel]  # (Rows' cache: the one)
         ch_idx = pa.array(t.ch)
         texts = [pa.array([x[i] for x in chan_texts], pa.large_string()).take(ch_idx) for i in range(4)]
         # --- parameters: one row per address of each request -----------------------------------------
