@@ -8,7 +8,8 @@ The frames are made by the sample generator's encoders (one template per kind, t
 make each frame new are patched in) and streamed into the analyser without a file, one microsecond
 apart, so no timeout ever frees anything: only the caps of the reassembly tables, the call table, the
 channel tables and the transaction engine bound the memory. Each kind runs in its own process and
-reports its peak resident set size.
+reports its peak resident set size; the report and dump paths with the command line's allocator
+(pyarrow on the C library's malloc: engine.allocator), `--tables` with pyarrow's own, as a notebook has.
 
 Kinds:
   ip       IPv4 fragments with More Fragments set, never completed: new datagram ids, and floods of
@@ -296,6 +297,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--inline", action="store_true", help=argparse.SUPPRESS)  # run here, not in a child
     args = parser.parse_args(argv)
     kinds = ALL_KINDS if args.kind == "all" else (args.kind,)
+    if not args.tables:  # the command line's allocator (cli.base); analyze() leaves a notebook's as it is
+        from pd_analyze.analysis.engine.allocator import prefer_system_pool
+
+        prefer_system_pool()
     worst = 0.0
     if not args.json:
         print(f"{'kind':<7} {'path':<7} {'frames':>10} {'balanced':>9} {'peak RSS':>9} {'time':>7}  caps hit")

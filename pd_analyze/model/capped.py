@@ -51,7 +51,7 @@ TXN_CALLS = Cap("transaction calls awaiting their answer", 65_536)
 READ_VALUES = Cap("values last read back, per parameter element", 262_144)
 CHANNEL_HISTORY = Cap("channels' last closed transactions", 65_536)
 # transactions whose rows wait rpc_timeout for late copies of their calls (engine.late; beyond: not listed)
-LATE_COPIES = Cap("transactions held for late copies of their calls", 4096)
+LATE_COPIES = Cap("transactions held for late copies of their calls", 4096, 8 * MIB)  # bytes: their rows' tables
 
 _pop = OrderedDict.pop  # the dict's own, under CappedTable.pop (faster than super() on every call)
 _ROOM: list = []  # make_room's answer when nothing had to go (never appended to)

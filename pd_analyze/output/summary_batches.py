@@ -184,6 +184,7 @@ def findings(acc: Summary, t: pa.Table) -> None:
 
 _DRIVE_COLS = ["txn", "verdict", "capture", "device", "slot", "do", "params", "pnio_error_text", "closed_by",
                "b5_retries", "t_total", "t_last_read", "errors", "n_params"]
+_DRIVE_ROWS = 1024
 
 
 def _drives(acc: Summary, t: pa.Table, base: int) -> None:
@@ -199,13 +200,15 @@ def _drives(acc: Summary, t: pa.Table, base: int) -> None:
     rows = np.flatnonzero(failed | slow)
     if not len(rows):
         return
-    picked = t.take(pa.array(rows)).select(_DRIVE_COLS).to_pylist()
-    for i, row in zip(rows.tolist(), picked, strict=True):
-        total = row["t_total"]
-        acc.drive_row(row["txn"], base + i + 1, row["verdict"], (row["capture"], row["device"]), row["slot"],
-                      row["do"], row["params"], row["pnio_error_text"], row["closed_by"], row["b5_retries"],
-                      None if total is None or total != total else total, _number(row["t_last_read"]), row["errors"],
-                      row["n_params"])
+    picked = t.select(_DRIVE_COLS)
+    for at in range(0, len(rows), _DRIVE_ROWS):  # (as Python rows a few at a time: a flood's are long texts)
+        some = rows[at:at + _DRIVE_ROWS]
+        for i, row in zip(some.tolist(), picked.take(pa.array(some)).to_pylist(), strict=True):
+            total = row["t_total"]
+            acc.drive_row(row["txn"], base + i + 1, row["verdict"], (row["capture"], row["device"]), row["slot"],
+                          row["do"], row["params"], row["pnio_error_text"], row["closed_by"], row["b5_retries"],
+                          None if total is None or total != total else total, _number(row["t_last_read"]),
+                          row["errors"], row["n_params"])
 
 
 def _number(value: object) -> object:

@@ -3,8 +3,8 @@ mirror-port copy of a call whose transaction closed in an earlier batch. The cal
 transaction (its `frames`, protocol.md 7.6; a request's copy is one more of its `rpc_retransmissions`), so a
 batch's rows are held as long as a copy can still be recognised: the pairing knows an answered call for
 rpc_timeout of capture time after its answer (engine.calls). Held rows go on when that time has passed, when
-the held transactions reach their cap (the oldest go first; a later copy is then not listed), or at the
-capture's end, with the copies met meanwhile added to their transactions' rows.
+the held transactions or their tables' bytes reach their cap (the oldest go first; a later copy is then not
+listed), or at the capture's end, with the copies met meanwhile added to their transactions' rows.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ class _Held:
     frames: np.ndarray  # the vector path's calls: request frames, sorted (int64)
     numbers: np.ndarray  # their transaction numbers, in that order
     count: int  # its transactions
+    size: int  # its tables' bytes
 
     def numbers_of(self, frame: int) -> list[int]:
         """The held transactions with a call whose request is at `frame` (the loop's first, as they were held)."""
@@ -50,6 +51,7 @@ class LateCopies:
         self._held: deque[_Held] = deque()
         self._extra: dict[int, _Extra] = {}  # transaction number -> what copies added to it
         self._count = 0
+        self._bytes = 0
 
     def hold(self, tables: dict[str, list[pa.Table]], txns: list[Txn], cols: TxnCols | None, offset: int,
              now: int) -> None:
@@ -73,8 +75,10 @@ class LateCopies:
             order = np.argsort(frames, kind="stable")
             frames, numbers = frames[order], numbers[order]
         count = len(txns) + (len(cols) if cols is not None else 0)
-        self._held.append(_Held(now + self.timeout, tables, calls, frames, numbers, count))
+        size = sum(table.nbytes for parts in tables.values() for table in parts)
+        self._held.append(_Held(now + self.timeout, tables, calls, frames, numbers, count, size))
         self._count += count
+        self._bytes += size
 
     def copy(self, call_frame: int, frames: tuple[int, ...], resent: bool) -> int | None:
         """A copy (its `frames`) of the call whose request is at `call_frame`: the number of the held transaction
@@ -92,9 +96,11 @@ class LateCopies:
     def release(self, now: int, everything: bool = False) -> list[dict[str, list[pa.Table]]]:
         """The held rows that may go at capture time `now` (all of them with `everything`), copies added."""
         out = []
-        while self._held and (everything or self._held[0].until < now or self._count > LATE_COPIES.count):
+        while self._held and (everything or self._held[0].until < now or self._count > LATE_COPIES.count
+                              or self._bytes > LATE_COPIES.bytes):
             held = self._held.popleft()
             self._count -= held.count
+            self._bytes -= held.size
             if self._extra:
                 held.tables["transactions"] = [self._patched(t) for t in held.tables.get("transactions", [])]
             out.append(held.tables)

@@ -3,7 +3,9 @@ one (`of_txns`) or the vector path took them whole (`of_episodes`)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import numpy as np
 
@@ -15,6 +17,11 @@ from pd_analyze.model.rules import Finding
 from pd_analyze.model.values import PNIORW_STATE_CONFLICT
 
 MISSING = -(1 << 62)  # an int64 time or number the capture does not have
+# parameter rows whose tables are made at once: the transactions a batch closes are made and handed on in
+# slices of about this many, so a batch of long requests (a flood of 39-parameter writes never answered:
+# 1.5 million rows in one batch) costs the memory of a slice, not of the batch (at 8,192 a slice costs no
+# time that shows on the benchmark's captures)
+SLICE_ROWS = 8_192
 
 
 @dataclass(slots=True)
@@ -55,6 +62,55 @@ class TxnCols:
 
     def __len__(self) -> int:
         return len(self.ch)
+
+    def take(self, idx: np.ndarray) -> TxnCols:
+        """The entries at `idx` (int64, ascending), in that order."""
+        def nested(values: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            lengths = np.diff(offsets)[idx]
+            out = np.zeros(len(idx) + 1, np.int64)
+            np.cumsum(lengths, out=out[1:])
+            at = np.repeat(offsets[:-1][idx] - out[:-1], lengths) + np.arange(out[-1])
+            return values[at], out
+
+        read_frames, read_offsets = nested(self.read_frames, self.read_offsets)
+        frames, frame_offsets = nested(self.frames, self.frame_offsets)
+        keep = idx.tolist()
+        return TxnCols(
+            self.channel, self.ch[idx], self.ref[idx], self.req_id[idx], self.do[idx], self.n_params[idx],
+            self.req[idx], self.res[idx], [self.verdict[k] for k in keep], [self.pnio_status[k] for k in keep],
+            self.b5[idx], self.reads[idx], self.retrans[idx], self.write_frame[idx], self.write_res_frame[idx],
+            self.read_res_frame[idx], read_frames, read_offsets, frames, frame_offsets, self.t_start[idx],
+            self.t_write_res[idx], self.t_first_read[idx], self.t_last_read[idx], self.t_done[idx],
+            self.capture_ended[idx], [self.closed_by[k] for k in keep], self.number[idx],
+            {i: self.findings[k] for i, k in enumerate(keep) if k in self.findings},
+            {i: self.values_before[k] for i, k in enumerate(keep) if k in self.values_before})
+
+
+def in_slices(txns: list[Txn], cols: TxnCols | None,
+              rows: int | None = None) -> Iterator[tuple[list[Txn], TxnCols | None]]:
+    """`txns` (the loop's, in number order) and `cols` (the vector path's) cut by transaction number into
+    slices of about `rows` (SLICE_ROWS) parameter rows (a transaction is never cut), in number order."""
+    rows = SLICE_ROWS if rows is None else rows
+    numbers = np.fromiter((t.number for t in txns), np.int64, len(txns))
+    weights = np.fromiter((t.n_params for t in txns), np.int64, len(txns))
+    if cols is not None:
+        numbers, weights = np.concatenate([numbers, cols.number]), np.concatenate([weights, cols.n_params])
+    weights = np.maximum(weights, 1)  # (a cut request has none in the frame: still a row)
+    if int(weights.sum()) <= rows:
+        yield txns, cols
+        return
+    order = np.argsort(numbers, kind="stable")
+    before = np.cumsum(weights[order]) - weights[order]
+    cut = np.flatnonzero(np.diff(before // rows)) + 1
+    bounds = numbers[order][np.concatenate([[0], cut])].tolist() + [int(numbers.max()) + 1]
+    mine = numbers[:len(txns)]
+    for lo, hi in pairwise(bounds):
+        a, b = np.searchsorted(mine, [lo, hi]).tolist()
+        part = None
+        if cols is not None:
+            idx = np.flatnonzero((cols.number >= lo) & (cols.number < hi))
+            part = cols.take(idx) if len(idx) else None
+        yield txns[a:b], part
 
 
 def _flat(lists: list[list[int]]) -> tuple[np.ndarray, np.ndarray]:
