@@ -32,7 +32,7 @@ from pd_analyze.analysis.engine.records import PACKED_ADDRESS, Records, unpacked
 from pd_analyze.analysis.engine.tables import TableBuilder
 from pd_analyze.analysis.engine.take import EMPTY, Costs, VectorTake, given_back
 from pd_analyze.analysis.engine.txn import Txn
-from pd_analyze.analysis.engine.txncols import TxnCols, in_slices, of_episodes
+from pd_analyze.analysis.engine.txncols import TxnCols, of_episodes
 from pd_analyze.analysis.engine.vector import Calls, Episodes
 from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.analysis.rows import Rows
@@ -354,8 +354,7 @@ class EngineRun:
         done.sort(key=lambda t: t.number)  # (in number order, whichever way and batch they closed in)
         for t in done:
             _handed_on(t)
-        for txns, part in in_slices(done, cols):
-            made = self.tables.tables(view, txns, self.capture_of, self.offset, part)  # type: ignore[arg-type]
+        for txns, part, made in self.tables.tables(view, done, self.capture_of, self.offset, cols):  # type: ignore[arg-type]
             self.late.hold(made, txns, part, self.offset, self.now_all)
             self._hand_on(self.late.release(self.now_all))
             give_back()  # (a slice's memory, as a batch's)

@@ -10,7 +10,7 @@ or a request of an earlier batch) has its rows made by `analysis.rows.Rows.add`,
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -20,7 +20,7 @@ from pd_analyze.analysis.engine.facts import Carried
 from pd_analyze.analysis.engine.records import Records
 from pd_analyze.analysis.engine.rules import WHOLE, refusal, refused_finding
 from pd_analyze.analysis.engine.txn import Txn
-from pd_analyze.analysis.engine.txncols import MISSING, TxnCols, of_txns
+from pd_analyze.analysis.engine.txncols import MISSING, TxnCols, in_slices, of_txns
 from pd_analyze.analysis.engine.view import BatchView
 from pd_analyze.analysis.rows import Rows, finding_row
 from pd_analyze.analysis.table_batches import TIME_TYPE, batch_schema, rows_to_batch
@@ -33,6 +33,7 @@ from pd_analyze.protocol.profidrive_batch import DecodedRecords, merge_records
 from pd_analyze.protocol.profidrive_checks import Checker
 
 _NAMES = ("transactions", "parameters", "findings", "changes")
+Made = dict[str, list[pa.Table]]  # rows of the four tables, by name
 
 
 def _hex_table() -> list[str]:
@@ -87,36 +88,45 @@ class TableBuilder:
         self._fallback = Rows(names=names)
 
     def tables(self, view: BatchView | None, txns: list[Txn], capture_of: Callable[[int], str], offset: int,
-               episodes: TxnCols | None = None) -> dict[str, list[pa.Table]]:
-        """The four tables' rows of `txns` (closed, numbered) and of the `episodes` the vector path took."""
-        out: dict[str, list[pa.Table]] = {name: [] for name in _NAMES}
-        here = [t for t in txns if _columnar(t, view)]
-        if len(here) < len(txns):
-            rows = self._fallback
-            records = Records(view)
-            for t in txns:
-                if not _columnar(t, view):
-                    rows.add(capture_of(t.write_frame), t, records, offset)
-            for name in _NAMES:
-                found = getattr(rows, name)
-                if found:
-                    out[name].append(rows_to_batch(name, found))
-                    found.clear()
-        if here:
-            carried = [t.request.data for t in here if isinstance(t.request, Carried)]
-            if carried:
-                decoded, first = _merged(view, carried, self.checker)
-                base = iter(range(first, first + len(carried)))
-                req = [next(base) if isinstance(t.request, Carried) else t.request for t in here]
-            else:
-                decoded, req = view.records, [t.request for t in here]  # type: ignore[union-attr]
-            self._columns(decoded, of_txns(here, req), capture_of, offset, out)  # type: ignore[arg-type]
-        if episodes is not None and len(episodes):
-            self._columns(view.records, episodes, capture_of, offset, out)  # type: ignore[union-attr]
-        if len(out["findings"]) > 1:  # by transaction, whichever way each went: two transactions' findings of
-            # one rule at one frame (T8 of a superseded one and of its successor) keep one order in any batches
-            out["findings"] = [pa.concat_tables(out["findings"]).sort_by("txn")]
-        return out
+               episodes: TxnCols | None = None) -> Iterator[tuple[list[Txn], TxnCols | None, Made]]:
+        """The four tables' rows of `txns` (closed, numbered, in number order) and of the `episodes` the vector
+        path took, slice after slice (txncols.in_slices): each slice's transactions of both ways, its rows."""
+        columnar = {id(t) for t in txns if _columnar(t, view)}
+        for part, cols in in_slices(txns, episodes):
+            out: Made = {name: [] for name in _NAMES}
+            here = [t for t in part if id(t) in columnar]
+            if len(here) < len(part):
+                rows = self._fallback
+                records = Records(view)
+                for t in part:
+                    if id(t) not in columnar:
+                        rows.add(capture_of(t.write_frame), t, records, offset)
+                for name in _NAMES:
+                    found = getattr(rows, name)
+                    if found:
+                        out[name].append(rows_to_batch(name, found))
+                        found.clear()
+            if here:
+                self._columns(*self._requests(view, here), capture_of, offset, out)
+            if cols is not None and len(cols):
+                self._columns(view.records, cols, capture_of, offset, out)  # type: ignore[union-attr]
+            if len(out["findings"]) > 1:  # by transaction, whichever way each went: two transactions' findings
+                # of one rule at one frame (T8 of a superseded one and of its successor) keep one order in any batches
+                out["findings"] = [pa.concat_tables(out["findings"]).sort_by("txn")]
+            yield part, cols, out
+
+    def _requests(self, view: BatchView | None, here: list[Txn]) -> tuple[DecodedRecords, TxnCols]:
+        """The records of `here` (transactions whose records the columns read) and their columns: requests
+        carried from an earlier batch are decoded again, after the batch's own records when a transaction
+        reads those (merging copies the batch's records: a slice of only carried requests, as a flood's
+        timeouts, decodes its own alone)."""
+        carried = [t.request.data for t in here if isinstance(t.request, Carried)]
+        if not carried:
+            return view.records, of_txns(here, [t.request for t in here])  # type: ignore[union-attr,misc]
+        in_view = any(not isinstance(t.request, Carried) or isinstance(t.response, int) for t in here)
+        decoded, first = _merged(view if in_view else None, carried, self.checker)
+        base = iter(range(first, first + len(carried)))
+        return decoded, of_txns(here, [next(base) if isinstance(t.request, Carried) else t.request for t in here])
 
     def _error_text(self, err: int) -> str:
         text = self._error_texts.get(err)
