@@ -19,8 +19,9 @@ from pd_analyze.model.values import PNIORW_STATE_CONFLICT
 MISSING = -(1 << 62)  # an int64 time or number the capture does not have
 # parameter rows whose tables are made at once: the transactions a batch closes are made and handed on in
 # slices of about this many, so a batch of long requests (a flood of 39-parameter writes never answered:
-# 1.5 million rows in one batch) costs the memory of a slice, not of the batch (at 8,192 a slice costs no
-# time that shows on the benchmark's captures)
+# 1.5 million rows in one batch) costs the memory of a slice, not of the batch. An ordinary capture's batch is
+# one slice; the floods of long requests pay about a quarter more time (README, Performance, run D), and
+# 16,384 took the 40-parameter flood over 300 MiB
 SLICE_ROWS = 8_192
 
 
