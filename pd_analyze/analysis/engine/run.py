@@ -354,10 +354,12 @@ class EngineRun:
         done.sort(key=lambda t: t.number)  # (in number order, whichever way and batch they closed in)
         for t in done:
             _handed_on(t)
-        for txns, part, made in self.tables.tables(view, done, self.capture_of, self.offset, cols):  # type: ignore[arg-type]
+        slices = self.tables.tables(view, done, self.capture_of, self.offset, cols)  # type: ignore[arg-type]
+        for k, (txns, part, made) in enumerate(slices):
+            if k:  # the slice before's memory, as a batch's (the batch's own give_back follows the last)
+                give_back()
             self.late.hold(made, txns, part, self.offset, self.now_all)
             self._hand_on(self.late.release(self.now_all))
-            give_back()  # (a slice's memory, as a batch's)
         frames = np.fromiter((t.write_frame for t in done), np.int64, len(done))
         self._count(np.concatenate([frames, cols.write_frame]) if cols is not None else frames)
 
